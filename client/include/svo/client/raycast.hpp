@@ -1,0 +1,54 @@
+// The ESVO ray caster (paper sec. 6, Fig. 15): PUSH / ADVANCE / POP over a block, in the octree's [1,2]^3.
+#pragma once
+
+#include <cstdint>
+
+#include <glm/vec3.hpp>
+
+#include "svo/store/block.hpp"
+
+namespace svo {
+
+// A ray in octree space. The hit t is in the same units as `direction` (world distance when the caller
+// passes a world-unit direction scaled by 1 / scene size).
+struct OctreeRay {
+  glm::vec3 origin{0.0f};
+  glm::vec3 direction{0.0f, 0.0f, -1.0f};
+  float tMax = 3.4e38f;
+  // Level of detail: traversal stops at a voxel no larger than footprintOrigin + t * footprintSlope
+  // (octree units). Zero slope and origin disable it.
+  float footprintOrigin = 0.0f;
+  float footprintSlope = 0.0f;
+};
+
+struct CastOptions {
+  bool contours = true;  // intersect contour slabs (sec. 5.2); off: cube voxels
+  // Iteration cap: a ray that would loop this often is reported as a miss (released code does the same).
+  int maxIterations = 4096;
+};
+
+struct CastHit {
+  bool hit = false;
+  float t = 0.0f;
+  glm::vec3 position{0.0f};               // clamped into the hit voxel's cube (sec. 6.1, "hit position")
+  const ChildDescriptor* parent = nullptr;  // descriptor holding the hit voxel
+  int childSlot = 0;                        // slot of the hit voxel in `parent`
+  int scale = 0;                            // voxel size is 2^(scale - 23) octree units
+  int iterations = 0;
+  bool leaf = false;                        // false when stopped by level of detail
+  // Descriptor and slot of every ancestor by scale, for attribute inheritance: ancestor at scale s is child
+  // `pathSlot[s]` of `pathParent[s]`. Valid for s in [scale, 22].
+  const ChildDescriptor* pathParent[kMaxLevels] = {};
+  std::uint8_t pathSlot[kMaxLevels] = {};
+
+  float voxelSize() const;  // octree units
+  glm::vec3 cubeMin{0.0f};  // hit voxel's cube, octree units
+};
+
+// Casts one ray through the block. Never returns NaN; never loops forever.
+CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options = {});
+
+// Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4).
+std::uint32_t hitAttribute(const BlockView& block, const CastHit& hit, AttachmentType type);
+
+}  // namespace svo

@@ -1,0 +1,65 @@
+// Pinhole camera, Phong shading with one directional light, multi-threaded rendering, image output.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <glm/vec3.hpp>
+#include <glm/vec4.hpp>
+
+#include "svo/client/raycast.hpp"
+#include "svo/store/container.hpp"
+
+namespace svo {
+
+struct Camera {
+  glm::dvec3 eye{0.0, 0.0, 3.0};
+  glm::dvec3 target{0.0};
+  glm::dvec3 up{0.0, 1.0, 0.0};
+  double fovYDegrees = 45.0;
+  int width = 512, height = 512;
+
+  // World-space ray through pixel centre (x + 0.5, y + 0.5); direction unit length.
+  void pixelRay(double x, double y, glm::dvec3& origin, glm::dvec3& direction) const;
+  // Angle subtended by one pixel (radians), for the level-of-detail footprint.
+  double pixelAngle() const;
+  // Throws std::runtime_error when eye == target, up is parallel to the view, fov out of (0, 180) or a size
+  // is not in [1, 16384].
+  void validate() const;
+  // A camera looking at the whole scene cube from the given direction.
+  static Camera framing(const SceneTransform& scene, glm::dvec3 viewDirection, int width, int height);
+};
+// Camera from a JSON file: {"eye":[x,y,z], "target":[..], "up":[..], "fov":deg, "width":w, "height":h}.
+Camera loadCamera(const std::filesystem::path& path);
+
+struct RenderOptions {
+  float lodPixels = 1.0f;  // stop at voxels no larger than this many pixels; 0 = finest level
+  CastOptions cast;
+  glm::vec3 lightDirection{-0.4f, -0.8f, -0.45f};  // towards the scene
+  glm::vec3 background{0.08f, 0.09f, 0.11f};
+  int threads = 0;  // 0 = all cores
+};
+
+// One frame. Depth is the world distance along the ray (infinity for a miss); voxelPixels is the hit voxel's
+// size in pixels at its distance (0 for a miss).
+struct Frame {
+  int width = 0, height = 0;
+  std::vector<glm::vec4> color;  // linear RGB + alpha (1 = hit)
+  std::vector<float> depth;
+  std::vector<float> voxelPixels;
+  double seconds = 0.0;
+  double meanIterations = 0.0;
+  double mraysPerSecond() const { return double(width) * height / seconds * 1e-6; }
+};
+
+Frame render(const Octree& octree, const Camera& camera, const RenderOptions& options = {});
+
+// The world-space ray of a pixel mapped into octree space with its level-of-detail footprint.
+OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px, double py, float lodPixels);
+
+// Writes PNG (8-bit sRGB) or EXR (float, with Z and voxelPixels channels when `withAux`) by extension.
+// Writes to a temporary name and renames; throws std::runtime_error naming the path on failure.
+void writeFrame(const std::filesystem::path& path, const Frame& frame, bool withAux);
+
+}  // namespace svo

@@ -1,0 +1,139 @@
+// An ESVO block (paper sec. 5): a relocatable byte region holding the child-descriptor array (with far
+// pointers and a page header at every 8 KB boundary), the info section, contour data and attachments.
+// Every reference inside is relative, so a block stays valid when copied to any other 8 KB-aligned address.
+//
+// Layout, in order:
+//   slots      64-bit slots. Slot 0 of every 8 KB page is the page header (int32: words from the page to the
+//              info section). The root's descriptor is slot 1. A non-leaf voxel's non-leaf children occupy
+//              consecutive slots; a far slot holds an int32 slot offset from itself to a child run.
+//   info       BlockInfo followed by attachmentCount AttachmentEntry records.
+//   contours   uint32 contour values; a descriptor's contour pointer counts words from the descriptor.
+//   attachment per type: one AttributeLookup per slot (parallel to the slot array, gaps included), then
+//              the uint32 values; value pointers count words from the attachment start.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "svo/store/format.hpp"
+
+namespace svo {
+
+struct BlockInfo {
+  std::uint32_t magic;            // kBlockInfoMagic
+  std::int32_t slotsPointer;      // words from the info section to slot 0 (negative)
+  std::uint32_t slotCount;        // slots including page headers and far pointers
+  std::uint32_t rootSlot;         // slot of the root voxel's descriptor
+  std::uint32_t contourCount;     // words of contour data
+  std::uint32_t attachmentCount;  // entries that follow
+};
+struct AttachmentEntry {
+  AttachmentType type;
+  std::int32_t pointer;        // words from the info section to the attachment start (lookup array)
+  std::uint32_t rootValue;     // the root voxel's own value: what a chain of inheriting voxels ends at
+  std::uint32_t valueCount;    // values after the lookup array
+};
+inline constexpr std::uint32_t kBlockInfoMagic = 0x4f464e49;  // "INFO"
+
+// Owned, 8 KB-aligned bytes.
+class AlignedBytes {
+ public:
+  AlignedBytes() = default;
+  explicit AlignedBytes(std::size_t size);
+  std::byte* data() { return data_.get(); }
+  const std::byte* data() const { return data_.get(); }
+  std::size_t size() const { return size_; }
+
+ private:
+  struct Free {
+    void operator()(std::byte* p) const;
+  };
+  std::unique_ptr<std::byte[], Free> data_;
+  std::size_t size_ = 0;
+};
+
+// Read-only view of a block at an 8 KB-aligned address. All lookups go through relative pointers only.
+class BlockView {
+ public:
+  BlockView() = default;
+  // Validates the structure (magic, bounds of every section); throws std::runtime_error with what is wrong.
+  BlockView(const std::byte* data, std::size_t size);
+
+  const std::byte* base() const { return base_; }
+  std::size_t size() const { return size_; }
+  const BlockInfo& info() const { return *info_; }
+  const ChildDescriptor* slots() const { return reinterpret_cast<const ChildDescriptor*>(base_); }
+  const ChildDescriptor* root() const { return slots() + info_->rootSlot; }
+  const AttachmentEntry* attachment(AttachmentType type) const;
+
+  // Descriptor of the non-leaf child `slot` of `parent` (follows the near or far pointer).
+  static const ChildDescriptor* child(const ChildDescriptor* parent, int slot);
+  // The contour of child `slot` of `parent`, if its contour-mask bit is set.
+  static std::optional<std::uint32_t> contour(const ChildDescriptor* parent, int slot);
+  // Paper Fig. 8: page header -> info section -> attachment -> lookup entry -> value. nullopt when the
+  // child's bit is clear (it inherits its parent's value).
+  static std::optional<std::uint32_t> attribute(const ChildDescriptor* parent, int slot, AttachmentType type);
+  static const BlockInfo& infoOf(const ChildDescriptor* descriptor);
+
+ private:
+  const std::byte* base_ = nullptr;
+  std::size_t size_ = 0;
+  const BlockInfo* info_ = nullptr;
+};
+
+// The builder's octree before layout: one record per voxel, root first, children of a voxel contiguous and in
+// slot order. A voxel without children is a leaf.
+struct VoxelRecord {
+  std::uint32_t firstChild = 0;
+  std::uint8_t childMask = 0;
+  bool hasContour = false;
+  std::uint32_t contour = 0;
+  std::uint32_t color = 0;   // ABGR
+  std::uint32_t normal = 0;  // cube-point encoding
+};
+struct VoxelTree {
+  std::vector<VoxelRecord> voxels;
+  bool hasColors = false;
+  bool hasNormals = false;
+};
+
+struct LayoutOptions {
+  // Largest near child pointer; smaller values force far pointers (tests).
+  std::uint32_t maxNearPointer = kMaxNearPointer;
+  // A child whose color is within this many 8-bit steps (per channel) of its parent's inherits it (sec. 5.4).
+  int colorInheritSteps = 1;
+  // A child whose normal is within this angle of its parent's inherits it (sec. 5.4).
+  float normalInheritDegrees = 0.5f;
+};
+
+struct LayoutStats {
+  std::uint64_t descriptorSlots = 0, farSlots = 0, pageHeaderSlots = 0, paddingSlots = 0;
+  std::uint64_t contourWords = 0, colorValues = 0, normalValues = 0, inheritedColors = 0,
+                inheritedNormals = 0;
+  std::uint64_t hierarchyBytes = 0, contourBytes = 0, attributeBytes = 0, totalBytes = 0;
+};
+
+class Block {
+ public:
+  Block() = default;
+  Block(AlignedBytes bytes);  // validates
+  BlockView view() const { return view_; }
+  const AlignedBytes& bytes() const { return bytes_; }
+
+ private:
+  AlignedBytes bytes_;
+  BlockView view_;
+};
+
+// Lays a voxel tree out as one block (depth-first child runs, far pointers where a run is out of reach).
+Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, LayoutStats* stats = nullptr);
+
+// Inverse of layoutBlock up to inheritance: walks the block and rebuilds the voxel records with every
+// attribute resolved (inherited values filled in). Used by tests and tools.
+VoxelTree readBlock(const BlockView& block);
+
+}  // namespace svo

@@ -1,0 +1,113 @@
+// Bit-exact encodings of the ESVO paper, section 5: child descriptors (Fig. 2), contours (Fig. 4),
+// uncompressed colors and normals (Fig. 7), attribute lookup entries (Fig. 7c) and page headers.
+#pragma once
+
+#include <bit>
+#include <cstdint>
+
+#include <glm/vec3.hpp>
+#include <glm/vec4.hpp>
+
+namespace svo {
+
+// Deepest octree the float-mantissa traversal can address (paper sec. 6: positions in [1,2], 23 bits).
+inline constexpr int kMaxLevels = 23;
+// Page size: a 32-bit page header sits at every 8 KB boundary (paper sec. 5.1).
+inline constexpr std::uint32_t kPageBytes = 8192;
+// The descriptor array is addressed in 64-bit slots; slot 0 of each page holds the page header.
+inline constexpr std::uint32_t kSlotBytes = 8;
+inline constexpr std::uint32_t kSlotsPerPage = kPageBytes / kSlotBytes;
+// 15-bit relative child pointer in slots: reach 256 KB (paper sec. 5.1, released code).
+inline constexpr std::uint32_t kMaxNearPointer = (1u << 15) - 1;
+// 24-bit contour pointer and value pointers count 32-bit words.
+inline constexpr std::uint32_t kMaxWordPointer = (1u << 24) - 1;
+
+// ---------------------------------------------------------------------------------------------------------
+// Child descriptor (Fig. 2). Word 0: [31:17] child pointer, [16] far, [15:8] valid mask, [7:0] leaf mask.
+// Word 1: [31:8] contour pointer, [7:0] contour mask. Bit i of a mask is child slot i (x = bit 0, y = 1, z = 2).
+struct ChildDescriptor {
+  std::uint32_t topology = 0;
+  std::uint32_t contour = 0;
+
+  constexpr std::uint32_t childPointer() const { return topology >> 17; }
+  constexpr bool far() const { return (topology >> 16) & 1u; }
+  constexpr std::uint8_t validMask() const { return std::uint8_t(topology >> 8); }
+  constexpr std::uint8_t leafMask() const { return std::uint8_t(topology); }
+  constexpr std::uint8_t nonLeafMask() const { return validMask() & ~leafMask(); }
+  constexpr std::uint32_t contourPointer() const { return contour >> 8; }
+  constexpr std::uint8_t contourMask() const { return std::uint8_t(contour); }
+
+  static constexpr ChildDescriptor make(std::uint32_t childPointer, bool far, std::uint8_t valid,
+                                        std::uint8_t leaf, std::uint32_t contourPointer,
+                                        std::uint8_t contourMask) {
+    return {(childPointer << 17) | (std::uint32_t(far) << 16) | (std::uint32_t(valid) << 8) | leaf,
+            (contourPointer << 8) | contourMask};
+  }
+};
+static_assert(sizeof(ChildDescriptor) == kSlotBytes);
+
+// Index of a child among the set bits of `mask` below it: the k-th stored child (paper sec. 5.1).
+constexpr int childRank(std::uint8_t mask, int slot) { return std::popcount(unsigned(mask) & ((1u << slot) - 1)); }
+
+// ---------------------------------------------------------------------------------------------------------
+// Contour (Fig. 4): [6:0] thickness (unsigned), [13:7] position (signed), [19:14] nz, [25:20] ny, [31:26] nx
+// (signed). In the voxel's own frame u = (x - center) / size, so u in [-1/2, 1/2]^3, the contour is the slab
+//   | n.u - position | <= thickness / 2,   n = (nx, ny, nz) / kContourNormalScale.
+// With |n_i| <= 1 the projection n.u spans at most [-3/2, 3/2]; position and thickness are scaled to cover it.
+inline constexpr float kContourNormalScale = 31.0f;            // 6-bit signed, +-31
+inline constexpr float kContourPositionStep = 1.5f / 63.0f;    // 7-bit signed, +-63 covers +-3/2
+inline constexpr float kContourThicknessStep = 3.0f / 127.0f;  // 7-bit unsigned, 127 covers 3
+
+struct Contour {
+  glm::vec3 normal{0.0f};  // quantized, components in [-1, 1]
+  float position = 0.0f;   // slab centre along normal, voxel units
+  float thickness = 0.0f;  // slab width along normal, voxel units
+};
+
+constexpr std::uint32_t packContourBits(int nx, int ny, int nz, int position, int thickness) {
+  return (std::uint32_t(nx & 63) << 26) | (std::uint32_t(ny & 63) << 20) | (std::uint32_t(nz & 63) << 14) |
+         (std::uint32_t(position & 127) << 7) | std::uint32_t(thickness & 127);
+}
+inline Contour decodeContour(std::uint32_t bits) {
+  const auto s = std::int32_t(bits);
+  Contour c;
+  c.normal = glm::vec3(float(s >> 26), float((s << 6) >> 26), float((s << 12) >> 26)) / kContourNormalScale;
+  c.position = float((s << 18) >> 25) * kContourPositionStep;
+  c.thickness = float(bits & 127u) * kContourThicknessStep;
+  return c;
+}
+// Quantizes a normal to the 6-bit grid with its largest component at +-31 (keeps the most precision).
+glm::ivec3 quantizeContourNormal(glm::dvec3 n);
+// Encodes the slab [lo, hi] (projections onto the *quantized* normal, voxel units) conservatively: the stored
+// slab always contains [lo, hi]. Returns false when the quantized slab would not be narrower than the cube.
+bool encodeContour(glm::ivec3 qn, double lo, double hi, std::uint32_t& bits);
+
+// ---------------------------------------------------------------------------------------------------------
+// Uncompressed attributes (sec. 5.4, Fig. 7). Color: ABGR, 8 bits each, R in the low byte.
+constexpr std::uint32_t packABGR(std::uint8_t r, std::uint8_t g, std::uint8_t b, std::uint8_t a = 255) {
+  return (std::uint32_t(a) << 24) | (std::uint32_t(b) << 16) | (std::uint32_t(g) << 8) | r;
+}
+std::uint32_t encodeColor(glm::vec4 rgba);  // components in [0, 1], rounded
+glm::vec4 decodeColor(std::uint32_t abgr);
+
+// Normal as a point on the unit cube: [31:29] face (axis * 2 + negative), [28:14] u (15 bits), [13:0] v
+// (14 bits); u, v are the two remaining coordinates in [-1, 1] in axis order.
+std::uint32_t encodeNormal(glm::vec3 n);
+glm::vec3 decodeNormal(std::uint32_t bits);  // unit length
+
+// Attribute lookup entry (Fig. 7c): [7:0] attribute mask, [31:8] value pointer in 32-bit words from the start
+// of the attachment's value array. A child whose bit is clear inherits its parent's value.
+struct AttributeLookup {
+  std::uint32_t bits = 0;
+  constexpr std::uint8_t mask() const { return std::uint8_t(bits); }
+  constexpr std::uint32_t valuePointer() const { return bits >> 8; }
+  static constexpr AttributeLookup make(std::uint32_t valuePointer, std::uint8_t mask) {
+    return {(valuePointer << 8) | mask};
+  }
+};
+
+// ---------------------------------------------------------------------------------------------------------
+// Attachment types listed in a block's info section. A scene stores only the types it has.
+enum class AttachmentType : std::uint32_t { Color = 1, Normal = 2 };
+
+}  // namespace svo
