@@ -1,0 +1,27 @@
+// `svo`: one binary, subcommands. Errors from bad input reach the user as one line and a non-zero exit.
+#include <cstdio>
+#include <exception>
+
+#include <spdlog/spdlog.h>
+
+#include "commands.hpp"
+
+int main(int argc, char** argv) {
+  CLI::App app{"svostream: sparse voxel octree builder, store and renderer"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "svo 0.1.0");
+  svo::tools::addBuildCommand(app);
+  svo::tools::addRenderCommand(app);
+  auto* bench = app.add_subcommand("bench", "benchmarks against peers measured in the same run");
+  bench->require_subcommand(1);
+  svo::tools::addBenchCommands(*bench);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "svo: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
