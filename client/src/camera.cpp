@@ -1,0 +1,177 @@
+// Pinhole camera: pixel rays, the level-of-detail pixel angle, validation, framing and JSON loading.
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+
+#include <glm/geometric.hpp>
+#include <nlohmann/json.hpp>
+
+#include "svo/client/render.hpp"
+
+namespace svo {
+namespace {
+
+constexpr int kMaxImageSide = 16384;
+constexpr double kDefaultFovDegrees = 45.0;
+constexpr int kDefaultImageSide = 512;
+// |sin| of the angle between up and the view below which the camera basis is ill-conditioned.
+constexpr double kParallelSine = 1e-9;
+
+double radians(double degrees) { return degrees * std::numbers::pi / 180.0; }
+
+bool finite(glm::dvec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+std::string format(glm::dvec3 v) {
+  return "(" + std::to_string(v.x) + ", " + std::to_string(v.y) + ", " + std::to_string(v.z) + ")";
+}
+
+// Right-handed look-at basis: forward into the scene, right to the image's +x, up to the image's top.
+struct Basis {
+  glm::dvec3 forward, right, up;
+};
+Basis basisOf(const Camera& camera) {
+  Basis b;
+  b.forward = glm::normalize(camera.target - camera.eye);
+  b.right = glm::normalize(glm::cross(b.forward, camera.up));
+  b.up = glm::cross(b.right, b.forward);
+  return b;
+}
+
+}  // namespace
+
+void Camera::pixelRay(double x, double y, glm::dvec3& origin, glm::dvec3& direction) const {
+  const Basis b = basisOf(*this);
+  const double tanHalf = std::tan(radians(fovYDegrees) * 0.5);
+  const double aspect = double(width) / double(height);
+  // Image rows grow downwards, so row 0 is the top of the view (+up).
+  const double sx = (2.0 * (x + 0.5) / double(width) - 1.0) * tanHalf * aspect;
+  const double sy = (1.0 - 2.0 * (y + 0.5) / double(height)) * tanHalf;
+  origin = eye;
+  direction = glm::normalize(b.forward + sx * b.right + sy * b.up);
+}
+
+double Camera::pixelAngle() const { return 2.0 * std::tan(radians(fovYDegrees) * 0.5) / double(height); }
+
+void Camera::validate() const {
+  if (!finite(eye) || !finite(target) || !finite(up) || !std::isfinite(fovYDegrees))
+    throw std::runtime_error("camera: eye, target, up and fov must be finite numbers");
+  if (!(fovYDegrees > 0.0 && fovYDegrees < 180.0))
+    throw std::runtime_error("camera: fov must be in (0, 180) degrees (got " + std::to_string(fovYDegrees) + ")");
+  if (width < 1 || width > kMaxImageSide || height < 1 || height > kMaxImageSide)
+    throw std::runtime_error("camera: width and height must be in [1, " + std::to_string(kMaxImageSide) +
+                             "] (got " + std::to_string(width) + "x" + std::to_string(height) + ")");
+  const glm::dvec3 view = target - eye;
+  const double viewLength = glm::length(view);
+  if (!(viewLength > 0.0) || !std::isfinite(viewLength))
+    throw std::runtime_error("camera: eye and target must differ (both " + format(eye) + ")");
+  const double upLength = glm::length(up);
+  if (!(upLength > 0.0) || !std::isfinite(upLength) ||
+      glm::length(glm::cross(view / viewLength, up / upLength)) < kParallelSine)
+    throw std::runtime_error("camera: up " + format(up) + " must not be zero or parallel to the view direction");
+}
+
+Camera Camera::framing(const SceneTransform& scene, glm::dvec3 viewDirection, int width, int height) {
+  Camera camera;
+  camera.width = width;
+  camera.height = height;
+  camera.fovYDegrees = kDefaultFovDegrees;
+  const double length = glm::length(viewDirection);
+  const glm::dvec3 forward =
+      (length > 0.0 && std::isfinite(length)) ? viewDirection / length : glm::dvec3(0.0, 0.0, -1.0);
+  // The octree's [1, 2]^3 is the world cube [origin, origin + size]^3.
+  const glm::dvec3 centre = scene.origin + 0.5 * scene.size;
+  const double radius = 0.5 * std::sqrt(3.0) * scene.size;
+  // The bounding sphere fits when its radius subtends at most the narrower half-angle of the view.
+  const double tanHalfY = std::tan(radians(camera.fovYDegrees) * 0.5);
+  const double tanHalfX = tanHalfY * double(std::max(width, 1)) / double(std::max(height, 1));
+  const double halfAngle = std::atan(std::min(tanHalfX, tanHalfY));
+  const double distance = radius / std::sin(halfAngle);
+  camera.target = centre;
+  camera.eye = centre - forward * distance;
+  // Looking straight up or down: y cannot be up, so the image's top points along -z.
+  camera.up = std::abs(forward.y) > 0.999 ? glm::dvec3(0.0, 0.0, -1.0) : glm::dvec3(0.0, 1.0, 0.0);
+  return camera;
+}
+
+namespace {
+
+using Json = nlohmann::json;
+
+[[noreturn]] void keyError(const std::string& file, const std::string& key, const std::string& what) {
+  throw std::runtime_error(file + ": key '" + key + "' " + what);
+}
+
+glm::dvec3 readVector(const Json& object, const std::string& file, const char* key, const glm::dvec3* fallback) {
+  const auto it = object.find(key);
+  if (it == object.end()) {
+    if (fallback) return *fallback;
+    keyError(file, key, "is missing (an array of 3 numbers)");
+  }
+  if (!it->is_array() || it->size() != 3) keyError(file, key, "must be an array of 3 numbers");
+  glm::dvec3 v;
+  for (int i = 0; i < 3; ++i) {
+    if (!(*it)[i].is_number()) keyError(file, key, "must be an array of 3 numbers");
+    v[i] = (*it)[i].get<double>();
+  }
+  return v;
+}
+
+double readNumber(const Json& object, const std::string& file, const char* key, double fallback) {
+  const auto it = object.find(key);
+  if (it == object.end()) return fallback;
+  if (!it->is_number()) keyError(file, key, "must be a number");
+  return it->get<double>();
+}
+
+int readSide(const Json& object, const std::string& file, const char* key, int fallback) {
+  const auto it = object.find(key);
+  if (it == object.end()) return fallback;
+  // Accept 512.0 as well as 512: JSON writers do not always keep the distinction.
+  const double value = it->is_number() ? it->get<double>() : std::nan("");
+  if (!(value >= 1.0 && value <= kMaxImageSide) || value != std::floor(value))
+    keyError(file, key, "must be an integer in [1, " + std::to_string(kMaxImageSide) + "]");
+  return int(value);
+}
+
+}  // namespace
+
+Camera loadCamera(const std::filesystem::path& path) {
+  const std::string file = path.string();
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(file + ": cannot open camera file");
+  Json json;
+  try {
+    json = Json::parse(in);
+  } catch (const Json::exception& e) {
+    throw std::runtime_error(file + ": not valid JSON (" + e.what() + ")");
+  }
+  if (!json.is_object()) throw std::runtime_error(file + ": a camera must be a JSON object");
+  // Unknown keys are most often typos ("fovy"); silently ignoring them would render the wrong view.
+  for (const auto& item : json.items()) {
+    const std::string& key = item.key();
+    if (key != "eye" && key != "target" && key != "up" && key != "fov" && key != "width" && key != "height")
+      keyError(file, key, "is not known (expected eye, target, up, fov, width, height)");
+  }
+  Camera camera;
+  const glm::dvec3 defaultUp(0.0, 1.0, 0.0);
+  camera.eye = readVector(json, file, "eye", nullptr);
+  camera.target = readVector(json, file, "target", nullptr);
+  camera.up = readVector(json, file, "up", &defaultUp);
+  camera.fovYDegrees = readNumber(json, file, "fov", kDefaultFovDegrees);
+  camera.width = readSide(json, file, "width", kDefaultImageSide);
+  camera.height = readSide(json, file, "height", kDefaultImageSide);
+  try {
+    camera.validate();
+  } catch (const std::runtime_error& e) {
+    // validate() speaks of "camera: ..."; here the file is the better subject.
+    std::string what = e.what();
+    if (what.starts_with("camera: ")) what.erase(0, 8);
+    throw std::runtime_error(file + ": " + what);
+  }
+  return camera;
+}
+
+}  // namespace svo

@@ -1,0 +1,268 @@
+// Frame rendering: world rays mapped into the octree, ESVO castRay per pixel over 8x8 tiles with oneTBB, Phong
+// shading with one directional light, and PNG / EXR output through OpenImageIO.
+#include <algorithm>
+#include <atomic>
+#include <cctype>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <system_error>
+#include <vector>
+
+#include <OpenImageIO/imageio.h>
+#include <glm/geometric.hpp>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include "svo/client/render.hpp"
+
+namespace svo {
+namespace {
+
+constexpr int kTileSize = 8;
+// Phong terms (one white directional light).
+constexpr float kAmbient = 0.15f;
+constexpr float kDiffuse = 0.75f;
+constexpr float kSpecular = 0.25f;
+constexpr float kShininess = 32.0f;
+// Albedo of a scene built without colors.
+constexpr float kNeutralGrey = 0.8f;
+
+bool finite(glm::vec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+// Outward normal of the hit voxel's surface nearest to the hit position: one of the six cube faces, or the
+// voxel's contour slab when the position lies closer to it (sec. 5.2: the slab is what the ray entered).
+glm::vec3 estimateNormal(const CastHit& hit, bool contours) {
+  const float size = hit.voxelSize();
+  const glm::vec3 rel = (hit.position - hit.cubeMin) / size;  // [0, 1]^3 inside the voxel
+  int axis = 0;
+  float faceDistance = std::numeric_limits<float>::infinity();
+  float sign = 1.0f;
+  for (int i = 0; i < 3; ++i) {
+    const float low = rel[i], high = 1.0f - rel[i];
+    if (low < faceDistance) faceDistance = low, axis = i, sign = -1.0f;
+    if (high < faceDistance) faceDistance = high, axis = i, sign = 1.0f;
+  }
+  glm::vec3 normal(0.0f);
+  normal[axis] = sign;
+  if (contours && hit.parent) {
+    if (const std::optional<std::uint32_t> bits = BlockView::contour(hit.parent, hit.childSlot)) {
+      const Contour c = decodeContour(*bits);
+      const float length = glm::length(c.normal);
+      if (length > 0.0f) {
+        const float offset = glm::dot(c.normal, rel - 0.5f) - c.position;  // voxel units along c.normal
+        const float slabDistance = std::abs(std::abs(offset) - 0.5f * c.thickness) / length;
+        if (slabDistance < faceDistance) normal = c.normal / length * (offset < 0.0f ? -1.0f : 1.0f);
+      }
+    }
+  }
+  return normal;
+}
+
+struct Shading {
+  glm::vec3 lightDirection;  // unit, towards the scene
+  bool hasColor, hasNormal, contours;
+};
+
+glm::vec3 shade(const BlockView& block, const CastHit& hit, glm::vec3 viewDirection, const Shading& s) {
+  const glm::vec3 albedo = s.hasColor ? glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)))
+                                      : glm::vec3(kNeutralGrey);
+  glm::vec3 n = s.hasNormal ? decodeNormal(hitAttribute(block, hit, AttachmentType::Normal))
+                            : estimateNormal(hit, s.contours);
+  // Thin surfaces are voxelized from both sides: light the side the viewer sees.
+  if (glm::dot(n, viewDirection) > 0.0f) n = -n;
+  const float diffuse = std::max(0.0f, glm::dot(n, -s.lightDirection));
+  const glm::vec3 reflected = glm::reflect(s.lightDirection, n);
+  const float specular = std::pow(std::max(0.0f, glm::dot(reflected, -viewDirection)), kShininess);
+  return albedo * (kAmbient + kDiffuse * diffuse) + glm::vec3(kSpecular * specular);
+}
+
+}  // namespace
+
+OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px, double py, float lodPixels) {
+  glm::dvec3 origin, direction;
+  camera.pixelRay(px, py, origin, direction);
+  OctreeRay ray;
+  ray.origin = glm::vec3(scene.toOctree(origin));
+  // Scaling the direction by 1 / size keeps t in world units: octree point at t = toOctree(world point at t).
+  ray.direction = glm::vec3(direction / scene.size);
+  if (lodPixels > 0.0f) {
+    ray.footprintOrigin = 0.0f;  // a pinhole's footprint grows from zero at the eye
+    ray.footprintSlope = float(camera.pixelAngle() * double(lodPixels) / scene.size);
+  }
+  return ray;
+}
+
+Frame render(const Octree& octree, const Camera& camera, const RenderOptions& options) {
+  camera.validate();
+  if (!std::isfinite(options.lodPixels) || options.lodPixels < 0.0f)
+    throw std::runtime_error("render: lodPixels must be a finite number >= 0 (got " +
+                             std::to_string(options.lodPixels) + ")");
+  if (options.threads < 0)
+    throw std::runtime_error("render: threads must be >= 0 (got " + std::to_string(options.threads) + ")");
+  if (!finite(options.lightDirection) || !(glm::length(options.lightDirection) > 0.0f))
+    throw std::runtime_error("render: the light direction must be finite and non-zero");
+
+  const BlockView block = octree.block.view();
+  const SceneTransform& scene = octree.transform;
+  const Shading shading{glm::normalize(options.lightDirection), block.attachment(AttachmentType::Color) != nullptr,
+                        block.attachment(AttachmentType::Normal) != nullptr, options.cast.contours};
+  const double pixelAngle = camera.pixelAngle();
+
+  Frame frame;
+  frame.width = camera.width;
+  frame.height = camera.height;
+  const std::size_t pixels = std::size_t(camera.width) * std::size_t(camera.height);
+  frame.color.assign(pixels, glm::vec4(options.background, 0.0f));
+  frame.depth.assign(pixels, std::numeric_limits<float>::infinity());
+  frame.voxelPixels.assign(pixels, 0.0f);
+
+  const int tilesX = (camera.width + kTileSize - 1) / kTileSize;
+  const int tilesY = (camera.height + kTileSize - 1) / kTileSize;
+  std::atomic<std::uint64_t> iterations{0};
+  const auto renderTiles = [&](const tbb::blocked_range<int>& tiles) {
+    std::uint64_t tileIterations = 0;
+    for (int tile = tiles.begin(); tile != tiles.end(); ++tile) {
+      const int x0 = (tile % tilesX) * kTileSize, y0 = (tile / tilesX) * kTileSize;
+      const int x1 = std::min(x0 + kTileSize, camera.width), y1 = std::min(y0 + kTileSize, camera.height);
+      for (int y = y0; y < y1; ++y) {
+        for (int x = x0; x < x1; ++x) {
+          const OctreeRay ray = octreeRay(scene, camera, x, y, options.lodPixels);
+          const CastHit hit = castRay(block, ray, options.cast);
+          tileIterations += std::uint64_t(std::max(hit.iterations, 0));
+          if (!hit.hit) continue;
+          const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+          // The octree direction is the unit world direction / size, so renormalizing gives the world one.
+          const glm::vec3 viewDirection = glm::normalize(ray.direction);
+          frame.color[i] = glm::vec4(shade(block, hit, viewDirection, shading), 1.0f);
+          frame.depth[i] = hit.t;
+          frame.voxelPixels[i] = float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
+        }
+      }
+    }
+    iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+  };
+  const tbb::blocked_range<int> allTiles(0, tilesX * tilesY);
+
+  const auto start = std::chrono::steady_clock::now();
+  if (options.threads > 0) {
+    tbb::task_arena arena(options.threads);
+    arena.execute([&] { tbb::parallel_for(allTiles, renderTiles); });
+  } else {
+    tbb::parallel_for(allTiles, renderTiles);
+  }
+  frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  frame.meanIterations = double(iterations.load()) / double(pixels);
+  return frame;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+namespace {
+
+std::uint8_t toSrgb8(float linear) {
+  const float c = std::isnan(linear) ? 0.0f : std::clamp(linear, 0.0f, 1.0f);
+  const float s = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
+  return std::uint8_t(std::lround(std::clamp(s, 0.0f, 1.0f) * 255.0f));
+}
+
+std::uint8_t toUnorm8(float value) {
+  const float c = std::isnan(value) ? 0.0f : std::clamp(value, 0.0f, 1.0f);
+  return std::uint8_t(std::lround(c * 255.0f));
+}
+
+std::string lowercase(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return s;
+}
+
+struct Fail {
+  std::string reason;
+};
+
+// Writes `pixels` (interleaved, spec.nchannels per pixel, of type `type`) through OIIO's plugin `format`.
+void writeOiio(const std::filesystem::path& file, const char* format, const OIIO::ImageSpec& spec,
+               OIIO::TypeDesc type, const void* pixels) {
+  // The temporary name's extension is ".tmp", so the plugin is chosen by format name, not by file name.
+  auto out = OIIO::ImageOutput::create(format);
+  if (!out) throw Fail{"no OpenImageIO writer for " + std::string(format) + ": " + OIIO::geterror()};
+  if (!out->open(file.string(), spec)) throw Fail{out->geterror()};
+  if (!out->write_image(type, pixels)) {
+    const std::string error = out->geterror();
+    out->close();
+    throw Fail{error};
+  }
+  if (!out->close()) throw Fail{out->geterror()};
+}
+
+}  // namespace
+
+void writeFrame(const std::filesystem::path& path, const Frame& frame, bool withAux) {
+  const auto fail = [&](const std::string& reason) {
+    return std::runtime_error(path.string() + ": cannot write image (" + reason + ")");
+  };
+  const std::string extension = lowercase(path.extension().string());
+  if (extension != ".png" && extension != ".exr")
+    throw fail("unknown extension '" + path.extension().string() + "'; use .png or .exr");
+  if (frame.width < 1 || frame.height < 1) throw fail("the frame is empty");
+  const std::size_t pixels = std::size_t(frame.width) * std::size_t(frame.height);
+  if (frame.color.size() != pixels) throw fail("the frame's color buffer does not match its size");
+  if (withAux && (frame.depth.size() != pixels || frame.voxelPixels.size() != pixels))
+    throw fail("the frame's depth / voxelPixels buffers do not match its size");
+
+  std::filesystem::path temporary = path;
+  temporary += ".tmp";
+  try {
+    if (extension == ".png") {
+      // PNG is for looking at: 8-bit sRGB. The alpha (hit mask) is kept only when auxiliary data is asked for.
+      const int channels = withAux ? 4 : 3;
+      std::vector<std::uint8_t> bytes(pixels * std::size_t(channels));
+      for (std::size_t i = 0; i < pixels; ++i) {
+        const glm::vec4& c = frame.color[i];
+        std::uint8_t* p = &bytes[i * std::size_t(channels)];
+        p[0] = toSrgb8(c.r), p[1] = toSrgb8(c.g), p[2] = toSrgb8(c.b);
+        if (channels == 4) p[3] = toUnorm8(c.a);
+      }
+      OIIO::ImageSpec spec(frame.width, frame.height, channels, OIIO::TypeDesc::UINT8);
+      spec.attribute("oiio:ColorSpace", "sRGB");
+      writeOiio(temporary, "png", spec, OIIO::TypeDesc::UINT8, bytes.data());
+    } else {
+      // EXR keeps the linear floats: color as half (plenty for display), depth and voxel size as full float.
+      const int channels = withAux ? 6 : 4;
+      std::vector<float> values(pixels * std::size_t(channels));
+      for (std::size_t i = 0; i < pixels; ++i) {
+        float* p = &values[i * std::size_t(channels)];
+        const glm::vec4& c = frame.color[i];
+        p[0] = c.r, p[1] = c.g, p[2] = c.b, p[3] = c.a;
+        if (withAux) p[4] = frame.depth[i], p[5] = frame.voxelPixels[i];
+      }
+      OIIO::ImageSpec spec(frame.width, frame.height, channels, OIIO::TypeDesc::HALF);
+      spec.alpha_channel = 3;
+      if (withAux) {
+        spec.channelnames = {"R", "G", "B", "A", "Z", "voxelPixels"};
+        spec.channelformats = {OIIO::TypeDesc::HALF,  OIIO::TypeDesc::HALF,  OIIO::TypeDesc::HALF,
+                               OIIO::TypeDesc::HALF,  OIIO::TypeDesc::FLOAT, OIIO::TypeDesc::FLOAT};
+        spec.z_channel = 4;
+      }
+      spec.attribute("oiio:ColorSpace", "Linear");
+      writeOiio(temporary, "openexr", spec, OIIO::TypeDesc::FLOAT, values.data());
+    }
+    std::error_code error;
+    std::filesystem::rename(temporary, path, error);
+    if (error) throw Fail{"rename from " + temporary.filename().string() + ": " + error.message()};
+  } catch (const Fail& f) {
+    std::error_code ignored;
+    std::filesystem::remove(temporary, ignored);
+    throw fail(f.reason);
+  } catch (...) {
+    std::error_code ignored;
+    std::filesystem::remove(temporary, ignored);
+    throw;
+  }
+}
+
+}  // namespace svo

@@ -1,0 +1,71 @@
+#include "svo/store/format.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <glm/geometric.hpp>
+
+namespace svo {
+
+glm::ivec3 quantizeContourNormal(glm::dvec3 n) {
+  const double largest = std::max({std::abs(n.x), std::abs(n.y), std::abs(n.z)});
+  if (!(largest > 0.0)) return {0, 0, int(kContourNormalScale)};
+  const glm::dvec3 q = glm::round(n * (double(kContourNormalScale) / largest));
+  return glm::ivec3(q);
+}
+
+bool encodeContour(glm::ivec3 qn, double lo, double hi, std::uint32_t& bits) {
+  const double maxPosition = 63.0, maxThickness = 127.0;
+  const double centre = std::clamp(std::round(0.5 * (lo + hi) / kContourPositionStep), -maxPosition, maxPosition);
+  const double position = centre * kContourPositionStep;
+  const double halfWidth = std::max(position - lo, hi - position);
+  // Round the width up so the stored slab always contains [lo, hi]; a hair more for float decoding.
+  const double thickness = std::ceil(2.0 * halfWidth / kContourThicknessStep + 1e-6);
+  if (thickness > maxThickness) return false;
+  const double cubeWidth = (std::abs(qn.x) + std::abs(qn.y) + std::abs(qn.z)) / double(kContourNormalScale);
+  if (thickness * kContourThicknessStep >= cubeWidth) return false;
+  bits = packContourBits(qn.x, qn.y, qn.z, int(centre), int(std::max(thickness, 0.0)));
+  return true;
+}
+
+std::uint32_t encodeColor(glm::vec4 rgba) {
+  const auto q = [](float c) { return std::uint8_t(std::lround(std::clamp(c, 0.0f, 1.0f) * 255.0f)); };
+  return packABGR(q(rgba.r), q(rgba.g), q(rgba.b), q(rgba.a));
+}
+
+glm::vec4 decodeColor(std::uint32_t abgr) {
+  return glm::vec4(float(abgr & 255u), float((abgr >> 8) & 255u), float((abgr >> 16) & 255u),
+                   float(abgr >> 24)) /
+         255.0f;
+}
+
+namespace {
+constexpr std::uint32_t kNormalUMax = (1u << 15) - 1;  // 15-bit face coordinate (Fig. 7b)
+constexpr std::uint32_t kNormalVMax = (1u << 14) - 1;  // 14-bit face coordinate (Fig. 7b)
+// The two face coordinates for each axis, in axis order.
+constexpr int kFaceAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
+}  // namespace
+
+std::uint32_t encodeNormal(glm::vec3 n) {
+  const glm::vec3 a = glm::abs(n);
+  const int axis = (a.x >= a.y && a.x >= a.z) ? 0 : (a.y >= a.z ? 1 : 2);
+  if (!(a[axis] > 0.0f)) return encodeNormal({0.0f, 0.0f, 1.0f});
+  const bool negative = n[axis] < 0.0f;
+  const float u = n[kFaceAxes[axis][0]] / a[axis], v = n[kFaceAxes[axis][1]] / a[axis];
+  const auto q = [](float c, std::uint32_t max) {
+    return std::uint32_t(std::lround((std::clamp(c, -1.0f, 1.0f) + 1.0f) * 0.5f * float(max)));
+  };
+  return (std::uint32_t(axis * 2 + negative) << 29) | (q(u, kNormalUMax) << 14) | q(v, kNormalVMax);
+}
+
+glm::vec3 decodeNormal(std::uint32_t bits) {
+  const std::uint32_t face = bits >> 29;
+  const int axis = std::min<int>(int(face >> 1), 2);
+  glm::vec3 n(0.0f);
+  n[axis] = (face & 1u) ? -1.0f : 1.0f;
+  n[kFaceAxes[axis][0]] = float((bits >> 14) & kNormalUMax) / float(kNormalUMax) * 2.0f - 1.0f;
+  n[kFaceAxes[axis][1]] = float(bits & kNormalVMax) / float(kNormalVMax) * 2.0f - 1.0f;
+  return glm::normalize(n);
+}
+
+}  // namespace svo

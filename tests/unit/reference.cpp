@@ -1,0 +1,312 @@
+#include "reference.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <map>
+#include <stdexcept>
+
+#include <glm/geometric.hpp>
+
+namespace svotest {
+
+// ---------------------------------------------------------------------------------------------------------
+// (a)
+namespace {
+
+// Polygon of at most 3 + 6 vertices (each plane adds at most one).
+struct Polygon {
+  std::array<glm::dvec3, 12> v;
+  int n = 0;
+};
+
+// Keeps the part of `in` with sign * (x[axis] - bound) >= 0. A vertex on the plane is kept; crossing points
+// get their clipped coordinate set to the bound exactly.
+void clipPlane(const Polygon& in, int axis, double bound, double sign, Polygon& out) {
+  out.n = 0;
+  if (in.n == 0) return;
+  const auto inside = [&](const glm::dvec3& p) { return sign * (p[axis] - bound) >= 0.0; };
+  if (in.n == 1) {
+    if (inside(in.v[0])) out.v[out.n++] = in.v[0];
+    return;
+  }
+  for (int i = 0; i < in.n; ++i) {
+    const glm::dvec3& p = in.v[i];
+    const glm::dvec3& q = in.v[(i + 1) % in.n];
+    const bool pin = inside(p), qin = inside(q);
+    if (pin) out.v[out.n++] = p;
+    if (pin != qin) {
+      const double s = (bound - p[axis]) / (q[axis] - p[axis]);
+      glm::dvec3 r = p + s * (q - p);
+      r[axis] = bound;
+      out.v[out.n++] = r;
+    }
+  }
+}
+
+}  // namespace
+
+bool triangleBoxOverlap(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c, const glm::dvec3& boxMin,
+                        const glm::dvec3& boxMax) {
+  Polygon p, q;
+  p.v[0] = a;
+  p.v[1] = b;
+  p.v[2] = c;
+  p.n = 3;
+  for (int axis = 0; axis < 3; ++axis) {
+    clipPlane(p, axis, boxMin[axis], 1.0, q);
+    clipPlane(q, axis, boxMax[axis], -1.0, p);
+    if (p.n == 0) return false;
+  }
+  return p.n > 0;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// (b)
+void sortUnique(std::vector<glm::ivec3>& coords) {
+  std::sort(coords.begin(), coords.end(),
+            [](const glm::ivec3& a, const glm::ivec3& b) { return packCoord(a) < packCoord(b); });
+  coords.erase(std::unique(coords.begin(), coords.end()), coords.end());
+}
+
+std::vector<glm::ivec3> referenceLeafVoxels(const svo::Mesh& mesh, const svo::SceneTransform& transform, int levels,
+                                            double margin) {
+  if (levels < 0 || levels > 20) throw std::invalid_argument("referenceLeafVoxels: levels out of range");
+  const double cells = std::ldexp(1.0, levels);
+  const int maxIndex = (1 << levels) - 1;
+  const double m = margin * cells;  // margin in cube units
+  std::vector<glm::ivec3> out;
+  for (const glm::uvec3& tri : mesh.triangles) {
+    // Grid coordinates: (p - 1) * 2^levels; the scaling is exact.
+    glm::dvec3 g[3];
+    for (int k = 0; k < 3; ++k) g[k] = (transform.toOctree(mesh.positions[tri[k]]) - 1.0) * cells;
+    const glm::dvec3 lo = glm::min(glm::min(g[0], g[1]), g[2]);
+    const glm::dvec3 hi = glm::max(glm::max(g[0], g[1]), g[2]);
+    glm::ivec3 first, last;
+    bool empty = false;
+    for (int axis = 0; axis < 3; ++axis) {
+      // Cube i spans [i - m, i + 1 + m]; it can touch the triangle when i - m <= hi and i + 1 + m >= lo.
+      const double f = std::floor(lo[axis] - m - 1.0), l = std::ceil(hi[axis] + m);
+      first[axis] = int(std::clamp(f, 0.0, double(maxIndex)));
+      last[axis] = int(std::clamp(l, -1.0, double(maxIndex)));
+      if (l < 0.0 || f > maxIndex) empty = true;
+    }
+    if (empty) continue;
+    for (int z = first.z; z <= last.z; ++z)
+      for (int y = first.y; y <= last.y; ++y)
+        for (int x = first.x; x <= last.x; ++x) {
+          const glm::dvec3 boxMin = glm::dvec3(x, y, z) - m, boxMax = glm::dvec3(x, y, z) + 1.0 + m;
+          if (triangleBoxOverlap(g[0], g[1], g[2], boxMin, boxMax)) out.emplace_back(x, y, z);
+        }
+  }
+  sortUnique(out);
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// (d)
+namespace {
+
+glm::ivec3 childCoord(const glm::ivec3& parent, int slot) {
+  return parent * 2 + glm::ivec3(slot & 1, (slot >> 1) & 1, (slot >> 2) & 1);
+}
+
+void walkBlock(const svo::ChildDescriptor* desc, const glm::ivec3& coord, int level,
+               std::vector<ChainContour>& chain, std::vector<LeafVoxel>& out) {
+  if (level >= svo::kMaxLevels) throw std::runtime_error("walkLeaves: block deeper than kMaxLevels");
+  for (int slot = 0; slot < 8; ++slot) {
+    if (!((desc->validMask() >> slot) & 1)) continue;
+    const glm::ivec3 c = childCoord(coord, slot);
+    const std::optional<std::uint32_t> contour = svo::BlockView::contour(desc, slot);
+    if (contour) chain.push_back({level + 1, c, *contour});
+    if ((desc->leafMask() >> slot) & 1) {
+      out.push_back({c, level + 1, chain});
+    } else {
+      walkBlock(svo::BlockView::child(desc, slot), c, level + 1, chain, out);
+    }
+    if (contour) chain.pop_back();
+  }
+}
+
+void walkTree(const svo::VoxelTree& tree, std::uint32_t index, const glm::ivec3& coord, int level,
+              std::vector<ChainContour>& chain, std::vector<LeafVoxel>& out) {
+  if (level >= svo::kMaxLevels) throw std::runtime_error("walkLeaves: tree deeper than kMaxLevels");
+  const svo::VoxelRecord& r = tree.voxels.at(index);
+  std::uint32_t next = r.firstChild;
+  for (int slot = 0; slot < 8; ++slot) {
+    if (!((r.childMask >> slot) & 1)) continue;
+    const std::uint32_t ci = next++;
+    const svo::VoxelRecord& child = tree.voxels.at(ci);
+    const glm::ivec3 c = childCoord(coord, slot);
+    if (child.hasContour) chain.push_back({level + 1, c, child.contour});
+    if (child.childMask == 0) {
+      out.push_back({c, level + 1, chain});
+    } else {
+      walkTree(tree, ci, c, level + 1, chain, out);
+    }
+    if (child.hasContour) chain.pop_back();
+  }
+}
+
+}  // namespace
+
+std::vector<LeafVoxel> walkLeaves(const svo::BlockView& block) {
+  std::vector<LeafVoxel> out;
+  std::vector<ChainContour> chain;
+  walkBlock(block.root(), glm::ivec3(0), 0, chain, out);
+  return out;
+}
+
+// The root's own contour is not part of the chain: a block has no parent descriptor to hold it.
+std::vector<LeafVoxel> walkLeaves(const svo::VoxelTree& tree) {
+  std::vector<LeafVoxel> out;
+  if (tree.voxels.empty()) return out;
+  std::vector<ChainContour> chain;
+  walkTree(tree, 0, glm::ivec3(0), 0, chain, out);
+  return out;
+}
+
+std::vector<glm::ivec3> leafCoords(const std::vector<LeafVoxel>& leaves, int level, std::size_t* otherLevels) {
+  std::vector<glm::ivec3> out;
+  std::size_t other = 0;
+  for (const LeafVoxel& v : leaves) {
+    if (v.level == level)
+      out.push_back(v.coord);
+    else
+      ++other;
+  }
+  if (otherLevels) *otherLevels = other;
+  sortUnique(out);
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// (c)
+Shape cubeShape(const glm::ivec3& coord, int level) {
+  const double h = std::ldexp(1.0, -level);
+  Shape s;
+  s.lo = 1.0 + glm::dvec3(coord) * h;
+  s.hi = 1.0 + (glm::dvec3(coord) + 1.0) * h;
+  return s;
+}
+
+Shape shapeOf(const LeafVoxel& voxel, bool withContours) {
+  Shape s = cubeShape(voxel.coord, voxel.level);
+  if (!withContours) return s;
+  for (const ChainContour& cc : voxel.contours) {
+    const svo::Contour c = svo::decodeContour(cc.bits);
+    const double size = std::ldexp(1.0, -cc.level);
+    const glm::dvec3 centre = 1.0 + (glm::dvec3(cc.coord) + 0.5) * size;
+    // n = q / 31 with q integral: recover q exactly from the decoded float.
+    const glm::dvec3 q = glm::round(glm::dvec3(c.normal) * double(svo::kContourNormalScale));
+    // |n.u - p| <= th/2, u = (x - centre) / size  <=>  q.x in q.centre + 31 size [p - th/2, p + th/2].
+    const double k = double(svo::kContourNormalScale) * size;
+    const double p = double(c.position), half = 0.5 * double(c.thickness);
+    Slab slab;
+    slab.q = q;
+    slab.lo = glm::dot(q, centre) + k * (p - half);
+    slab.hi = glm::dot(q, centre) + k * (p + half);
+    s.slabs.push_back(slab);
+  }
+  return s;
+}
+
+namespace {
+
+// Narrows [t0, t1] to the t where lo <= o + t d <= hi (scalar); d == 0 exactly means "inside or not".
+inline bool clipInterval(double o, double d, double lo, double hi, double& t0, double& t1) {
+  if (d == 0.0) return lo <= o && o <= hi;
+  double ta = (lo - o) / d, tb = (hi - o) / d;
+  if (ta > tb) std::swap(ta, tb);
+  t0 = std::max(t0, ta);
+  t1 = std::min(t1, tb);
+  return t0 <= t1;
+}
+
+}  // namespace
+
+bool clipBox(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& origin, const glm::dvec3& direction,
+             double margin, double& t0, double& t1) {
+  t0 = 0.0;
+  t1 = kInf;
+  for (int axis = 0; axis < 3; ++axis)
+    if (!clipInterval(origin[axis], direction[axis], lo[axis] - margin, hi[axis] + margin, t0, t1)) return false;
+  return t0 <= t1;
+}
+
+bool clipRay(const Shape& shape, const glm::dvec3& origin, const glm::dvec3& direction, double margin, double& t0,
+             double& t1) {
+  if (!clipBox(shape.lo, shape.hi, origin, direction, margin, t0, t1)) return false;
+  for (const Slab& s : shape.slabs) {
+    const double grow = margin * glm::length(s.q);
+    if (!clipInterval(glm::dot(s.q, origin), glm::dot(s.q, direction), s.lo - grow, s.hi + grow, t0, t1))
+      return false;
+  }
+  return t0 <= t1;
+}
+
+RefCaster::RefCaster(std::vector<Shape> shapes) : shapes_(std::move(shapes)) {
+  std::map<std::uint64_t, int> index;  // level-3 cube -> bucket
+  for (int i = 0; i < int(shapes_.size()); ++i) {
+    const Shape& s = shapes_[i];
+    const glm::dvec3 size = s.hi - s.lo;
+    if (std::max({size.x, size.y, size.z}) > 0.125) {  // coarser than level 3: a bucket of its own
+      buckets_.push_back({s.lo, s.hi, {i}});
+      continue;
+    }
+    const glm::ivec3 key = glm::ivec3(glm::floor((0.5 * (s.lo + s.hi) - 1.0) * 8.0));
+    auto [it, fresh] = index.try_emplace((std::uint64_t(1) << 63) | packCoord(key), int(buckets_.size()));
+    if (fresh) {
+      const Shape cube = cubeShape(key, 3);
+      buckets_.push_back({cube.lo, cube.hi, {}});
+    }
+    buckets_[it->second].members.push_back(i);
+  }
+}
+
+RefHit RefCaster::first(const glm::dvec3& origin, const glm::dvec3& direction, double margin) const {
+  std::vector<std::pair<double, int>> order;
+  order.reserve(buckets_.size());
+  for (int b = 0; b < int(buckets_.size()); ++b) {
+    double t0, t1;
+    if (clipBox(buckets_[b].lo, buckets_[b].hi, origin, direction, std::max(margin, 0.0), t0, t1))
+      order.emplace_back(t0, b);
+  }
+  std::sort(order.begin(), order.end());
+  RefHit best;
+  for (const auto& [tb, b] : order) {
+    if (tb > best.t0) break;  // every member is entered at or after its bucket
+    for (int i : buckets_[b].members) {
+      double t0, t1;
+      if (!clipRay(shapes_[i], origin, direction, margin, t0, t1)) continue;
+      if (t0 < best.t0 || (t0 == best.t0 && i < best.voxel)) best = {i, t0, t1};
+    }
+  }
+  return best;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// (e)
+double pointTriangleDistance(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+  const glm::dvec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap);
+  if (d1 <= 0.0 && d2 <= 0.0) return glm::length(p - a);
+  const glm::dvec3 bp = p - b;
+  const double d3 = glm::dot(ab, bp), d4 = glm::dot(ac, bp);
+  if (d3 >= 0.0 && d4 <= d3) return glm::length(p - b);
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return glm::length(p - (a + ab * (d1 / (d1 - d3))));
+  const glm::dvec3 cp = p - c;
+  const double d5 = glm::dot(ab, cp), d6 = glm::dot(ac, cp);
+  if (d6 >= 0.0 && d5 <= d6) return glm::length(p - c);
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return glm::length(p - (a + ac * (d2 / (d2 - d6))));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0)
+    return glm::length(p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)))));
+  const double denom = 1.0 / (va + vb + vc);
+  const double v = vb * denom, w = vc * denom;
+  return glm::length(p - (a + ab * v + ac * w));
+}
+
+}  // namespace svotest

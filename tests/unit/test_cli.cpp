@@ -1,0 +1,176 @@
+// End-to-end: the `svo` command on good and bad input. Bad input must give one clear error line naming the
+// problem, a non-zero exit and no file at the target path. When SVO_ASAN_BINARY is set (tools/scripts/test.sh
+// builds it) the same runs happen under AddressSanitizer, which turns any memory error into a failure.
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "svo/store/container.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Run {
+  int exitCode = 0;
+  std::string out, err;
+};
+
+std::string binary() {
+  if (const char* asan = std::getenv("SVO_ASAN_BINARY"); asan && *asan) return asan;
+  return SVO_BINARY;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("svo_cli_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  Run svo(const std::string& args) {
+    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
+    const std::string command = binary() + " " + args + " >" + out.string() + " 2>" + err.string();
+    const int status = std::system(command.c_str());
+    Run r;
+    r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : 128;
+    r.out = slurp(out);
+    r.err = slurp(err);
+    return r;
+  }
+  fs::path write(const std::string& name, const std::string& text) {
+    std::ofstream(dir_ / name, std::ios::binary) << text;
+    return dir_ / name;
+  }
+  // A tetrahedron: the smallest closed mesh.
+  fs::path tetrahedron() {
+    return write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n");
+  }
+  // Expects failure with exactly one line on stderr that mentions `needle`, and nothing at `target`.
+  void expectCleanFailure(const Run& r, const std::string& needle, const fs::path& target) {
+    EXPECT_NE(r.exitCode, 0) << r.err;
+    EXPECT_LT(r.exitCode, 128) << "crashed: " << r.err;
+    EXPECT_NE(r.err.find(needle), std::string::npos) << "stderr: " << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "stderr: " << r.err;
+    EXPECT_EQ(r.err.find("AddressSanitizer"), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(target));
+    for (const auto& e : fs::directory_iterator(target.parent_path()))
+      EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << "left behind: " << e.path();
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(Cli, BuildAndRenderRoundTrip) {
+  const fs::path svoFile = dir_ / "tet.svo", png = dir_ / "tet.png", exr = dir_ / "tet.exr";
+  Run b = svo("build " + tetrahedron().string() + " -o " + svoFile.string() + " --levels 6");
+  ASSERT_EQ(b.exitCode, 0) << b.err;
+  const svo::Octree octree = svo::readOctree(svoFile);
+  EXPECT_EQ(octree.parameters.levels, 6);
+  // No colors in an OBJ without materials: no color attachment (leave out what the scene does not need).
+  EXPECT_EQ(octree.block.view().attachment(svo::AttachmentType::Color), nullptr);
+  EXPECT_NE(octree.block.view().attachment(svo::AttachmentType::Normal), nullptr);
+  Run r = svo("render " + svoFile.string() + " -o " + png.string() + " --width 64 --height 48");
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_TRUE(fs::file_size(png) > 0);
+  EXPECT_NE(r.out.find("Mrays/s"), std::string::npos);
+  Run x = svo("render " + svoFile.string() + " -o " + exr.string() + " --width 32 --height 32 --aux");
+  ASSERT_EQ(x.exitCode, 0) << x.err;
+}
+
+TEST_F(Cli, FlatMeshBuilds) {
+  // One bounding-box extent is zero: a valid scene, not an error.
+  const fs::path mesh = write("flat.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n");
+  Run b = svo("build " + mesh.string() + " -o " + (dir_ / "flat.svo").string() + " --levels 5");
+  EXPECT_EQ(b.exitCode, 0) << b.err;
+}
+
+TEST_F(Cli, MissingMesh) {
+  expectCleanFailure(svo("build " + (dir_ / "nope.obj").string() + " -o " + (dir_ / "o.svo").string()), "nope.obj",
+                     dir_ / "o.svo");
+}
+
+TEST_F(Cli, UnknownFormat) {
+  const fs::path junk = write("junk.xyz", "this is not a mesh\n\x01\x02");
+  expectCleanFailure(svo("build " + junk.string() + " -o " + (dir_ / "o.svo").string()), "junk.xyz", dir_ / "o.svo");
+}
+
+TEST_F(Cli, EmptyMesh) {
+  const fs::path empty = write("empty.obj", "# nothing\n");
+  expectCleanFailure(svo("build " + empty.string() + " -o " + (dir_ / "o.svo").string()), "empty.obj", dir_ / "o.svo");
+}
+
+TEST_F(Cli, NonFiniteVertex) {
+  const fs::path bad = write("nan.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n");
+  expectCleanFailure(svo("build " + bad.string() + " -o " + (dir_ / "o.svo").string()), "nan.obj", dir_ / "o.svo");
+  const fs::path inf = write("inf.obj", "v 0 0 0\nv inf 0 0\nv 0 1 0\nf 1 2 3\n");
+  expectCleanFailure(svo("build " + inf.string() + " -o " + (dir_ / "o.svo").string()), "inf.obj", dir_ / "o.svo");
+}
+
+TEST_F(Cli, OnlyDegenerateTriangles) {
+  const fs::path bad = write("degen.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nv 3 0 0\nf 1 2 3\nf 1 1 4\n");
+  expectCleanFailure(svo("build " + bad.string() + " -o " + (dir_ / "o.svo").string()), "triangles", dir_ / "o.svo");
+}
+
+TEST_F(Cli, LevelsOutOfRange) {
+  for (const char* levels : {"0", "24", "-3", "ten"}) {
+    Run r = svo("build " + tetrahedron().string() + " -o " + (dir_ / "o.svo").string() + " --levels " + levels);
+    EXPECT_NE(r.exitCode, 0) << levels;
+    EXPECT_NE(r.err.find("--levels"), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir_ / "o.svo"));
+  }
+}
+
+TEST_F(Cli, UnwritableOutput) {
+  expectCleanFailure(svo("build " + tetrahedron().string() + " -o " + (dir_ / "missing" / "o.svo").string()),
+                     "does not exist", dir_ / "missing" / "o.svo");
+}
+
+TEST_F(Cli, TruncatedForeignAndCorruptStores) {
+  const fs::path good = dir_ / "good.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + good.string() + " --levels 6").exitCode, 0);
+  std::string bytes = slurp(good);
+  const fs::path png = dir_ / "x.png";
+  const fs::path truncated = write("truncated.svo", bytes.substr(0, bytes.size() / 2));
+  expectCleanFailure(svo("render " + truncated.string() + " -o " + png.string()), "truncated", png);
+  const fs::path shortHeader = write("short.svo", bytes.substr(0, 20));
+  expectCleanFailure(svo("render " + shortHeader.string() + " -o " + png.string()), "short.svo", png);
+  const fs::path foreign = write("foreign.svo", "\x89PNG\r\n\x1a\n not an octree at all, but long enough to read");
+  expectCleanFailure(svo("render " + foreign.string() + " -o " + png.string()), "not an svostream file", png);
+  std::string flipped = bytes;
+  flipped[flipped.size() - 10] ^= 0x40;
+  const fs::path corrupt = write("corrupt.svo", flipped);
+  expectCleanFailure(svo("render " + corrupt.string() + " -o " + png.string()), "checksum", png);
+  std::string version = bytes;
+  version[8] = 99;
+  const fs::path future = write("future.svo", version);
+  expectCleanFailure(svo("render " + future.string() + " -o " + png.string()), "version", png);
+}
+
+TEST_F(Cli, BadCameraAndOutput) {
+  const fs::path good = dir_ / "good.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + good.string() + " --levels 5").exitCode, 0);
+  expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.bmp").string()), ".png or .exr",
+                     dir_ / "x.bmp");
+  expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --eye 1,1,1 --target 1,1,1"),
+                     "eye", dir_ / "x.png");
+  const fs::path cams = write("cams.json", "{\"eye\": [1, 2], \"target\": [0, 0, 0]}");
+  expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --camera " + cams.string()),
+                     "eye", dir_ / "x.png");
+}
+
+}  // namespace

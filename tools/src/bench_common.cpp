@@ -1,0 +1,180 @@
+#include "bench_common.hpp"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <set>
+#include <stdexcept>
+#include <system_error>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+#include <tbb/info.h>
+
+#include "svo/store/format.hpp"
+
+namespace svo::tools {
+
+void addBenchCommands(CLI::App& bench) {
+  bench::addRaycastBench(bench);
+  bench::addBuildBench(bench);
+}
+
+}  // namespace svo::tools
+
+namespace svo::tools::bench {
+
+namespace {
+
+// Spaces between two table columns.
+constexpr int kColumnGap = 2;
+
+std::string_view trim(std::string_view s) {
+  while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\t')) s.remove_suffix(1);
+  return s;
+}
+
+std::vector<std::string_view> splitCommas(std::string_view text) {
+  std::vector<std::string_view> parts;
+  std::size_t start = 0;
+  while (true) {
+    const std::size_t comma = text.find(',', start);
+    parts.push_back(trim(text.substr(start, comma == std::string_view::npos ? text.npos : comma - start)));
+    if (comma == std::string_view::npos) break;
+    start = comma + 1;
+  }
+  return parts;
+}
+
+}  // namespace
+
+Summary summarize(std::vector<double> samples) {
+  if (samples.empty()) throw std::invalid_argument("summarize: no samples");
+  std::sort(samples.begin(), samples.end());
+  const std::size_t n = samples.size();
+  Summary s;
+  s.median = n % 2 ? samples[n / 2] : 0.5 * (samples[n / 2 - 1] + samples[n / 2]);
+  s.min = samples.front();
+  s.max = samples.back();
+  return s;
+}
+
+Table::Table(std::vector<std::string> headers) : headers_(std::move(headers)) {}
+
+void Table::addRow(std::vector<std::string> cells) {
+  if (cells.size() > headers_.size()) throw std::invalid_argument("Table::addRow: more cells than columns");
+  cells.resize(headers_.size());
+  rows_.push_back(std::move(cells));
+}
+
+void Table::print(std::FILE* out) const {
+  std::vector<std::size_t> width(headers_.size());
+  for (std::size_t c = 0; c < headers_.size(); ++c) {
+    width[c] = headers_[c].size();
+    for (const auto& row : rows_) width[c] = std::max(width[c], row[c].size());
+  }
+  const auto line = [&](const std::vector<std::string>& cells) {
+    std::string text;
+    for (std::size_t c = 0; c < cells.size(); ++c) {
+      if (c) text.append(kColumnGap, ' ');
+      text += c == 0 ? fmt::format("{:<{}}", cells[c], width[c]) : fmt::format("{:>{}}", cells[c], width[c]);
+    }
+    while (!text.empty() && text.back() == ' ') text.pop_back();
+    fmt::print(out, "{}\n", text);
+  };
+  line(headers_);
+  std::size_t total = 0;
+  for (std::size_t c = 0; c < width.size(); ++c) total += width[c] + (c ? kColumnGap : 0);
+  fmt::print(out, "{}\n", std::string(total, '-'));
+  for (const auto& row : rows_) line(row);
+  std::fflush(out);
+}
+
+void printTitle(std::string_view title, std::FILE* out) {
+  fmt::print(out, "\n{}\n{}\n", title, std::string(title.size(), '='));
+}
+
+void requireRuns(int runs, std::string_view option) {
+  if (runs < 1) throw UsageError(fmt::format("{} must be at least 1 (got {})", option, runs));
+}
+
+int levelsOfResolution(std::int64_t resolution, std::string_view option) {
+  if (resolution < 2 || resolution > (std::int64_t(1) << kMaxLevels) || (resolution & (resolution - 1)) != 0)
+    throw UsageError(fmt::format("{}: resolution {} must be a power of two between 2 and 2^{} = {}", option,
+                                 resolution, kMaxLevels, std::int64_t(1) << kMaxLevels));
+  int levels = 0;
+  while ((std::int64_t(1) << levels) < resolution) ++levels;
+  return levels;
+}
+
+std::vector<std::int64_t> parseResolutions(const std::string& text, std::string_view option) {
+  std::vector<std::int64_t> resolutions;
+  std::set<std::int64_t> seen;
+  for (const std::string_view part : splitCommas(text)) {
+    std::int64_t value = 0;
+    const auto [end, ec] = std::from_chars(part.data(), part.data() + part.size(), value);
+    if (part.empty() || ec != std::errc() || end != part.data() + part.size())
+      throw UsageError(fmt::format("{}: '{}' in '{}' is not an integer (expected a list like 256,512,1024)",
+                                   option, std::string(part), text));
+    levelsOfResolution(value, option);
+    if (!seen.insert(value).second)
+      throw UsageError(fmt::format("{}: resolution {} repeated", option, value));
+    resolutions.push_back(value);
+  }
+  return resolutions;
+}
+
+glm::dvec3 parseDirection(const std::string& text, std::string_view option) {
+  const auto parts = splitCommas(text);
+  if (parts.size() != 3)
+    throw UsageError(fmt::format("{}: '{}' is not three comma-separated numbers x,y,z", option, text));
+  glm::dvec3 v;
+  for (int i = 0; i < 3; ++i) {
+    const std::string part(parts[i]);
+    std::size_t used = 0;
+    try {
+      v[i] = std::stod(part, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (part.empty() || used != part.size() || !std::isfinite(v[i]))
+      throw UsageError(fmt::format("{}: '{}' is not a finite number", option, part));
+  }
+  if (v == glm::dvec3(0.0)) throw UsageError(fmt::format("{}: the direction must not be zero", option));
+  return v;
+}
+
+int resolveThreads(int requested, std::string_view option) {
+  if (requested < 0)
+    throw UsageError(fmt::format("{} must be 0 (all cores) or positive (got {})", option, requested));
+  return requested > 0 ? requested : tbb::info::default_concurrency();
+}
+
+Mesh loadBenchMesh(const std::filesystem::path& path) {
+  MeshLoadReport report;
+  Mesh mesh = loadMesh(path, &report);
+  spdlog::info("mesh {}: {} vertices, {} triangles, read as {}{}", path.string(),
+               formatCount(mesh.positions.size()), formatCount(mesh.triangles.size()), report.format,
+               report.droppedDegenerate
+                   ? fmt::format(", {} degenerate triangles dropped", report.droppedDegenerate)
+                   : std::string());
+  return mesh;
+}
+
+std::string formatSeconds(double seconds) {
+  if (seconds < 1.0) return fmt::format("{:.1f} ms", seconds * 1e3);
+  return fmt::format("{:.2f} s", seconds);
+}
+
+std::string formatCount(std::uint64_t count) {
+  std::string digits = std::to_string(count);
+  std::string out;
+  for (std::size_t i = 0; i < digits.size(); ++i) {
+    if (i && (digits.size() - i) % 3 == 0) out += ',';
+    out += digits[i];
+  }
+  return out;
+}
+
+}  // namespace svo::tools::bench

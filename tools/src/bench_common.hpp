@@ -1,0 +1,80 @@
+// Shared pieces of `svo bench`: argument validation, repeated timing with median / min / max, and plain
+// terminal tables. The benches themselves live in bench_raycast.cpp (Embree peer) and bench_build.cpp
+// (OpenVDB peer); heavy peer headers stay inside those .cpp files.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <glm/vec3.hpp>
+
+#include "commands.hpp"
+#include "svo/builder/mesh.hpp"
+
+namespace svo::tools::bench {
+
+// Shown in place of a peer's numbers when the binary was built without SVO_BENCH_PEERS.
+inline constexpr std::string_view kPeerNotBuilt = "peer not built";
+
+// Registered by addBenchCommands (bench_common.cpp).
+void addRaycastBench(CLI::App& bench);  // bench_raycast.cpp
+void addBuildBench(CLI::App& bench);    // bench_build.cpp
+
+// Median, smallest and largest of a set of samples (seconds, or any other unit).
+struct Summary {
+  double median = 0.0, min = 0.0, max = 0.0;
+};
+// Throws std::invalid_argument when `samples` is empty. The median of an even count is the mean of the two
+// middle samples.
+Summary summarize(std::vector<double> samples);
+
+// Wall-clock seconds of one call of `f`.
+template <class F>
+double timeSeconds(F&& f) {
+  const auto start = std::chrono::steady_clock::now();
+  f();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// A table printed with aligned columns: the first column left-aligned, the others right-aligned.
+class Table {
+ public:
+  explicit Table(std::vector<std::string> headers);
+  // Rows shorter than the header are padded with empty cells; longer ones throw std::invalid_argument.
+  void addRow(std::vector<std::string> cells);
+  void print(std::FILE* out = stdout) const;
+
+ private:
+  std::vector<std::string> headers_;
+  std::vector<std::vector<std::string>> rows_;
+};
+
+// Prints a section title underlined, with a blank line before it.
+void printTitle(std::string_view title, std::FILE* out = stdout);
+
+// ----- argument validation: each throws UsageError with one line naming the option -----------------------
+void requireRuns(int runs, std::string_view option = "--runs");
+// A power of two in [2, 2^kMaxLevels]; returns log2.
+int levelsOfResolution(std::int64_t resolution, std::string_view option);
+// "256,512,1024" -> {256, 512, 1024}; each entry validated by levelsOfResolution, duplicates rejected.
+std::vector<std::int64_t> parseResolutions(const std::string& text, std::string_view option);
+// "x,y,z" -> a finite, non-zero vector.
+glm::dvec3 parseDirection(const std::string& text, std::string_view option);
+// Threads for the TBB arena: `requested` when > 0, else every core TBB sees. Throws on a negative count.
+int resolveThreads(int requested, std::string_view option = "--threads");
+
+// Loads the mesh (svo::loadMesh) and logs what was read. Throws std::runtime_error on failure.
+Mesh loadBenchMesh(const std::filesystem::path& path);
+
+// "12.3 ms", "1.23 s".
+std::string formatSeconds(double seconds);
+// "12,345,678".
+std::string formatCount(std::uint64_t count);
+
+}  // namespace svo::tools::bench

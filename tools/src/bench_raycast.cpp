@@ -1,0 +1,440 @@
+// `svo bench raycast MESH`: primary-ray throughput of the ESVO ray caster against Embree 3 on the source
+// triangles, same camera rays, same thread count, measured in the same run; plus the octree's bytes per leaf
+// voxel next to the paper's Table 1 and a pixel-by-pixel agreement check between the two.
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <numeric>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#ifdef SVO_BENCH_PEERS
+#include <embree3/rtcore.h>
+#include <pmmintrin.h>
+#include <xmmintrin.h>
+#endif
+
+#include "bench_common.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/client/raycast.hpp"
+#include "svo/client/render.hpp"
+
+namespace svo::tools::bench {
+
+namespace {
+
+// Rows of pixels one TBB task traces: 4 rows of a 1024-wide image are 4096 rays, enough to hide scheduling.
+constexpr int kRowsPerTile = 4;
+// Largest image edge accepted, as Camera::validate does.
+constexpr int kMaxImageSize = 16384;
+// Paper Table 1 (ESVO, compressed attributes), bytes per leaf voxel: hierarchy, contours, DXT color, normal.
+constexpr double kPaperHierarchyBytes = 1.0;
+constexpr double kPaperContourBytes = 1.0;
+constexpr double kPaperColorBytes = 1.0;
+constexpr double kPaperNormalBytes = 2.0;
+
+constexpr float kInfinity = std::numeric_limits<float>::infinity();
+
+struct RaycastArgs {
+  std::string mesh;
+  int levels = 10;
+  int size = 1024;
+  int runs = 5;
+  float lodPixels = 1.0f;
+  std::string view = "0,0,-1";
+  int threads = 0;
+};
+
+// Depth per pixel (world distance, infinity for a miss) and the work it took.
+struct TraceResult {
+  std::vector<float> depth;
+  std::uint64_t hits = 0;
+  double meanIterations = 0.0;  // ESVO only
+};
+
+std::uint64_t countHits(const std::vector<float>& depth) {
+  return std::uint64_t(std::count_if(depth.begin(), depth.end(), [](float d) { return std::isfinite(d); }));
+}
+
+// Runs `traceRows(y0, y1)` over tiles of rows in an arena of `threads` threads.
+template <class F>
+void forEachRowTile(int height, int threads, F&& traceRows) {
+  tbb::task_arena arena(threads);
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<int>(0, height, kRowsPerTile),
+                      [&](const tbb::blocked_range<int>& rows) { traceRows(rows.begin(), rows.end()); });
+  });
+}
+
+// ESVO without shading: octreeRay + castRay per pixel, depth written like the Embree peer does.
+TraceResult traceEsvo(const Octree& octree, const Camera& camera, const RenderOptions& options, int threads) {
+  TraceResult result;
+  result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
+  const BlockView block = octree.block.view();
+  std::atomic<std::uint64_t> iterations{0};
+  forEachRowTile(camera.height, threads, [&](int y0, int y1) {
+    std::uint64_t tileIterations = 0;
+    for (int y = y0; y < y1; ++y) {
+      for (int x = 0; x < camera.width; ++x) {
+        const OctreeRay ray = octreeRay(octree.transform, camera, x, y, options.lodPixels);
+        const CastHit hit = castRay(block, ray, options.cast);
+        tileIterations += std::uint64_t(hit.iterations);
+        if (hit.hit) result.depth[std::size_t(y) * camera.width + x] = hit.t;
+      }
+    }
+    iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+  });
+  result.hits = countHits(result.depth);
+  result.meanIterations = double(iterations.load()) / double(result.depth.size());
+  return result;
+}
+
+#ifdef SVO_BENCH_PEERS
+// Embree 3 scene over the source triangles, vertices as floats relative to the scene centre so that
+// far-from-origin coordinates keep their precision.
+class EmbreePeer {
+ public:
+  EmbreePeer(const Mesh& mesh, glm::dvec3 centre) : centre_(centre) {
+    device_ = rtcNewDevice(nullptr);
+    if (!device_)
+      throw std::runtime_error(
+          fmt::format("embree: rtcNewDevice failed ({})", errorName(rtcGetDeviceError(nullptr))));
+    rtcSetDeviceErrorFunction(device_, &EmbreePeer::onError, this);
+    scene_ = rtcNewScene(device_);
+    rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);
+    RTCGeometry geometry = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
+    rtcSetGeometryBuildQuality(geometry, RTC_BUILD_QUALITY_HIGH);
+    auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(
+        geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh.positions.size()));
+    auto* indices = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
+        geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), mesh.triangles.size()));
+    check("allocating buffers");
+    for (std::size_t i = 0; i < mesh.positions.size(); ++i) {
+      const glm::dvec3 p = mesh.positions[i] - centre_;
+      vertices[3 * i + 0] = float(p.x);
+      vertices[3 * i + 1] = float(p.y);
+      vertices[3 * i + 2] = float(p.z);
+    }
+    for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
+      indices[3 * i + 0] = mesh.triangles[i].x;
+      indices[3 * i + 1] = mesh.triangles[i].y;
+      indices[3 * i + 2] = mesh.triangles[i].z;
+    }
+    rtcCommitGeometry(geometry);
+    rtcAttachGeometry(scene_, geometry);
+    rtcReleaseGeometry(geometry);
+    buildSeconds_ = timeSeconds([&] { rtcCommitScene(scene_); });
+    check("building the BVH");
+  }
+  ~EmbreePeer() {
+    if (scene_) rtcReleaseScene(scene_);
+    if (device_) rtcReleaseDevice(device_);
+  }
+  EmbreePeer(const EmbreePeer&) = delete;
+  EmbreePeer& operator=(const EmbreePeer&) = delete;
+
+  double buildSeconds() const { return buildSeconds_; }
+
+  // rtcIntersect1 for every camera pixel ray; flush-to-zero and denormals-are-zero set in each task (and the
+  // thread's previous mode restored afterwards, so the ESVO runs on the same workers are not affected).
+  TraceResult trace(const Camera& camera, int threads) const {
+    TraceResult result;
+    result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
+    forEachRowTile(camera.height, threads, [&](int y0, int y1) {
+      const unsigned savedCsr = _mm_getcsr();
+      _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
+      _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
+      RTCIntersectContext context;
+      rtcInitIntersectContext(&context);
+      for (int y = y0; y < y1; ++y) {
+        for (int x = 0; x < camera.width; ++x) {
+          glm::dvec3 origin, direction;
+          camera.pixelRay(x, y, origin, direction);
+          origin -= centre_;
+          RTCRayHit rayHit;
+          rayHit.ray.org_x = float(origin.x);
+          rayHit.ray.org_y = float(origin.y);
+          rayHit.ray.org_z = float(origin.z);
+          rayHit.ray.dir_x = float(direction.x);
+          rayHit.ray.dir_y = float(direction.y);
+          rayHit.ray.dir_z = float(direction.z);
+          rayHit.ray.tnear = 0.0f;
+          rayHit.ray.tfar = kInfinity;
+          rayHit.ray.time = 0.0f;
+          rayHit.ray.mask = ~0u;
+          rayHit.ray.id = 0;
+          rayHit.ray.flags = 0;
+          rayHit.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+          rayHit.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+          rtcIntersect1(scene_, &context, &rayHit);
+          if (rayHit.hit.geomID != RTC_INVALID_GEOMETRY_ID)
+            result.depth[std::size_t(y) * camera.width + x] = rayHit.ray.tfar;
+        }
+      }
+      _mm_setcsr(savedCsr);
+    });
+    check("tracing");
+    result.hits = countHits(result.depth);
+    return result;
+  }
+
+ private:
+  static const char* errorName(RTCError error) {
+    switch (error) {
+      case RTC_ERROR_NONE:
+        return "no error";
+      case RTC_ERROR_INVALID_ARGUMENT:
+        return "invalid argument";
+      case RTC_ERROR_INVALID_OPERATION:
+        return "invalid operation";
+      case RTC_ERROR_OUT_OF_MEMORY:
+        return "out of memory";
+      case RTC_ERROR_UNSUPPORTED_CPU:
+        return "unsupported CPU";
+      case RTC_ERROR_CANCELLED:
+        return "cancelled";
+      default:
+        return "unknown error";
+    }
+  }
+  static void onError(void* self, RTCError error, const char* message) {
+    auto* peer = static_cast<EmbreePeer*>(self);
+    if (peer->error_.empty()) peer->error_ = fmt::format("{}: {}", errorName(error), message ? message : "");
+  }
+  void check(const char* what) const {
+    if (!error_.empty()) throw std::runtime_error(fmt::format("embree failed while {}: {}", what, error_));
+  }
+
+  glm::dvec3 centre_;
+  RTCDevice device_ = nullptr;
+  RTCScene scene_ = nullptr;
+  double buildSeconds_ = 0.0;
+  std::string error_;
+};
+#endif
+
+struct Timed {
+  Summary seconds;
+  TraceResult last;  // the result of the last run
+};
+
+// One warm-up, then `runs` timed runs of `run`; only the call itself is timed.
+template <class F>
+Summary timeRuns(int runs, F&& run) {
+  run();  // warm-up: page faults, TBB workers, caches
+  std::vector<double> samples;
+  for (int i = 0; i < runs; ++i) samples.push_back(timeSeconds(run));
+  return summarize(std::move(samples));
+}
+
+std::string mrays(double rays, double seconds) {
+  return fmt::format("{:.2f}", rays / seconds * 1e-6);
+}
+std::string percent(std::uint64_t part, std::uint64_t whole) {
+  return fmt::format("{:.2f}%", whole ? 100.0 * double(part) / double(whole) : 0.0);
+}
+
+void addMethodRow(Table& table, const std::string& name, const Timed& timed, double rays, bool iterations,
+                  std::optional<double> peerMedianSeconds) {
+  table.addRow({name, mrays(rays, timed.seconds.median),
+                fmt::format("{} / {}", mrays(rays, timed.seconds.max), mrays(rays, timed.seconds.min)),
+                formatSeconds(timed.seconds.median), percent(timed.last.hits, timed.last.depth.size()),
+                iterations ? fmt::format("{:.1f}", timed.last.meanIterations) : std::string("-"),
+                peerMedianSeconds ? fmt::format("{:.3f}x", *peerMedianSeconds / timed.seconds.median)
+                                  : std::string(kPeerNotBuilt)});
+}
+
+void printMemory(const BuildStats& stats, const Octree& octree) {
+  const LayoutStats& layout = stats.layout;
+  const double leaves = double(std::max<std::uint64_t>(stats.leafVoxels, 1));
+  const bool hasColor = layout.colorValues > 0 || layout.inheritedColors > 0;
+  const double paperAttributes = (hasColor ? kPaperColorBytes : 0.0) + kPaperNormalBytes;
+  const double paperTotal = kPaperHierarchyBytes + kPaperContourBytes + paperAttributes;
+  const double hierarchy = double(layout.hierarchyBytes) / leaves;
+  const double contours = double(layout.contourBytes) / leaves;
+  const double attributes = double(layout.attributeBytes) / leaves;
+  const double total = double(layout.totalBytes) / leaves;
+
+  printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, block {:.1f} MB)",
+                         formatCount(stats.leafVoxels), double(octree.block.bytes().size()) / (1 << 20)));
+  Table table({"part", "ESVO B/voxel", "paper Table 1 B/voxel", "ESVO / paper"});
+  const auto row = [&](std::string name, double ours, double paper) {
+    table.addRow({std::move(name), fmt::format("{:.2f}", ours), fmt::format("~{:.0f}", paper),
+                  fmt::format("{:.2f}x", ours / paper)});
+  };
+  row("hierarchy (descriptors, far pointers, page headers)", hierarchy, kPaperHierarchyBytes);
+  row("contours", contours, kPaperContourBytes);
+  row(hasColor ? "attributes (color + normal, uncompressed)" : "attributes (normal only, uncompressed)",
+      attributes, paperAttributes);
+  row("total (incl. info section and padding)", total, paperTotal);
+  table.print();
+  fmt::print("attribute values stored: {} colors ({} inherited), {} normals ({} inherited); {} contours\n",
+             formatCount(layout.colorValues), formatCount(layout.inheritedColors),
+             formatCount(layout.normalValues), formatCount(layout.inheritedNormals),
+             formatCount(stats.contours));
+  fmt::print(
+      "paper: ~{:.0f} B/voxel with compressed attributes (hierarchy ~{:.0f}, contours ~{:.0f}{}, normal "
+      "{:.0f}).\n"
+      "uncompressed attributes here take {:.2f} B/voxel, {:.2f}x the paper's {:.0f}; the total is {:.2f} "
+      "B/voxel, "
+      "{:.2f}x the paper's ~{:.0f} ({:+.2f} B/voxel).\n",
+      paperTotal, kPaperHierarchyBytes, kPaperContourBytes,
+      hasColor ? fmt::format(", color {:.0f}", kPaperColorBytes) : std::string(", no color in this scene"),
+      kPaperNormalBytes, attributes, attributes / paperAttributes, paperAttributes, total, total / paperTotal,
+      paperTotal, total - paperTotal);
+}
+
+void printAgreement([[maybe_unused]] const std::vector<float>& esvo, [[maybe_unused]] const TraceResult* peer,
+                    [[maybe_unused]] double finestVoxel) {
+  printTitle("Agreement, ESVO svo::render vs Embree (same camera rays)");
+  if (!peer) {
+    fmt::print("{}\n", kPeerNotBuilt);
+    return;
+  }
+  std::uint64_t both = 0, onlyEsvo = 0, onlyPeer = 0;
+  std::vector<double> difference;
+  for (std::size_t i = 0; i < esvo.size(); ++i) {
+    const bool a = std::isfinite(esvo[i]), b = std::isfinite(peer->depth[i]);
+    if (a && b) {
+      ++both;
+      difference.push_back(std::abs(double(esvo[i]) - double(peer->depth[i])) / finestVoxel);
+    } else if (a) {
+      ++onlyEsvo;
+    } else if (b) {
+      ++onlyPeer;
+    }
+  }
+  const std::uint64_t pixels = esvo.size();
+  Table table({"pixels", "count", "fraction"});
+  table.addRow({"both hit", formatCount(both), percent(both, pixels)});
+  table.addRow({"exactly one hits (silhouette mismatch)", formatCount(onlyEsvo + onlyPeer),
+                percent(onlyEsvo + onlyPeer, pixels)});
+  table.addRow({"  ESVO only", formatCount(onlyEsvo), percent(onlyEsvo, pixels)});
+  table.addRow({"  Embree only", formatCount(onlyPeer), percent(onlyPeer, pixels)});
+  table.addRow({"neither", formatCount(pixels - both - onlyEsvo - onlyPeer),
+                percent(pixels - both - onlyEsvo - onlyPeer, pixels)});
+  table.print();
+  if (difference.empty()) {
+    fmt::print("no pixel hit by both: no depth comparison\n");
+    return;
+  }
+  // 95th percentile of the depth difference: the tail beside the median.
+  constexpr double kTailQuantile = 0.95;
+  std::sort(difference.begin(), difference.end());
+  const double median = summarize(difference).median;
+  const double tail =
+      difference[std::min(difference.size() - 1, std::size_t(kTailQuantile * difference.size()))];
+  fmt::print(
+      "|depth difference| where both hit, in finest voxels ({:.4g} world units): median {:.3f}, "
+      "95th percentile {:.3f}, max {:.3f}\n",
+      finestVoxel, median, tail, difference.back());
+}
+
+void runRaycastBench(const RaycastArgs& args) {
+  if (args.levels < 1 || args.levels > kMaxLevels)
+    throw UsageError(fmt::format("--levels must be in [1, {}] (got {})", kMaxLevels, args.levels));
+  if (args.size < 1 || args.size > kMaxImageSize)
+    throw UsageError(fmt::format("--size must be in [1, {}] (got {})", kMaxImageSize, args.size));
+  requireRuns(args.runs);
+  if (!std::isfinite(args.lodPixels) || args.lodPixels < 0.0f)
+    throw UsageError(fmt::format("--lod-pixels must be a finite number >= 0 (got {})", args.lodPixels));
+  const glm::dvec3 view = parseDirection(args.view, "--view");
+  const int threads = resolveThreads(args.threads);
+
+  const Mesh mesh = loadBenchMesh(args.mesh);
+  BuildOptions buildOptions;
+  buildOptions.levels = args.levels;
+  BuildStats stats;
+  spdlog::info("building the octree, {} levels ...", args.levels);
+  Octree octree;
+  const double esvoBuildSeconds = timeSeconds([&] { octree = buildOctree(mesh, buildOptions, &stats); });
+  const Camera camera = Camera::framing(octree.transform, view, args.size, args.size);
+  camera.validate();
+  const double rays = double(camera.width) * camera.height;
+  const double finestVoxel = octree.transform.size / double(std::int64_t(1) << args.levels);
+
+  RenderOptions renderOptions;
+  renderOptions.lodPixels = args.lodPixels;
+  renderOptions.threads = threads;
+
+  spdlog::info("ESVO svo::render: 1 warm-up + {} runs ...", args.runs);
+  Timed shaded;
+  {
+    Frame frame;
+    shaded.seconds = timeRuns(args.runs, [&] { frame = render(octree, camera, renderOptions); });
+    shaded.last.depth = std::move(frame.depth);
+    shaded.last.hits = countHits(shaded.last.depth);
+    shaded.last.meanIterations = frame.meanIterations;
+  }
+  spdlog::info("ESVO castRay only: 1 warm-up + {} runs ...", args.runs);
+  Timed cast;
+  cast.seconds = timeRuns(args.runs, [&] { cast.last = traceEsvo(octree, camera, renderOptions, threads); });
+
+  std::optional<double> peerSeconds;
+  std::optional<Timed> peer;
+  [[maybe_unused]] double peerBuildSeconds = 0.0;
+#ifdef SVO_BENCH_PEERS
+  spdlog::info("Embree: building the BVH (quality high) ...");
+  const EmbreePeer embree(mesh, octree.transform.toWorld(glm::dvec3(1.5)));
+  peerBuildSeconds = embree.buildSeconds();
+  spdlog::info("Embree rtcIntersect1: 1 warm-up + {} runs ...", args.runs);
+  peer.emplace();
+  peer->seconds = timeRuns(args.runs, [&] { peer->last = embree.trace(camera, threads); });
+  peerSeconds = peer->seconds.median;
+#endif
+
+  printTitle(
+      fmt::format("Ray casting {} ({} triangles), {}x{} primary rays, {} levels, lod {} px, {} threads, "
+                  "median of {} runs",
+                  args.mesh, formatCount(mesh.triangles.size()), camera.width, camera.height, args.levels,
+                  args.lodPixels, threads, args.runs));
+  Table table({"method", "Mrays/s", "min / max Mrays/s", "median time", "hit pixels", "iterations/ray",
+               "ESVO / Embree"});
+  addMethodRow(table, "ESVO svo::render (shaded)", shaded, rays, true, peerSeconds);
+  addMethodRow(table, "ESVO castRay (depth only)", cast, rays, true, peerSeconds);
+  if (peer) {
+    addMethodRow(table, "Embree 3 rtcIntersect1", *peer, rays, false, std::nullopt);
+  } else {
+    table.addRow({"Embree 3 rtcIntersect1", std::string(kPeerNotBuilt)});
+  }
+  table.print();
+  fmt::print(
+      "ESVO / Embree is the ratio of throughputs (> 1: ESVO faster). Build: ESVO octree {}, Embree BVH {}.\n",
+      formatSeconds(esvoBuildSeconds), peer ? formatSeconds(peerBuildSeconds) : std::string(kPeerNotBuilt));
+
+  printMemory(stats, octree);
+  printAgreement(shaded.last.depth, peer ? &peer->last : nullptr, finestVoxel);
+}
+
+}  // namespace
+
+void addRaycastBench(CLI::App& bench) {
+  auto args = std::make_shared<RaycastArgs>();
+  CLI::App* cmd = bench.add_subcommand(
+      "raycast", "ESVO ray caster vs Embree 3 on the source triangles: Mrays/s, bytes/voxel, agreement");
+  cmd->add_option("mesh", args->mesh, "triangle mesh (OBJ, PLY, STL, glTF, ...)")->required();
+  cmd->add_option("--levels", args->levels, "octree depth")->capture_default_str();
+  cmd->add_option("--size", args->size, "image width and height in pixels")->capture_default_str();
+  cmd->add_option("--runs", args->runs, "timed runs per method (after one warm-up); the median is reported")
+      ->capture_default_str();
+  cmd->add_option("--lod-pixels", args->lodPixels,
+                  "ESVO level of detail: stop at voxels this many pixels wide")
+      ->capture_default_str();
+  cmd->add_option("--view", args->view, "view direction x,y,z for Camera::framing")->capture_default_str();
+  cmd->add_option("--threads", args->threads, "threads for every method (0 = all cores)")
+      ->capture_default_str();
+  cmd->callback([args] { runRaycastBench(*args); });
+}
+
+}  // namespace svo::tools::bench
