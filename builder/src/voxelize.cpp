@@ -13,8 +13,8 @@
 #include <stdexcept>
 #include <string>
 
-#include <glm/geometric.hpp>
 #include <tbb/parallel_for.h>
+#include <glm/geometric.hpp>
 
 #include "geometry.hpp"
 #include "svo/builder/build.hpp"
@@ -39,13 +39,17 @@ constexpr double kTouchWeight = 1e-9;
 constexpr double kSceneMargin = 1.0 / 64.0;
 
 struct Triangle {
-  dvec3 p[3];     // octree space
-  dvec3 normal;   // unit
+  dvec3 p[3];    // octree space
+  dvec3 normal;  // unit
   std::uint32_t source;
 };
 
+// A voxel whose exact overlap test passed but none of whose children's did (rounding on a shared face or
+// edge) has no finest descendant: it is marked dead and pruned, so every leaf sits at the finest level.
+constexpr std::uint32_t kDeadVoxel = 0xFFFFFFFFu;
+
 struct Aggregate {
-  double weight = 0.0;
+  double weight = 0.0;  // zero only for a dead subtree
   dvec4 color{0.0};
   dvec3 normal{0.0};
   void add(const Aggregate& o) {
@@ -66,7 +70,7 @@ struct Node {
 struct Prepared {
   VoxelRecord record;
   bool leaf = false;
-  Aggregate leafAttributes;  // leaves only
+  Aggregate leafAttributes;    // leaves only
   std::vector<Node> children;  // slot order, non-empty ones
 };
 
@@ -103,8 +107,9 @@ class Voxelizer {
     root.triangles.resize(triangles_.size());
     for (std::uint32_t i = 0; i < root.triangles.size(); ++i) root.triangles[i] = i;
     Subtree s = buildParallel(std::move(root));
+    if (s.attributes.weight == 0.0) throw std::runtime_error("mesh produced no voxels");
     VoxelTree tree;
-    tree.voxels = std::move(s.records);
+    tree.voxels = deadFound_ ? prune(s.records) : std::move(s.records);
     tree.hasColors = colors_;
     tree.hasNormals = true;
     if (stats) {
@@ -140,7 +145,8 @@ class Voxelizer {
     dvec4 color(material.baseColor);
     if (!mesh_.colors.empty()) {
       const dvec3 b = barycentric(piece.centroid);
-      color *= b.x * dvec4(mesh_.colors[idx.x]) + b.y * dvec4(mesh_.colors[idx.y]) + b.z * dvec4(mesh_.colors[idx.z]);
+      color *= b.x * dvec4(mesh_.colors[idx.x]) + b.y * dvec4(mesh_.colors[idx.y]) +
+               b.z * dvec4(mesh_.colors[idx.z]);
     }
     if (material.texture >= 0 && !mesh_.uvs.empty()) {
       glm::vec2 uv[geom::kMaxClippedVertices + 3];
@@ -165,17 +171,21 @@ class Voxelizer {
                                        const std::vector<geom::Slab>& slabs, double minCut) const {
     std::vector<dvec3> candidates;
     dvec3 mean(0.0);
-    for (const Piece& p : pieces) mean += triangles_[p.triangle].normal * (p.area + kTouchWeight * cube.size * cube.size);
+    for (const Piece& p : pieces)
+      mean += triangles_[p.triangle].normal * (p.area + kTouchWeight * cube.size * cube.size);
     if (glm::length(mean) > 0.0) candidates.push_back(glm::normalize(mean));
     std::vector<const Piece*> largest;
     for (const Piece& p : pieces) largest.push_back(&p);
     const std::size_t keep = std::min<std::size_t>(largest.size(), kMaxContourCandidates * 4);
     std::partial_sort(largest.begin(), largest.begin() + keep, largest.end(),
-                      [](const Piece* a, const Piece* b) { return a->area > b->area || (a->area == b->area && a->triangle < b->triangle); });
+                      [](const Piece* a, const Piece* b) {
+                        return a->area > b->area || (a->area == b->area && a->triangle < b->triangle);
+                      });
     for (std::size_t i = 0; i < keep && int(candidates.size()) <= kMaxContourCandidates; ++i) {
       const dvec3 n = triangles_[largest[i]->triangle].normal;
-      const bool seen = std::any_of(candidates.begin(), candidates.end(),
-                                    [&](const dvec3& c) { return std::abs(glm::dot(c, n)) > kSameDirectionCos; });
+      const bool seen = std::any_of(candidates.begin(), candidates.end(), [&](const dvec3& c) {
+        return std::abs(glm::dot(c, n)) > kSameDirectionCos;
+      });
       if (!seen) candidates.push_back(n);
     }
 
@@ -223,8 +233,8 @@ class Voxelizer {
       p.triangle = ti;
       p.polygon = geom::clipTriangleToCube(t.p[0], t.p[1], t.p[2], cube);
       if (p.polygon.n == 0) {
-        // The SAT says the closed cube touches the triangle; clipping lost it to rounding. Keep the triangle's
-        // closest vertex so the voxel still has a defined piece.
+        // The SAT says the closed cube touches the triangle; clipping lost it to rounding. Keep the
+        // triangle's closest vertex so the voxel still has a defined piece.
         p.polygon.n = 1;
         p.polygon.v[0] = glm::clamp(t.p[0], cube.lo, cube.lo + cube.size);
       }
@@ -255,14 +265,16 @@ class Voxelizer {
     if (normalSpreadCos) {
       *normalSpreadCos = 1.0;
       const dvec3 mean = glm::length(a.normal) > 0.0 ? glm::normalize(a.normal) : dvec3(0, 0, 1);
-      for (const Piece& p : pieces) *normalSpreadCos = std::min(*normalSpreadCos, glm::dot(mean, triangles_[p.triangle].normal));
+      for (const Piece& p : pieces)
+        *normalSpreadCos = std::min(*normalSpreadCos, glm::dot(mean, triangles_[p.triangle].normal));
     }
     return a;
   }
 
   void setAttributes(VoxelRecord& r, const Aggregate& a) const {
     if (colors_) r.color = encodeColor(glm::vec4(a.color / a.weight));
-    r.normal = encodeNormal(glm::length(a.normal) > 0.0 ? glm::vec3(glm::normalize(a.normal)) : glm::vec3(0, 0, 1));
+    r.normal =
+        encodeNormal(glm::length(a.normal) > 0.0 ? glm::vec3(glm::normalize(a.normal)) : glm::vec3(0, 0, 1));
   }
 
   Prepared prepare(Node& node) const {
@@ -283,7 +295,8 @@ class Voxelizer {
       const double thicknessFinest = contour->thickness * std::ldexp(1.0, options_.levels - node.level);
       stop = thicknessFinest <= options_.geometryError &&
              (options_.colorError <= 0.0f || colorSpread <= options_.colorError) &&
-             (options_.normalError <= 0.0f || normalCos >= std::cos(double(options_.normalError) * std::numbers::pi / 180.0));
+             (options_.normalError <= 0.0f ||
+              normalCos >= std::cos(double(options_.normalError) * std::numbers::pi / 180.0));
     }
     if (stop) {
       out.leaf = true;
@@ -307,7 +320,8 @@ class Voxelizer {
     const double half = 0.5 * cube.size;
     for (std::uint32_t ti : node.triangles) {
       const Triangle& t = triangles_[ti];
-      const dvec3 lo = glm::min(glm::min(t.p[0], t.p[1]), t.p[2]), hi = glm::max(glm::max(t.p[0], t.p[1]), t.p[2]);
+      const dvec3 lo = glm::min(glm::min(t.p[0], t.p[1]), t.p[2]),
+                  hi = glm::max(glm::max(t.p[0], t.p[1]), t.p[2]);
       for (int slot = 0; slot < 8; ++slot) {
         geom::Cube child{cube.lo + dvec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1) * half, half};
         bool candidate = true, inside = true;
@@ -335,6 +349,40 @@ class Voxelizer {
     return out;
   }
 
+  // Marks `r` dead when none of its children survived; returns whether it did.
+  bool markIfDead(VoxelRecord& r, const Aggregate& sum) const {
+    if (sum.weight != 0.0) return false;
+    r.childMask = 0;
+    r.firstChild = kDeadVoxel;
+    deadFound_ = true;
+    return true;
+  }
+
+  // Drops dead records: breadth first from the root, keeping each voxel's live children contiguous.
+  static std::vector<VoxelRecord> prune(const std::vector<VoxelRecord>& in) {
+    std::vector<VoxelRecord> out{in[0]};
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> queue{{0u, 0u}};  // (input index, output index)
+    for (std::size_t q = 0; q < queue.size(); ++q) {
+      const auto [i, o] = queue[q];
+      const VoxelRecord& r = in[i];
+      if (r.childMask == 0) continue;
+      std::uint8_t mask = 0;
+      const std::uint32_t first = std::uint32_t(out.size());
+      for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
+        if (!(r.childMask >> slot & 1u)) continue;
+        if (in[c].firstChild != kDeadVoxel) {
+          mask |= std::uint8_t(1u << slot);
+          queue.push_back({c, std::uint32_t(out.size())});
+          out.push_back(in[c]);
+        }
+        ++c;
+      }
+      out[o].childMask = mask;
+      out[o].firstChild = first;
+    }
+    return out;
+  }
+
   // Depth-first into one vector: a voxel's children get consecutive records, then each child's subtree.
   Aggregate buildInto(Node& node, std::vector<VoxelRecord>& out, std::size_t self) const {
     Prepared p = prepare(node);
@@ -349,7 +397,7 @@ class Voxelizer {
     out.resize(first + p.children.size());
     Aggregate sum;
     for (std::size_t i = 0; i < p.children.size(); ++i) sum.add(buildInto(p.children[i], out, first + i));
-    setAttributes(out[self], sum);
+    if (!markIfDead(out[self], sum)) setAttributes(out[self], sum);
     return sum;
   }
 
@@ -373,7 +421,8 @@ class Voxelizer {
     for (int slot = 0; slot < 8; ++slot)
       if (!(p.record.childMask >> slot & 1u)) reportProgress(node.level + 1);
     std::vector<Subtree> parts(p.children.size());
-    tbb::parallel_for(std::size_t(0), parts.size(), [&](std::size_t i) { parts[i] = buildParallel(std::move(p.children[i])); });
+    tbb::parallel_for(std::size_t(0), parts.size(),
+                      [&](std::size_t i) { parts[i] = buildParallel(std::move(p.children[i])); });
 
     // Concatenate: our record, the children's roots, then the rest of each child's records.
     const std::size_t k = parts.size();
@@ -397,7 +446,7 @@ class Voxelizer {
       for (std::size_t j = 0; j + 1 < parts[i].records.size(); ++j) fix(s.records[base[i] + j]);
       s.attributes.add(parts[i].attributes);
     }
-    setAttributes(s.records[0], s.attributes);
+    if (!markIfDead(s.records[0], s.attributes)) setAttributes(s.records[0], s.attributes);
     return s;
   }
 
@@ -419,7 +468,8 @@ class Voxelizer {
       const VoxelRecord& r = tree.voxels[v];
       stats.contours += r.hasContour;
       if (r.childMask == 0) ++stats.leafVoxels;
-      for (int c = 0; c < std::popcount(unsigned(r.childMask)); ++c) stack.push_back({r.firstChild + c, level + 1});
+      for (int c = 0; c < std::popcount(unsigned(r.childMask)); ++c)
+        stack.push_back({r.firstChild + c, level + 1});
     }
   }
 
@@ -428,6 +478,7 @@ class Voxelizer {
   const bool colors_;
   std::vector<Triangle> triangles_;
   mutable std::atomic<double> done_{0.0};
+  mutable std::atomic<bool> deadFound_{false};
 };
 
 }  // namespace
@@ -436,7 +487,8 @@ SceneTransform fitSceneCube(const Mesh& mesh) {
   if (mesh.triangles.empty()) throw std::runtime_error("mesh has no triangles");
   dvec3 lo(1e308), hi(-1e308);
   for (const glm::uvec3& t : mesh.triangles)
-    for (int k = 0; k < 3; ++k) lo = glm::min(lo, mesh.positions[t[k]]), hi = glm::max(hi, mesh.positions[t[k]]);
+    for (int k = 0; k < 3; ++k)
+      lo = glm::min(lo, mesh.positions[t[k]]), hi = glm::max(hi, mesh.positions[t[k]]);
   const double extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
   if (!(extent > 0.0)) throw std::runtime_error("mesh has no extent: all vertices coincide");
   SceneTransform t;

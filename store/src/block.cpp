@@ -356,18 +356,18 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   *info = BlockInfo{kBlockInfoMagic, -std::int32_t(infoOffset / 4), slotCount, plan.slotOf[0],
                     std::uint32_t(contours.size()), attachmentCount};
   auto* directory = reinterpret_cast<AttachmentEntry*>(info + 1);
-  std::memcpy(base + contourOffset, contours.data(), contours.size() * 4);
+  if (!contours.empty()) std::memcpy(base + contourOffset, contours.data(), contours.size() * 4);
   std::uint32_t* colorWords = reinterpret_cast<std::uint32_t*>(base + colorOffset);
   std::uint32_t* normalWords = reinterpret_cast<std::uint32_t*>(base + normalOffset);
   if (tree.hasColors) {
     *directory++ = {AttachmentType::Color, std::int32_t((colorOffset - infoOffset) / 4), tree.voxels[0].color,
                     std::uint32_t(colors.size())};
-    std::memcpy(colorWords + slotCount, colors.data(), colors.size() * 4);
+    if (!colors.empty()) std::memcpy(colorWords + slotCount, colors.data(), colors.size() * 4);
   }
   if (tree.hasNormals) {
     *directory++ = {AttachmentType::Normal, std::int32_t((normalOffset - infoOffset) / 4), tree.voxels[0].normal,
                     std::uint32_t(normals.size())};
-    std::memcpy(normalWords + slotCount, normals.data(), normals.size() * 4);
+    if (!normals.empty()) std::memcpy(normalWords + slotCount, normals.data(), normals.size() * 4);
   }
 
   for (std::size_t v = 0; v < n; ++v) {
@@ -410,8 +410,10 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   stats.contourWords = contours.size();
   stats.colorValues = colors.size();
   stats.normalValues = normals.size();
-  stats.hierarchyBytes = std::uint64_t(slotCount) * kSlotBytes;
-  stats.contourBytes = contours.size() * 4;
+  // As the paper counts (sec. 5.6): a slot's first word is hierarchy, its second (contour pointer and mask)
+  // belongs to the contours with the contour values.
+  stats.hierarchyBytes = std::uint64_t(slotCount) * 4;
+  stats.contourBytes = std::uint64_t(slotCount) * 4 + contours.size() * 4;
   stats.attributeBytes = (tree.hasColors ? (std::uint64_t(slotCount) + colors.size()) * 4 : 0) +
                          (tree.hasNormals ? (std::uint64_t(slotCount) + normals.size()) * 4 : 0);
   stats.totalBytes = bytes.size();

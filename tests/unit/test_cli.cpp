@@ -15,7 +15,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-struct Run {
+struct CommandResult {
   int exitCode = 0;
   std::string out, err;
 };
@@ -42,11 +42,11 @@ class Cli : public ::testing::Test {
   }
   void TearDown() override { fs::remove_all(dir_); }
 
-  Run svo(const std::string& args) {
+  CommandResult svo(const std::string& args) {
     const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
     const std::string command = binary() + " " + args + " >" + out.string() + " 2>" + err.string();
     const int status = std::system(command.c_str());
-    Run r;
+    CommandResult r;
     r.exitCode = WIFEXITED(status) ? WEXITSTATUS(status) : 128;
     r.out = slurp(out);
     r.err = slurp(err);
@@ -61,14 +61,14 @@ class Cli : public ::testing::Test {
     return write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n");
   }
   // Expects failure with exactly one line on stderr that mentions `needle`, and nothing at `target`.
-  void expectCleanFailure(const Run& r, const std::string& needle, const fs::path& target) {
+  void expectCleanFailure(const CommandResult& r, const std::string& needle, const fs::path& target) {
     EXPECT_NE(r.exitCode, 0) << r.err;
     EXPECT_LT(r.exitCode, 128) << "crashed: " << r.err;
     EXPECT_NE(r.err.find(needle), std::string::npos) << "stderr: " << r.err;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "stderr: " << r.err;
     EXPECT_EQ(r.err.find("AddressSanitizer"), std::string::npos) << r.err;
     EXPECT_FALSE(fs::exists(target));
-    for (const auto& e : fs::directory_iterator(target.parent_path()))
+    for (const auto& e : fs::recursive_directory_iterator(dir_))
       EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << "left behind: " << e.path();
   }
 
@@ -77,25 +77,25 @@ class Cli : public ::testing::Test {
 
 TEST_F(Cli, BuildAndRenderRoundTrip) {
   const fs::path svoFile = dir_ / "tet.svo", png = dir_ / "tet.png", exr = dir_ / "tet.exr";
-  Run b = svo("build " + tetrahedron().string() + " -o " + svoFile.string() + " --levels 6");
+  CommandResult b = svo("build " + tetrahedron().string() + " -o " + svoFile.string() + " --levels 6");
   ASSERT_EQ(b.exitCode, 0) << b.err;
   const svo::Octree octree = svo::readOctree(svoFile);
   EXPECT_EQ(octree.parameters.levels, 6);
   // No colors in an OBJ without materials: no color attachment (leave out what the scene does not need).
   EXPECT_EQ(octree.block.view().attachment(svo::AttachmentType::Color), nullptr);
   EXPECT_NE(octree.block.view().attachment(svo::AttachmentType::Normal), nullptr);
-  Run r = svo("render " + svoFile.string() + " -o " + png.string() + " --width 64 --height 48");
+  CommandResult r = svo("render " + svoFile.string() + " -o " + png.string() + " --width 64 --height 48");
   ASSERT_EQ(r.exitCode, 0) << r.err;
   EXPECT_TRUE(fs::file_size(png) > 0);
   EXPECT_NE(r.out.find("Mrays/s"), std::string::npos);
-  Run x = svo("render " + svoFile.string() + " -o " + exr.string() + " --width 32 --height 32 --aux");
+  CommandResult x = svo("render " + svoFile.string() + " -o " + exr.string() + " --width 32 --height 32 --aux");
   ASSERT_EQ(x.exitCode, 0) << x.err;
 }
 
 TEST_F(Cli, FlatMeshBuilds) {
   // One bounding-box extent is zero: a valid scene, not an error.
   const fs::path mesh = write("flat.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n");
-  Run b = svo("build " + mesh.string() + " -o " + (dir_ / "flat.svo").string() + " --levels 5");
+  CommandResult b = svo("build " + mesh.string() + " -o " + (dir_ / "flat.svo").string() + " --levels 5");
   EXPECT_EQ(b.exitCode, 0) << b.err;
 }
 
@@ -128,7 +128,7 @@ TEST_F(Cli, OnlyDegenerateTriangles) {
 
 TEST_F(Cli, LevelsOutOfRange) {
   for (const char* levels : {"0", "24", "-3", "ten"}) {
-    Run r = svo("build " + tetrahedron().string() + " -o " + (dir_ / "o.svo").string() + " --levels " + levels);
+    CommandResult r = svo("build " + tetrahedron().string() + " -o " + (dir_ / "o.svo").string() + " --levels " + levels);
     EXPECT_NE(r.exitCode, 0) << levels;
     EXPECT_NE(r.err.find("--levels"), std::string::npos) << r.err;
     EXPECT_FALSE(fs::exists(dir_ / "o.svo"));
