@@ -1,12 +1,18 @@
 #include "geometry.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include <glm/geometric.hpp>
 
 namespace svo::geom {
 namespace {
+
+// Only the finest ancestors' slabs bound a voxel tightly; older ones only enlarge the hull a little.
+constexpr std::size_t kMaxHullSlabs = 2;
+// Points this close (relative to the voxel size) to a bounding plane count as on it.
+constexpr double kHullTolerance = 1e-9;
 
 using glm::dvec3;
 
@@ -47,6 +53,9 @@ Polygon clipTriangleToCube(const dvec3& a, const dvec3& b, const dvec3& c, const
       // Keep where sign * (x[axis] - bound) <= 0.
       const double bound = side ? hi[axis] : cube.lo[axis];
       const double sign = side ? 1.0 : -1.0;
+      bool allInside = true;
+      for (int i = 0; i < p.n; ++i) allInside &= sign * (p.v[i][axis] - bound) <= 0.0;
+      if (allInside) continue;  // most planes cut nothing: skip the copy
       q.n = 0;
       for (int i = 0; i < p.n; ++i) {
         const dvec3& s = p.v[i];
@@ -87,90 +96,76 @@ bool slabCutsCube(const Slab& slab, const Cube& cube) {
   return c - r < slab.lo || c + r > slab.hi;
 }
 
-namespace {
-
-// Fixed capacity: a cube cut by k slabs has at most 6 + 2k faces, each with at most 6 + 2k vertices.
-constexpr int kMaxHullSlabs = 2;  // the two finest ancestors bound a voxel most tightly
-constexpr int kMaxHullFaces = 6 + 2 * kMaxHullSlabs;
-constexpr int kMaxFaceVertices = 6 + 2 * kMaxHullSlabs + 2;
-struct Face {
-  std::array<dvec3, kMaxFaceVertices> v;
-  int n = 0;
-};
-struct Polytope {
-  std::array<Face, kMaxHullFaces> faces;
-  int n = 0;
-};
-
-// Monotone in the angle of (x, y) over [0, 4): orders points around a centre without atan2.
-double pseudoAngle(double x, double y) {
-  const double r = std::abs(x) + std::abs(y);
-  if (r == 0.0) return 0.0;
-  const double p = x / r;
-  return y < 0.0 ? 3.0 + p : 1.0 - p;
-}
-
-// Clips the polytope by { x : n.x <= d }, closing the hole with a cap face.
-void clip(Polytope& poly, const dvec3& n, double d) {
-  Polytope out;
-  Face cap;
-  auto addCap = [&](const dvec3& p) {
-    if (cap.n < kMaxFaceVertices) cap.v[cap.n++] = p;
+std::vector<dvec3> hullVertices(const Cube& cube, std::span<const Slab> slabs) {
+  // The polytope's vertices are where three of its planes meet: cube corners, cube edges crossing a slab
+  // plane, and cube faces crossing two planes of different slabs. Enumerate those and keep the ones inside
+  // everything (an LP's vertex set, cheap for the few slabs that cut one voxel).
+  const std::size_t first = slabs.size() > kMaxHullSlabs ? slabs.size() - kMaxHullSlabs : 0;
+  slabs = slabs.subspan(first);
+  const dvec3 lo = cube.lo, hi = cube.lo + cube.size;
+  const double eps = kHullTolerance * cube.size;
+  auto inside = [&](const dvec3& x) {
+    for (int a = 0; a < 3; ++a)
+      if (x[a] < lo[a] - eps || x[a] > hi[a] + eps) return false;
+    for (const Slab& s : slabs) {
+      const double d = glm::dot(s.normal, x);
+      if (d < s.lo - eps || d > s.hi + eps) return false;
+    }
+    return true;
   };
-  for (int f = 0; f < poly.n; ++f) {
-    const Face& face = poly.faces[f];
-    Face g;
-    for (int i = 0; i < face.n; ++i) {
-      const dvec3& s = face.v[i];
-      const dvec3& e = face.v[(i + 1) % face.n];
-      const double ds = glm::dot(n, s) - d, de = glm::dot(n, e) - d;
-      if (ds <= 0.0 && g.n < kMaxFaceVertices) g.v[g.n++] = s;
-      if (ds == 0.0) addCap(s);
-      if ((ds < 0.0 && de > 0.0) || (ds > 0.0 && de < 0.0)) {
-        const dvec3 x = s + (e - s) * (ds / (ds - de));
-        if (g.n < kMaxFaceVertices) g.v[g.n++] = x;
-        addCap(x);
+  std::vector<dvec3> vertices;
+  for (int i = 0; i < 8; ++i) {
+    const dvec3 c(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z);
+    if (inside(c)) vertices.push_back(c);
+  }
+  struct Plane {
+    dvec3 n;
+    double d;
+    std::size_t slab;
+  };
+  std::array<Plane, 2 * kMaxHullSlabs> planes;
+  std::size_t planeCount = 0;
+  for (std::size_t k = 0; k < slabs.size(); ++k) {
+    planes[planeCount++] = {slabs[k].normal, slabs[k].lo, k};
+    planes[planeCount++] = {slabs[k].normal, slabs[k].hi, k};
+  }
+  // Cube edges (along axis a; the other two coordinates at lo or hi) against each plane.
+  for (int a = 0; a < 3; ++a) {
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    for (int corner = 0; corner < 4; ++corner) {
+      dvec3 x;
+      x[b] = corner & 1 ? hi[b] : lo[b];
+      x[c] = corner & 2 ? hi[c] : lo[c];
+      for (std::size_t p = 0; p < planeCount; ++p) {
+        const Plane& pl = planes[p];
+        if (pl.n[a] == 0.0) continue;
+        x[a] = (pl.d - pl.n[b] * x[b] - pl.n[c] * x[c]) / pl.n[a];
+        if (inside(x)) vertices.push_back(x);
       }
     }
-    if (g.n >= 3) out.faces[out.n++] = g;
   }
-  if (cap.n >= 3 && out.n < kMaxHullFaces) {
-    dvec3 mean(0.0);
-    for (int i = 0; i < cap.n; ++i) mean += cap.v[i];
-    mean /= double(cap.n);
-    const dvec3 u = glm::normalize(std::abs(n.x) < 0.9 ? glm::cross(n, dvec3(1, 0, 0)) : glm::cross(n, dvec3(0, 1, 0)));
-    const dvec3 v = glm::cross(n, u);
-    std::array<double, kMaxFaceVertices> key;
-    for (int i = 0; i < cap.n; ++i) key[i] = pseudoAngle(glm::dot(cap.v[i] - mean, u), glm::dot(cap.v[i] - mean, v));
-    // Insertion sort: a cap has a handful of points.
-    for (int i = 1; i < cap.n; ++i)
-      for (int j = i; j > 0 && key[j] < key[j - 1]; --j) std::swap(key[j], key[j - 1]), std::swap(cap.v[j], cap.v[j - 1]);
-    out.faces[out.n++] = cap;
-  }
-  poly = out;
-}
-
-}  // namespace
-
-std::vector<dvec3> hullVertices(const Cube& cube, std::span<const Slab> slabs) {
-  const dvec3 lo = cube.lo, hi = cube.lo + cube.size;
-  auto corner = [&](int i) { return dvec3(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z); };
-  Polytope poly;
-  // Each face as four corners in cyclic order: axis bit fixed, the other two bits walk a square.
-  for (int axis = 0; axis < 3; ++axis)
+  // Cube faces (axis a fixed) against two planes of different slabs: a 2x2 system in the other coordinates.
+  for (int a = 0; a < 3; ++a) {
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
     for (int side = 0; side < 2; ++side) {
-      const int a = 1 << ((axis + 1) % 3), b = 1 << ((axis + 2) % 3), s = side ? 1 << axis : 0;
-      Face& f = poly.faces[poly.n++];
-      f.v[0] = corner(s), f.v[1] = corner(s | a), f.v[2] = corner(s | a | b), f.v[3] = corner(s | b), f.n = 4;
+      const double xa = side ? hi[a] : lo[a];
+      for (std::size_t p = 0; p < planeCount; ++p)
+        for (std::size_t q = p + 1; q < planeCount; ++q) {
+          const Plane &P = planes[p], &Q = planes[q];
+          if (P.slab == Q.slab) continue;
+          const double det = P.n[b] * Q.n[c] - P.n[c] * Q.n[b];
+          if (std::abs(det) < 1e-12) continue;
+          const double rp = P.d - P.n[a] * xa, rq = Q.d - Q.n[a] * xa;
+          dvec3 x;
+          x[a] = xa;
+          x[b] = (rp * Q.n[c] - rq * P.n[c]) / det;
+          x[c] = (P.n[b] * rq - Q.n[b] * rp) / det;
+          if (inside(x)) vertices.push_back(x);
+        }
     }
-  // The finest ancestors bound the voxel most tightly; dropping older slabs only enlarges the hull.
-  const std::size_t first = slabs.size() > kMaxHullSlabs ? slabs.size() - kMaxHullSlabs : 0;
-  for (std::size_t i = first; i < slabs.size() && poly.n > 0; ++i) {
-    clip(poly, slabs[i].normal, slabs[i].hi);
-    clip(poly, -slabs[i].normal, -slabs[i].lo);
   }
-  std::vector<dvec3> vertices;
-  for (int f = 0; f < poly.n; ++f) vertices.insert(vertices.end(), poly.faces[f].v.begin(), poly.faces[f].v.begin() + poly.faces[f].n);
+  // Interior vertices where three slab planes meet need three slabs; with at most two they cannot occur.
+  static_assert(kMaxHullSlabs <= 2);
   return vertices;
 }
 

@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Fetches the test data that comes from npm (the Stanford bunny) and writes it as OUT_DIR/bunny.ply.
-# Usage: tools/scripts/fetch-data.sh [OUT_DIR]   (default build/data). Idempotent; prints the PLY's path.
+# Usage: tools/scripts/fetch-data.sh [OUT_DIR]   (default: build/data in the repository, where the unit tests
+# look). Idempotent; prints the PLY's path on stdout and nothing else there.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
-out="${1:-build/data}"
+out="${1:-$root/build/data}"
 case "$out" in /*) ;; *) out="$PWD/$out" ;; esac
 
 if [ -f "$out/bunny.ply" ]; then

@@ -1,0 +1,118 @@
+// Mesh queries and the validation every loaded or generated mesh goes through before voxelization.
+#include "svo/builder/mesh.hpp"
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include <glm/geometric.hpp>
+
+namespace svo {
+
+namespace {
+
+const Material kWhiteMaterial{};
+
+bool isWhite(const glm::vec4& c) {
+  return c.r == 1.0f && c.g == 1.0f && c.b == 1.0f && c.a == 1.0f;
+}
+
+// A triangle whose edges from its first corner are parallel to within this sine has no area worth voxelizing:
+// it is what exactly collinear float input becomes after rounding, with a wide margin.
+constexpr double kDegenerateSine = 1e-12;
+
+}  // namespace
+
+bool Mesh::hasColor() const {
+  const bool perTriangle = !triangleMaterials.empty();
+  for (std::size_t t = 0; t < triangles.size(); ++t) {
+    if (!colors.empty()) {
+      const glm::uvec3& tri = triangles[t];
+      for (int k = 0; k < 3; ++k) {
+        if (tri[k] < colors.size() && !isWhite(colors[tri[k]])) return true;
+      }
+    }
+    // Without per-triangle materials every triangle has material 0: one check is enough.
+    if (t == 0 || perTriangle) {
+      const Material& m = materialOf(t);
+      if (m.texture >= 0 || !isWhite(m.baseColor)) return true;
+    }
+  }
+  return false;
+}
+
+const Material& Mesh::materialOf(std::size_t triangle) const {
+  const std::size_t index = triangleMaterials.empty() ? 0 : triangleMaterials.at(triangle);
+  return index < materials.size() ? materials[index] : kWhiteMaterial;
+}
+
+std::size_t validateMesh(Mesh& mesh, const std::string& source) {
+  const std::size_t nv = mesh.positions.size();
+  for (std::size_t i = 0; i < nv; ++i) {
+    const glm::dvec3& p = mesh.positions[i];
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
+      throw std::runtime_error(source + ": vertex " + std::to_string(i) + " has a non-finite coordinate");
+    }
+  }
+  if (!mesh.colors.empty() && mesh.colors.size() != nv) {
+    throw std::runtime_error(source + ": " + std::to_string(mesh.colors.size()) + " vertex colors for " +
+                             std::to_string(nv) + " vertices");
+  }
+  if (!mesh.uvs.empty() && mesh.uvs.size() != nv) {
+    throw std::runtime_error(source + ": " + std::to_string(mesh.uvs.size()) + " texture coordinates for " +
+                             std::to_string(nv) + " vertices");
+  }
+  if (!mesh.triangleMaterials.empty() && mesh.triangleMaterials.size() != mesh.triangles.size()) {
+    throw std::runtime_error(source + ": " + std::to_string(mesh.triangleMaterials.size()) +
+                             " triangle materials for " + std::to_string(mesh.triangles.size()) +
+                             " triangles");
+  }
+  for (std::size_t m = 0; m < mesh.materials.size(); ++m) {
+    const int tex = mesh.materials[m].texture;
+    if (tex < -1 ||
+        (tex >= 0 && (static_cast<std::size_t>(tex) >= mesh.textures.size() || !mesh.textures[tex]))) {
+      throw std::runtime_error(source + ": material " + std::to_string(m) + " names texture " +
+                               std::to_string(tex) + ", but the mesh has " +
+                               std::to_string(mesh.textures.size()));
+    }
+  }
+
+  std::size_t kept = 0;
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const glm::uvec3 tri = mesh.triangles[t];
+    for (int k = 0; k < 3; ++k) {
+      if (tri[k] >= nv) {
+        throw std::runtime_error(source + ": triangle " + std::to_string(t) + " uses vertex " +
+                                 std::to_string(tri[k]) + ", but there are only " + std::to_string(nv));
+      }
+    }
+    if (!mesh.triangleMaterials.empty()) {
+      const std::uint32_t m = mesh.triangleMaterials[t];
+      // Material 0 with no materials is the documented white default; any other missing index is a bug.
+      if (m >= mesh.materials.size() && !(m == 0 && mesh.materials.empty())) {
+        throw std::runtime_error(source + ": triangle " + std::to_string(t) + " uses material " +
+                                 std::to_string(m) + ", but there are only " +
+                                 std::to_string(mesh.materials.size()));
+      }
+    }
+    bool degenerate = tri.x == tri.y || tri.y == tri.z || tri.x == tri.z;
+    if (!degenerate) {
+      const glm::dvec3 e1 = mesh.positions[tri.y] - mesh.positions[tri.x];
+      const glm::dvec3 e2 = mesh.positions[tri.z] - mesh.positions[tri.x];
+      const glm::dvec3 n = glm::cross(e1, e2);
+      const double n2 = glm::dot(n, n);
+      // |e1 x e2| = |e1||e2| sin(angle): compare squared to stay exact for tiny and huge scenes alike.
+      degenerate = !(n2 > kDegenerateSine * kDegenerateSine * glm::dot(e1, e1) * glm::dot(e2, e2));
+    }
+    if (degenerate) continue;
+    mesh.triangles[kept] = tri;
+    if (!mesh.triangleMaterials.empty()) mesh.triangleMaterials[kept] = mesh.triangleMaterials[t];
+    ++kept;
+  }
+  const std::size_t dropped = mesh.triangles.size() - kept;
+  mesh.triangles.resize(kept);
+  if (!mesh.triangleMaterials.empty()) mesh.triangleMaterials.resize(kept);
+  return dropped;
+}
+
+}  // namespace svo
