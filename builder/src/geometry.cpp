@@ -92,7 +92,8 @@ double polygonArea(const Polygon& p, dvec3* centroid) {
 bool slabCutsCube(const Slab& slab, const Cube& cube) {
   // Extent of the cube along the normal, from its centre.
   const double c = glm::dot(slab.normal, cube.centre());
-  const double r = 0.5 * cube.size * (std::abs(slab.normal.x) + std::abs(slab.normal.y) + std::abs(slab.normal.z));
+  const double r =
+      0.5 * cube.size * (std::abs(slab.normal.x) + std::abs(slab.normal.y) + std::abs(slab.normal.z));
   return c - r < slab.lo || c + r > slab.hi;
 }
 

@@ -39,7 +39,7 @@ struct Slab {
 // True when the slab removes some part of the cube (some corner lies strictly outside it).
 bool slabCutsCube(const Slab& slab, const Cube& cube);
 
-// The vertices of cube ∩ slabs (a convex polytope), found by clipping the cube's faces plane by plane.
+// The vertices of cube ∩ slabs (a convex polytope; the two finest slabs are used).
 // Empty when the intersection is empty.
 std::vector<glm::dvec3> hullVertices(const Cube& cube, std::span<const Slab> slabs);
 

@@ -20,46 +20,53 @@ constexpr int kDefaultImageSide = 512;
 // |sin| of the angle between up and the view below which the camera basis is ill-conditioned.
 constexpr double kParallelSine = 1e-9;
 
-double radians(double degrees) { return degrees * std::numbers::pi / 180.0; }
+double radians(double degrees) {
+  return degrees * std::numbers::pi / 180.0;
+}
 
-bool finite(glm::dvec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+bool finite(glm::dvec3 v) {
+  return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+}
 
 std::string format(glm::dvec3 v) {
   return "(" + std::to_string(v.x) + ", " + std::to_string(v.y) + ", " + std::to_string(v.z) + ")";
 }
 
+}  // namespace
+
 // Right-handed look-at basis: forward into the scene, right to the image's +x, up to the image's top.
-struct Basis {
-  glm::dvec3 forward, right, up;
-};
-Basis basisOf(const Camera& camera) {
+Camera::Basis Camera::basis() const {
   Basis b;
-  b.forward = glm::normalize(camera.target - camera.eye);
-  b.right = glm::normalize(glm::cross(b.forward, camera.up));
+  b.forward = glm::normalize(target - eye);
+  b.right = glm::normalize(glm::cross(b.forward, up));
   b.up = glm::cross(b.right, b.forward);
+  b.tanHalf = std::tan(radians(fovYDegrees) * 0.5);
+  b.aspect = double(width) / double(height);
   return b;
 }
 
-}  // namespace
-
-void Camera::pixelRay(double x, double y, glm::dvec3& origin, glm::dvec3& direction) const {
-  const Basis b = basisOf(*this);
-  const double tanHalf = std::tan(radians(fovYDegrees) * 0.5);
-  const double aspect = double(width) / double(height);
+void Camera::pixelRay(const Camera& camera, const Basis& b, double x, double y, glm::dvec3& direction) {
   // Image rows grow downwards, so row 0 is the top of the view (+up).
-  const double sx = (2.0 * (x + 0.5) / double(width) - 1.0) * tanHalf * aspect;
-  const double sy = (1.0 - 2.0 * (y + 0.5) / double(height)) * tanHalf;
-  origin = eye;
+  const double sx = (2.0 * (x + 0.5) / double(camera.width) - 1.0) * b.tanHalf * b.aspect;
+  const double sy = (1.0 - 2.0 * (y + 0.5) / double(camera.height)) * b.tanHalf;
   direction = glm::normalize(b.forward + sx * b.right + sy * b.up);
 }
 
-double Camera::pixelAngle() const { return 2.0 * std::tan(radians(fovYDegrees) * 0.5) / double(height); }
+void Camera::pixelRay(double x, double y, glm::dvec3& origin, glm::dvec3& direction) const {
+  origin = eye;
+  pixelRay(*this, basis(), x, y, direction);
+}
+
+double Camera::pixelAngle() const {
+  return 2.0 * std::tan(radians(fovYDegrees) * 0.5) / double(height);
+}
 
 void Camera::validate() const {
   if (!finite(eye) || !finite(target) || !finite(up) || !std::isfinite(fovYDegrees))
     throw std::runtime_error("camera: eye, target, up and fov must be finite numbers");
   if (!(fovYDegrees > 0.0 && fovYDegrees < 180.0))
-    throw std::runtime_error("camera: fov must be in (0, 180) degrees (got " + std::to_string(fovYDegrees) + ")");
+    throw std::runtime_error("camera: fov must be in (0, 180) degrees (got " + std::to_string(fovYDegrees) +
+                             ")");
   if (width < 1 || width > kMaxImageSide || height < 1 || height > kMaxImageSide)
     throw std::runtime_error("camera: width and height must be in [1, " + std::to_string(kMaxImageSide) +
                              "] (got " + std::to_string(width) + "x" + std::to_string(height) + ")");
@@ -70,7 +77,8 @@ void Camera::validate() const {
   const double upLength = glm::length(up);
   if (!(upLength > 0.0) || !std::isfinite(upLength) ||
       glm::length(glm::cross(view / viewLength, up / upLength)) < kParallelSine)
-    throw std::runtime_error("camera: up " + format(up) + " must not be zero or parallel to the view direction");
+    throw std::runtime_error("camera: up " + format(up) +
+                             " must not be zero or parallel to the view direction");
 }
 
 Camera Camera::framing(const SceneTransform& scene, glm::dvec3 viewDirection, int width, int height) {
@@ -104,7 +112,8 @@ using Json = nlohmann::json;
   throw std::runtime_error(file + ": key '" + key + "' " + what);
 }
 
-glm::dvec3 readVector(const Json& object, const std::string& file, const char* key, const glm::dvec3* fallback) {
+glm::dvec3 readVector(const Json& object, const std::string& file, const char* key,
+                      const glm::dvec3* fallback) {
   const auto it = object.find(key);
   if (it == object.end()) {
     if (fallback) return *fallback;

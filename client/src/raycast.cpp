@@ -18,12 +18,18 @@ constexpr float kMinDirection = 1.0f / float(1 << kScaleMax);
 // Below this |n.d| a ray runs parallel to a contour slab: inside it or outside, never through it.
 constexpr float kParallelContour = 1e-20f;
 
-inline float asFloat(std::uint32_t bits) { return std::bit_cast<float>(bits); }
-inline std::uint32_t asBits(float f) { return std::bit_cast<std::uint32_t>(f); }
+inline float asFloat(std::uint32_t bits) {
+  return std::bit_cast<float>(bits);
+}
+inline std::uint32_t asBits(float f) {
+  return std::bit_cast<std::uint32_t>(f);
+}
 
 }  // namespace
 
-float CastHit::voxelSize() const { return std::ldexp(1.0f, scale - kScaleMax); }
+float CastHit::voxelSize() const {
+  return std::ldexp(1.0f, scale - kScaleMax);
+}
 
 CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options) {
   CastHit hit;
@@ -161,7 +167,8 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
       parent = stack[scale].parent;
       t_max = stack[scale].t_max;
       // Round the position down to the new scale and read the child index from its bits.
-      const std::uint32_t shx = asBits(pos.x) >> scale, shy = asBits(pos.y) >> scale, shz = asBits(pos.z) >> scale;
+      const std::uint32_t shx = asBits(pos.x) >> scale, shy = asBits(pos.y) >> scale,
+                          shz = asBits(pos.z) >> scale;
       pos = glm::vec3(asFloat(shx << scale), asFloat(shy << scale), asFloat(shz << scale));
       idx = int((shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2));
       h = 0.0f;  // the parent just restored must not be stored again
@@ -183,7 +190,8 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   hit.cubeMin = pos;
   const float inset = std::min(kMinDirection, 0.25f * scale_exp2);
   for (int i = 0; i < 3; ++i)
-    hit.position[i] = std::min(std::max(o[i] + t_min * ray.direction[i], pos[i] + inset), pos[i] + scale_exp2 - inset);
+    hit.position[i] =
+        std::min(std::max(o[i] + t_min * ray.direction[i], pos[i] + inset), pos[i] + scale_exp2 - inset);
   return hit;
 }
 
@@ -192,7 +200,6 @@ std::uint32_t hitAttribute(const BlockView& block, const CastHit& hit, Attachmen
   if (!entry || !hit.hit) return 0;
   if (auto v = BlockView::attribute(hit.parent, hit.childSlot, type)) return *v;
   for (int s = hit.scale + 1; s < kScaleMax; ++s) {
-    if (!hit.pathParent[s]) break;
     if (auto v = BlockView::attribute(hit.pathParent[s], hit.pathSlot[s], type)) return *v;
   }
   return entry->rootValue;

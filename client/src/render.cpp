@@ -1,5 +1,5 @@
-// Frame rendering: world rays mapped into the octree, ESVO castRay per pixel over 8x8 tiles with oneTBB, Phong
-// shading with one directional light, and PNG / EXR output through OpenImageIO.
+// Frame rendering: world rays mapped into the octree, ESVO castRay per pixel over 8x8 tiles with oneTBB,
+// Phong shading with one directional light, and PNG / EXR output through OpenImageIO.
 #include <algorithm>
 #include <atomic>
 #include <cctype>
@@ -14,10 +14,10 @@
 #include <vector>
 
 #include <OpenImageIO/imageio.h>
-#include <glm/geometric.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+#include <glm/geometric.hpp>
 
 #include "svo/client/render.hpp"
 
@@ -33,7 +33,9 @@ constexpr float kShininess = 32.0f;
 // Albedo of a scene built without colors.
 constexpr float kNeutralGrey = 0.8f;
 
-bool finite(glm::vec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+bool finite(glm::vec3 v) {
+  return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+}
 
 // Outward normal of the hit voxel's surface nearest to the hit position: one of the six cube faces, or the
 // voxel's contour slab when the position lies closer to it (sec. 5.2: the slab is what the ray entered).
@@ -70,8 +72,9 @@ struct Shading {
 };
 
 glm::vec3 shade(const BlockView& block, const CastHit& hit, glm::vec3 viewDirection, const Shading& s) {
-  const glm::vec3 albedo = s.hasColor ? glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)))
-                                      : glm::vec3(kNeutralGrey);
+  const glm::vec3 albedo = s.hasColor
+                               ? glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)))
+                               : glm::vec3(kNeutralGrey);
   glm::vec3 n = s.hasNormal ? decodeNormal(hitAttribute(block, hit, AttachmentType::Normal))
                             : estimateNormal(hit, s.contours);
   // Thin surfaces are voxelized from both sides: light the side the viewer sees.
@@ -84,18 +87,26 @@ glm::vec3 shade(const BlockView& block, const CastHit& hit, glm::vec3 viewDirect
 
 }  // namespace
 
-OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px, double py, float lodPixels) {
-  glm::dvec3 origin, direction;
-  camera.pixelRay(px, py, origin, direction);
+PixelRays::PixelRays(const SceneTransform& scene, const Camera& camera, float lodPixels)
+    : scene_(scene), camera_(camera), basis_(camera.basis()), origin_(scene.toOctree(camera.eye)) {
+  // A pinhole's footprint grows from zero at the eye; lodPixels 0 disables the level-of-detail stop.
+  if (lodPixels > 0.0f) footprintSlope_ = float(camera.pixelAngle() * double(lodPixels) / scene.size);
+}
+
+OctreeRay PixelRays::operator()(double px, double py) const {
+  glm::dvec3 direction;
+  Camera::pixelRay(camera_, basis_, px, py, direction);
   OctreeRay ray;
-  ray.origin = glm::vec3(scene.toOctree(origin));
+  ray.origin = origin_;
   // Scaling the direction by 1 / size keeps t in world units: octree point at t = toOctree(world point at t).
-  ray.direction = glm::vec3(direction / scene.size);
-  if (lodPixels > 0.0f) {
-    ray.footprintOrigin = 0.0f;  // a pinhole's footprint grows from zero at the eye
-    ray.footprintSlope = float(camera.pixelAngle() * double(lodPixels) / scene.size);
-  }
+  ray.direction = glm::vec3(direction / scene_.size);
+  ray.footprintSlope = footprintSlope_;
   return ray;
+}
+
+OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px, double py,
+                    float lodPixels) {
+  return PixelRays(scene, camera, lodPixels)(px, py);
 }
 
 Frame render(const Octree& octree, const Camera& camera, const RenderOptions& options) {
@@ -110,9 +121,11 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
 
   const BlockView block = octree.block.view();
   const SceneTransform& scene = octree.transform;
-  const Shading shading{glm::normalize(options.lightDirection), block.attachment(AttachmentType::Color) != nullptr,
+  const Shading shading{glm::normalize(options.lightDirection),
+                        block.attachment(AttachmentType::Color) != nullptr,
                         block.attachment(AttachmentType::Normal) != nullptr, options.cast.contours};
   const double pixelAngle = camera.pixelAngle();
+  const PixelRays rays(scene, camera, options.lodPixels);
 
   Frame frame;
   frame.width = camera.width;
@@ -132,7 +145,7 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
       const int x1 = std::min(x0 + kTileSize, camera.width), y1 = std::min(y0 + kTileSize, camera.height);
       for (int y = y0; y < y1; ++y) {
         for (int x = x0; x < x1; ++x) {
-          const OctreeRay ray = octreeRay(scene, camera, x, y, options.lodPixels);
+          const OctreeRay ray = rays(x, y);
           const CastHit hit = castRay(block, ray, options.cast);
           tileIterations += std::uint64_t(std::max(hit.iterations, 0));
           if (!hit.hit) continue;
@@ -218,7 +231,8 @@ void writeFrame(const std::filesystem::path& path, const Frame& frame, bool with
   temporary += ".tmp";
   try {
     if (extension == ".png") {
-      // PNG is for looking at: 8-bit sRGB. The alpha (hit mask) is kept only when auxiliary data is asked for.
+      // PNG is for looking at: 8-bit sRGB. The alpha (hit mask) is kept only when auxiliary data is asked
+      // for.
       const int channels = withAux ? 4 : 3;
       std::vector<std::uint8_t> bytes(pixels * std::size_t(channels));
       for (std::size_t i = 0; i < pixels; ++i) {
@@ -229,6 +243,8 @@ void writeFrame(const std::filesystem::path& path, const Frame& frame, bool with
       }
       OIIO::ImageSpec spec(frame.width, frame.height, channels, OIIO::TypeDesc::UINT8);
       spec.attribute("oiio:ColorSpace", "sRGB");
+      // Colors are not premultiplied (a miss keeps the background at alpha 0): store them as they are.
+      spec.attribute("oiio:UnassociatedAlpha", 1);
       writeOiio(temporary, "png", spec, OIIO::TypeDesc::UINT8, bytes.data());
     } else {
       // EXR keeps the linear floats: color as half (plenty for display), depth and voxel size as full float.
@@ -244,8 +260,8 @@ void writeFrame(const std::filesystem::path& path, const Frame& frame, bool with
       spec.alpha_channel = 3;
       if (withAux) {
         spec.channelnames = {"R", "G", "B", "A", "Z", "voxelPixels"};
-        spec.channelformats = {OIIO::TypeDesc::HALF,  OIIO::TypeDesc::HALF,  OIIO::TypeDesc::HALF,
-                               OIIO::TypeDesc::HALF,  OIIO::TypeDesc::FLOAT, OIIO::TypeDesc::FLOAT};
+        spec.channelformats = {OIIO::TypeDesc::HALF, OIIO::TypeDesc::HALF,  OIIO::TypeDesc::HALF,
+                               OIIO::TypeDesc::HALF, OIIO::TypeDesc::FLOAT, OIIO::TypeDesc::FLOAT};
         spec.z_channel = 4;
       }
       spec.attribute("oiio:ColorSpace", "Linear");

@@ -15,14 +15,17 @@ namespace svo {
 
 // ---------------------------------------------------------------------------------------------------------
 AlignedBytes::AlignedBytes(std::size_t size) {
-  const std::size_t rounded = std::max<std::size_t>(kPageBytes, (size + kPageBytes - 1) / kPageBytes * kPageBytes);
+  const std::size_t rounded =
+      std::max<std::size_t>(kPageBytes, (size + kPageBytes - 1) / kPageBytes * kPageBytes);
   auto* p = static_cast<std::byte*>(std::aligned_alloc(kPageBytes, rounded));
   if (!p) throw std::bad_alloc();
   std::memset(p, 0, rounded);
   data_.reset(p);
   size_ = rounded;
 }
-void AlignedBytes::Free::operator()(std::byte* p) const { std::free(p); }
+void AlignedBytes::Free::operator()(std::byte* p) const {
+  std::free(p);
+}
 
 // ---------------------------------------------------------------------------------------------------------
 namespace {
@@ -35,9 +38,13 @@ std::int32_t pageHeader(const void* descriptor) {
   const auto page = reinterpret_cast<std::uintptr_t>(descriptor) & ~std::uintptr_t(kPageBytes - 1);
   return *reinterpret_cast<const std::int32_t*>(page);
 }
-bool isPageHeaderSlot(std::uint64_t slot) { return slot % kSlotsPerPage == 0; }
+bool isPageHeaderSlot(std::uint64_t slot) {
+  return slot % kSlotsPerPage == 0;
+}
 
-[[noreturn]] void corrupt(const std::string& what) { throw std::runtime_error("corrupt block: " + what); }
+[[noreturn]] void corrupt(const std::string& what) {
+  throw std::runtime_error("corrupt block: " + what);
+}
 
 }  // namespace
 
@@ -60,7 +67,8 @@ std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, i
   return words[childRank(mask, slot)];
 }
 
-std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent, int slot, AttachmentType type) {
+std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent, int slot,
+                                                  AttachmentType type) {
   // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> value.
   const BlockInfo& info = infoOf(parent);
   const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
@@ -107,7 +115,8 @@ void validatePointers(const BlockView& view) {
     const std::uint8_t valid = d.validMask(), leaf = d.leafMask(), nonLeaf = d.nonLeafMask();
     if (valid == 0) corrupt("descriptor at slot " + std::to_string(item.slot) + " has no children");
     if ((leaf & ~valid) != 0) corrupt("leaf mask outside valid mask at slot " + std::to_string(item.slot));
-    if ((d.contourMask() & ~valid) != 0) corrupt("contour mask outside valid mask at slot " + std::to_string(item.slot));
+    if ((d.contourMask() & ~valid) != 0)
+      corrupt("contour mask outside valid mask at slot " + std::to_string(item.slot));
     if (d.contourMask() != 0) {
       const std::size_t begin = std::size_t(item.slot) * kSlotBytes + std::size_t(d.contourPointer()) * 4;
       const std::size_t end = begin + std::size_t(std::popcount(unsigned(d.contourMask()))) * 4;
@@ -119,7 +128,8 @@ void validatePointers(const BlockView& view) {
       if (!e) continue;
       const auto* words = at<std::uint32_t>(&info, std::ptrdiff_t(e->pointer) * 4);
       const AttributeLookup lookup{words[item.slot]};
-      if ((lookup.mask() & ~valid) != 0) corrupt("attribute mask outside valid mask at slot " + std::to_string(item.slot));
+      if ((lookup.mask() & ~valid) != 0)
+        corrupt("attribute mask outside valid mask at slot " + std::to_string(item.slot));
       const std::uint64_t end = std::uint64_t(lookup.valuePointer()) + std::popcount(unsigned(lookup.mask()));
       if (lookup.mask() && (lookup.valuePointer() < info.slotCount || end > info.slotCount + e->valueCount))
         corrupt("attribute pointer out of range at slot " + std::to_string(item.slot));
@@ -129,7 +139,8 @@ void validatePointers(const BlockView& view) {
     std::uint64_t run = std::uint64_t(item.slot) + d.childPointer();
     if (d.childPointer() == 0) corrupt("null child pointer at slot " + std::to_string(item.slot));
     if (d.far()) {
-      if (run >= info.slotCount || isPageHeaderSlot(run)) corrupt("far slot out of range at slot " + std::to_string(item.slot));
+      if (run >= info.slotCount || isPageHeaderSlot(run))
+        corrupt("far slot out of range at slot " + std::to_string(item.slot));
       const std::int64_t offset = *reinterpret_cast<const std::int32_t*>(view.slots() + run);
       if (offset <= 0) corrupt("far pointer does not point forward at slot " + std::to_string(item.slot));
       run += std::uint64_t(offset);
@@ -137,7 +148,8 @@ void validatePointers(const BlockView& view) {
     const int count = std::popcount(unsigned(nonLeaf));
     for (int k = 0; k < count; ++k) {
       const std::uint64_t s = run + std::uint64_t(k);
-      if (s >= info.slotCount || isPageHeaderSlot(s)) corrupt("child run out of range at slot " + std::to_string(item.slot));
+      if (s >= info.slotCount || isPageHeaderSlot(s))
+        corrupt("child run out of range at slot " + std::to_string(item.slot));
       stack.push_back({std::uint32_t(s), item.depth + 1});
     }
   }
@@ -147,29 +159,37 @@ void validatePointers(const BlockView& view) {
 
 BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), size_(size) {
   if (reinterpret_cast<std::uintptr_t>(data) % kPageBytes != 0) corrupt("not 8 KB aligned");
-  if (size < kPageBytes || size % kPageBytes != 0) corrupt("size " + std::to_string(size) + " is not a whole number of pages");
+  if (size < kPageBytes || size % kPageBytes != 0)
+    corrupt("size " + std::to_string(size) + " is not a whole number of pages");
   const std::int64_t infoOffset = std::int64_t(*reinterpret_cast<const std::int32_t*>(data)) * 4;
-  if (infoOffset <= 0 || std::uint64_t(infoOffset) + sizeof(BlockInfo) > size) corrupt("page header points outside the block");
+  if (infoOffset <= 0 || std::uint64_t(infoOffset) + sizeof(BlockInfo) > size)
+    corrupt("page header points outside the block");
   info_ = at<BlockInfo>(data, infoOffset);
   const BlockInfo& info = *info_;
   if (info.magic != kBlockInfoMagic) corrupt("bad info-section magic");
-  if (std::int64_t(info.slotsPointer) * 4 != -infoOffset) corrupt("info section does not point back to slot 0");
-  if (std::uint64_t(info.slotCount) * kSlotBytes > std::uint64_t(infoOffset)) corrupt("slot array overlaps the info section");
-  if (info.rootSlot == 0 || info.rootSlot >= info.slotCount || isPageHeaderSlot(info.rootSlot)) corrupt("bad root slot");
-  const std::uint64_t directoryEnd =
-      std::uint64_t(infoOffset) + sizeof(BlockInfo) + std::uint64_t(info.attachmentCount) * sizeof(AttachmentEntry);
+  if (std::int64_t(info.slotsPointer) * 4 != -infoOffset)
+    corrupt("info section does not point back to slot 0");
+  if (std::uint64_t(info.slotCount) * kSlotBytes > std::uint64_t(infoOffset))
+    corrupt("slot array overlaps the info section");
+  if (info.rootSlot == 0 || info.rootSlot >= info.slotCount || isPageHeaderSlot(info.rootSlot))
+    corrupt("bad root slot");
+  const std::uint64_t directoryEnd = std::uint64_t(infoOffset) + sizeof(BlockInfo) +
+                                     std::uint64_t(info.attachmentCount) * sizeof(AttachmentEntry);
   if (info.attachmentCount > 16 || directoryEnd + std::uint64_t(info.contourCount) * 4 > size)
     corrupt("info section or contour data runs past the end");
   for (std::uint64_t page = 0; page * kSlotsPerPage < info.slotCount; ++page) {
     const std::int64_t header = *at<std::int32_t>(data, std::ptrdiff_t(page * kPageBytes));
-    if (std::int64_t(page * kPageBytes) + header * 4 != infoOffset) corrupt("page header " + std::to_string(page) + " does not lead to the info section");
+    if (std::int64_t(page * kPageBytes) + header * 4 != infoOffset)
+      corrupt("page header " + std::to_string(page) + " does not lead to the info section");
   }
   const auto* entries = reinterpret_cast<const AttachmentEntry*>(info_ + 1);
   for (std::uint32_t a = 0; a < info.attachmentCount; ++a) {
     const std::int64_t begin = infoOffset + std::int64_t(entries[a].pointer) * 4;
     const std::uint64_t words = std::uint64_t(info.slotCount) + entries[a].valueCount;
-    if (begin < std::int64_t(directoryEnd) || std::uint64_t(begin) + words * 4 > size) corrupt("attachment runs past the end");
-    if (entries[a].type != AttachmentType::Color && entries[a].type != AttachmentType::Normal) corrupt("unknown attachment type");
+    if (begin < std::int64_t(directoryEnd) || std::uint64_t(begin) + words * 4 > size)
+      corrupt("attachment runs past the end");
+    if (entries[a].type != AttachmentType::Color && entries[a].type != AttachmentType::Normal)
+      corrupt("unknown attachment type");
   }
   validatePointers(*this);
 }
@@ -294,7 +314,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   };
   std::vector<Entry> entries(n);
   LayoutStats stats;
-  // Breadth first from the root, so each child's effective (possibly inherited) value is known from its parent.
+  // Breadth first from the root, so each child's effective (possibly inherited) value is known from its
+  // parent.
   std::vector<std::uint32_t> queue{0};
   for (std::size_t qi = 0; qi < queue.size(); ++qi) {
     const std::uint32_t v = queue[qi];
@@ -335,13 +356,15 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   const std::uint32_t slotCount = plan.slotCount;
   const std::uint32_t attachmentCount = std::uint32_t(tree.hasColors) + std::uint32_t(tree.hasNormals);
   const std::size_t infoOffset = std::size_t(slotCount) * kSlotBytes;
-  const std::size_t contourOffset = infoOffset + sizeof(BlockInfo) + attachmentCount * sizeof(AttachmentEntry);
+  const std::size_t contourOffset =
+      infoOffset + sizeof(BlockInfo) + attachmentCount * sizeof(AttachmentEntry);
   std::size_t cursor = contourOffset + contours.size() * 4;
   const std::size_t colorOffset = cursor;
   if (tree.hasColors) cursor += (std::size_t(slotCount) + colors.size()) * 4;
   const std::size_t normalOffset = cursor;
   if (tree.hasNormals) cursor += (std::size_t(slotCount) + normals.size()) * 4;
-  if (cursor > std::size_t(INT32_MAX) * 4 || slotCount + std::max(colors.size(), normals.size()) > kMaxWordPointer)
+  if (cursor > std::size_t(INT32_MAX) * 4 ||
+      slotCount + std::max(colors.size(), normals.size()) > kMaxWordPointer)
     throw std::runtime_error("octree too large for one block (" + std::to_string(cursor >> 20) +
                              " MiB); build with fewer --levels until the slice store lands");
 
@@ -353,8 +376,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
         std::int32_t((infoOffset - std::size_t(page) * kPageBytes) / 4);
 
   auto* info = reinterpret_cast<BlockInfo*>(base + infoOffset);
-  *info = BlockInfo{kBlockInfoMagic, -std::int32_t(infoOffset / 4), slotCount, plan.slotOf[0],
-                    std::uint32_t(contours.size()), attachmentCount};
+  *info = BlockInfo{kBlockInfoMagic, -std::int32_t(infoOffset / 4),  slotCount,
+                    plan.slotOf[0],  std::uint32_t(contours.size()), attachmentCount};
   auto* directory = reinterpret_cast<AttachmentEntry*>(info + 1);
   if (!contours.empty()) std::memcpy(base + contourOffset, contours.data(), contours.size() * 4);
   std::uint32_t* colorWords = reinterpret_cast<std::uint32_t*>(base + colorOffset);
@@ -365,8 +388,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     if (!colors.empty()) std::memcpy(colorWords + slotCount, colors.data(), colors.size() * 4);
   }
   if (tree.hasNormals) {
-    *directory++ = {AttachmentType::Normal, std::int32_t((normalOffset - infoOffset) / 4), tree.voxels[0].normal,
-                    std::uint32_t(normals.size())};
+    *directory++ = {AttachmentType::Normal, std::int32_t((normalOffset - infoOffset) / 4),
+                    tree.voxels[0].normal, std::uint32_t(normals.size())};
     if (!normals.empty()) std::memcpy(normalWords + slotCount, normals.data(), normals.size() * 4);
   }
 
@@ -383,7 +406,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       if (plan.farSlotOf[v] != 0) {
         far = true;
         pointer = plan.farSlotOf[v] - slot;
-        *reinterpret_cast<std::int32_t*>(&slots[plan.farSlotOf[v]]) = std::int32_t(plan.runOf[v] - plan.farSlotOf[v]);
+        *reinterpret_cast<std::int32_t*>(&slots[plan.farSlotOf[v]]) =
+            std::int32_t(plan.runOf[v] - plan.farSlotOf[v]);
       } else {
         pointer = plan.runOf[v] - slot;
       }
@@ -392,15 +416,18 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     const Entry& e = entries[v];
     std::uint32_t contourPointer = 0;
     if (e.contourMask) {
-      const std::size_t words = (contourOffset + std::size_t(e.contourFirst) * 4 - std::size_t(slot) * kSlotBytes) / 4;
+      const std::size_t words =
+          (contourOffset + std::size_t(e.contourFirst) * 4 - std::size_t(slot) * kSlotBytes) / 4;
       if (words > kMaxWordPointer)
-        throw std::runtime_error("octree too large for one block: contour pointer out of 24-bit reach; build with "
-                                 "fewer --levels until the slice store lands");
+        throw std::runtime_error(
+            "octree too large for one block: contour pointer out of 24-bit reach; build with "
+            "fewer --levels until the slice store lands");
       contourPointer = std::uint32_t(words);
     }
     slots[slot] = ChildDescriptor::make(pointer, far, r.childMask, leaf, contourPointer, e.contourMask);
     if (tree.hasColors) colorWords[slot] = AttributeLookup::make(slotCount + e.colorFirst, e.colorMask).bits;
-    if (tree.hasNormals) normalWords[slot] = AttributeLookup::make(slotCount + e.normalFirst, e.normalMask).bits;
+    if (tree.hasNormals)
+      normalWords[slot] = AttributeLookup::make(slotCount + e.normalFirst, e.normalMask).bits;
     ++stats.descriptorSlots;
   }
 

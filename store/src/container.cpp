@@ -32,8 +32,8 @@ struct FileHeader {
   std::uint64_t blockOffset;
   std::uint64_t blockCompressedBytes;
   std::uint64_t blockRawBytes;
-  std::uint64_t blockChecksum;  // XXH3-64 of the compressed block
-  std::uint8_t reserved[144];  // room for later fields; zero
+  std::uint64_t blockChecksum;   // XXH3-64 of the compressed block
+  std::uint8_t reserved[144];    // room for later fields; zero
   std::uint64_t headerChecksum;  // XXH3-64 of every byte above
 };
 static_assert(sizeof(FileHeader) == 256);
@@ -51,7 +51,8 @@ std::uint64_t headerChecksum(const FileHeader& h) {
 void writeOctree(const std::filesystem::path& path, const Octree& octree) {
   const AlignedBytes& raw = octree.block.bytes();
   std::vector<char> compressed(ZSTD_compressBound(raw.size()));
-  const std::size_t packed = ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), kZstdLevel);
+  const std::size_t packed =
+      ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), kZstdLevel);
   if (ZSTD_isError(packed)) fail(path, std::string("compression failed: ") + ZSTD_getErrorName(packed));
 
   FileHeader h{};
@@ -79,8 +80,9 @@ void writeOctree(const std::filesystem::path& path, const Octree& octree) {
   {
     std::FILE* f = std::fopen(temp.c_str(), "wb");
     if (!f) fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
-    const bool ok = std::fwrite(&h, sizeof h, 1, f) == 1 && std::fwrite(compressed.data(), 1, packed, f) == packed &&
-                    std::fflush(f) == 0 && ::fsync(::fileno(f)) == 0;
+    const bool ok = std::fwrite(&h, sizeof h, 1, f) == 1 &&
+                    std::fwrite(compressed.data(), 1, packed, f) == packed && std::fflush(f) == 0 &&
+                    ::fsync(::fileno(f)) == 0;
     const int err = errno;
     if (std::fclose(f) != 0 || !ok) {
       std::remove(temp.c_str());
@@ -106,8 +108,10 @@ Octree readOctree(const std::filesystem::path& path) {
   if (h.version != kFileVersion)
     fail(path, "unsupported file version " + std::to_string(h.version) + " (this build reads " +
                    std::to_string(kFileVersion) + ")");
-  if (h.headerBytes != sizeof h || headerChecksum(h) != h.headerChecksum) fail(path, "header checksum mismatch");
-  if (h.levels < 1 || h.levels > kMaxLevels || !(h.size > 0.0)) fail(path, "header holds invalid scene parameters");
+  if (h.headerBytes != sizeof h || headerChecksum(h) != h.headerChecksum)
+    fail(path, "header checksum mismatch");
+  if (h.levels < 1 || h.levels > kMaxLevels || !(h.size > 0.0))
+    fail(path, "header holds invalid scene parameters");
   // Bound sizes before allocating: the raw block may not exceed what zstd's frame says nor 64 GiB.
   constexpr std::uint64_t kMaxBlockBytes = std::uint64_t(64) << 30;
   if (h.blockRawBytes == 0 || h.blockRawBytes > kMaxBlockBytes || h.blockRawBytes % kPageBytes != 0 ||
@@ -119,7 +123,8 @@ Octree readOctree(const std::filesystem::path& path) {
   if (std::uint64_t(in.gcount()) != h.blockCompressedBytes)
     fail(path, "truncated: block needs " + std::to_string(h.blockCompressedBytes) + " bytes, file has " +
                    std::to_string(in.gcount()));
-  if (XXH3_64bits(compressed.data(), compressed.size()) != h.blockChecksum) fail(path, "block checksum mismatch");
+  if (XXH3_64bits(compressed.data(), compressed.size()) != h.blockChecksum)
+    fail(path, "block checksum mismatch");
   const unsigned long long frameBytes = ZSTD_getFrameContentSize(compressed.data(), compressed.size());
   if (frameBytes != h.blockRawBytes) fail(path, "block size does not match its compressed frame");
   AlignedBytes raw(h.blockRawBytes);

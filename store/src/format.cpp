@@ -16,7 +16,8 @@ glm::ivec3 quantizeContourNormal(glm::dvec3 n) {
 
 bool encodeContour(glm::ivec3 qn, double lo, double hi, std::uint32_t& bits) {
   const double maxPosition = 63.0, maxThickness = 127.0;
-  const double centre = std::clamp(std::round(0.5 * (lo + hi) / kContourPositionStep), -maxPosition, maxPosition);
+  const double centre =
+      std::clamp(std::round(0.5 * (lo + hi) / kContourPositionStep), -maxPosition, maxPosition);
   const double position = centre * kContourPositionStep;
   const double halfWidth = std::max(position - lo, hi - position);
   // Round the width up so the stored slab always contains [lo, hi]; a hair more for float decoding.

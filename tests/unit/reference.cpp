@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <map>
+#include <random>
 #include <stdexcept>
 
 #include <glm/geometric.hpp>
@@ -46,8 +47,8 @@ void clipPlane(const Polygon& in, int axis, double bound, double sign, Polygon& 
 
 }  // namespace
 
-bool triangleBoxOverlap(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c, const glm::dvec3& boxMin,
-                        const glm::dvec3& boxMax) {
+bool triangleBoxOverlap(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c,
+                        const glm::dvec3& boxMin, const glm::dvec3& boxMax) {
   Polygon p, q;
   p.v[0] = a;
   p.v[1] = b;
@@ -69,8 +70,8 @@ void sortUnique(std::vector<glm::ivec3>& coords) {
   coords.erase(std::unique(coords.begin(), coords.end()), coords.end());
 }
 
-std::vector<glm::ivec3> referenceLeafVoxels(const svo::Mesh& mesh, const svo::SceneTransform& transform, int levels,
-                                            double margin) {
+std::vector<glm::ivec3> referenceLeafVoxels(const svo::Mesh& mesh, const svo::SceneTransform& transform,
+                                            int levels, double margin) {
   if (levels < 0 || levels > 20) throw std::invalid_argument("referenceLeafVoxels: levels out of range");
   const double cells = std::ldexp(1.0, levels);
   const int maxIndex = (1 << levels) - 1;
@@ -166,7 +167,8 @@ std::vector<LeafVoxel> walkLeaves(const svo::VoxelTree& tree) {
   return out;
 }
 
-std::vector<glm::ivec3> leafCoords(const std::vector<LeafVoxel>& leaves, int level, std::size_t* otherLevels) {
+std::vector<glm::ivec3> leafCoords(const std::vector<LeafVoxel>& leaves, int level,
+                                   std::size_t* otherLevels) {
   std::vector<glm::ivec3> out;
   std::size_t other = 0;
   for (const LeafVoxel& v : leaves) {
@@ -225,17 +227,18 @@ inline bool clipInterval(double o, double d, double lo, double hi, double& t0, d
 
 }  // namespace
 
-bool clipBox(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& origin, const glm::dvec3& direction,
-             double margin, double& t0, double& t1) {
+bool clipBox(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& origin,
+             const glm::dvec3& direction, double margin, double& t0, double& t1) {
   t0 = 0.0;
   t1 = kInf;
   for (int axis = 0; axis < 3; ++axis)
-    if (!clipInterval(origin[axis], direction[axis], lo[axis] - margin, hi[axis] + margin, t0, t1)) return false;
+    if (!clipInterval(origin[axis], direction[axis], lo[axis] - margin, hi[axis] + margin, t0, t1))
+      return false;
   return t0 <= t1;
 }
 
-bool clipRay(const Shape& shape, const glm::dvec3& origin, const glm::dvec3& direction, double margin, double& t0,
-             double& t1) {
+bool clipRay(const Shape& shape, const glm::dvec3& origin, const glm::dvec3& direction, double margin,
+             double& t0, double& t1) {
   if (!clipBox(shape.lo, shape.hi, origin, direction, margin, t0, t1)) return false;
   for (const Slab& s : shape.slabs) {
     const double grow = margin * glm::length(s.q);
@@ -264,7 +267,8 @@ RefCaster::RefCaster(std::vector<Shape> shapes) : shapes_(std::move(shapes)) {
   }
 }
 
-RefHit RefCaster::first(const glm::dvec3& origin, const glm::dvec3& direction, double margin) const {
+RefHit RefCaster::first(const glm::dvec3& origin, const glm::dvec3& direction, double margin,
+                        double minLength) const {
   std::vector<std::pair<double, int>> order;
   order.reserve(buckets_.size());
   for (int b = 0; b < int(buckets_.size()); ++b) {
@@ -278,7 +282,7 @@ RefHit RefCaster::first(const glm::dvec3& origin, const glm::dvec3& direction, d
     if (tb > best.t0) break;  // every member is entered at or after its bucket
     for (int i : buckets_[b].members) {
       double t0, t1;
-      if (!clipRay(shapes_[i], origin, direction, margin, t0, t1)) continue;
+      if (!clipRay(shapes_[i], origin, direction, margin, t0, t1) || t1 - t0 < minLength) continue;
       if (t0 < best.t0 || (t0 == best.t0 && i < best.voxel)) best = {i, t0, t1};
     }
   }
@@ -287,7 +291,8 @@ RefHit RefCaster::first(const glm::dvec3& origin, const glm::dvec3& direction, d
 
 // ---------------------------------------------------------------------------------------------------------
 // (e)
-double pointTriangleDistance(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+double pointTriangleDistance(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b,
+                             const glm::dvec3& c) {
   const glm::dvec3 ab = b - a, ac = c - a, ap = p - a;
   const double d1 = glm::dot(ab, ap), d2 = glm::dot(ac, ap);
   if (d1 <= 0.0 && d2 <= 0.0) return glm::length(p - a);
@@ -307,6 +312,73 @@ double pointTriangleDistance(const glm::dvec3& p, const glm::dvec3& a, const glm
   const double denom = 1.0 / (va + vb + vc);
   const double v = vb * denom, w = vc * denom;
   return glm::length(p - (a + ab * v + ac * w));
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// (f)
+svo::Mesh makeSphere(const glm::dvec3& centre, double radius, int stacks, int slices) {
+  svo::Mesh m;
+  const double pi = 3.14159265358979323846;
+  m.positions.push_back(centre + glm::dvec3(0, 0, radius));
+  for (int i = 1; i < stacks; ++i) {
+    const double theta = pi * i / stacks;
+    for (int j = 0; j < slices; ++j) {
+      const double phi = 2.0 * pi * j / slices;
+      m.positions.push_back(centre + radius * glm::dvec3(std::sin(theta) * std::cos(phi),
+                                                         std::sin(theta) * std::sin(phi), std::cos(theta)));
+    }
+  }
+  m.positions.push_back(centre - glm::dvec3(0, 0, radius));
+  const auto ring = [&](int i, int j) { return std::uint32_t(1 + (i - 1) * slices + (j % slices)); };
+  const std::uint32_t south = std::uint32_t(m.positions.size() - 1);
+  for (int j = 0; j < slices; ++j) {
+    m.triangles.emplace_back(0, ring(1, j), ring(1, j + 1));
+    m.triangles.emplace_back(south, ring(stacks - 1, j + 1), ring(stacks - 1, j));
+  }
+  for (int i = 1; i + 1 < stacks; ++i)
+    for (int j = 0; j < slices; ++j) {
+      m.triangles.emplace_back(ring(i, j), ring(i + 1, j), ring(i + 1, j + 1));
+      m.triangles.emplace_back(ring(i, j), ring(i + 1, j + 1), ring(i, j + 1));
+    }
+  return m;
+}
+
+svo::Mesh makeBox(const glm::dvec3& lo, const glm::dvec3& hi) {
+  svo::Mesh m;
+  for (int k = 0; k < 8; ++k)
+    m.positions.emplace_back(k & 1 ? hi.x : lo.x, k & 2 ? hi.y : lo.y, k & 4 ? hi.z : lo.z);
+  const int faces[6][4] = {{0, 2, 6, 4}, {1, 5, 7, 3}, {0, 4, 5, 1},
+                           {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 6, 7, 5}};
+  for (const auto& f : faces) {
+    m.triangles.emplace_back(f[0], f[1], f[2]);
+    m.triangles.emplace_back(f[0], f[2], f[3]);
+  }
+  return m;
+}
+
+svo::Mesh makeRandomTriangles(std::uint64_t seed, int count, const glm::dvec3& lo, const glm::dvec3& hi,
+                              double maxEdge) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  svo::Mesh m;
+  for (int i = 0; i < count; ++i) {
+    const glm::dvec3 a = lo + (hi - lo) * glm::dvec3(uni(rng), uni(rng), uni(rng));
+    const auto offset = [&] {
+      return glm::clamp(a + maxEdge * (2.0 * glm::dvec3(uni(rng), uni(rng), uni(rng)) - 1.0), lo, hi);
+    };
+    const std::uint32_t base = std::uint32_t(m.positions.size());
+    m.positions.push_back(a);
+    m.positions.push_back(offset());
+    m.positions.push_back(offset());
+    m.triangles.emplace_back(base, base + 1, base + 2);
+  }
+  return m;
+}
+
+void appendMesh(svo::Mesh& to, const svo::Mesh& from) {
+  const std::uint32_t base = std::uint32_t(to.positions.size());
+  to.positions.insert(to.positions.end(), from.positions.begin(), from.positions.end());
+  for (const glm::uvec3& t : from.triangles) to.triangles.push_back(t + base);
 }
 
 }  // namespace svotest

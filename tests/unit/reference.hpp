@@ -1,9 +1,10 @@
-// Independent double-precision references for the unit tests. Nothing here shares code with the builder or the
-// ray caster: triangle/box overlap is decided by exact polygon clipping (not by the separating-axis test the
-// builder uses), leaf voxels are enumerated by brute force, and rays are clipped against convex voxel shapes
-// (cube intersected with contour slabs) slab by slab, Kay-Kajiya style.
+// Independent double-precision references for the unit tests. Nothing here shares code with the builder or
+// the ray caster: triangle/box overlap is decided by exact polygon clipping (not by the separating-axis test
+// the builder uses), leaf voxels are enumerated by brute force, and rays are clipped against convex voxel
+// shapes (cube intersected with contour slabs) slab by slab, Kay-Kajiya style.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <vector>
@@ -20,19 +21,19 @@ namespace svotest {
 inline constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // ---------------------------------------------------------------------------------------------------------
-// (a) Triangle / closed axis-aligned box overlap by Sutherland-Hodgman clipping of the triangle against the six
-// box planes, in double. Overlap <=> the clipped polygon is non-empty. Degenerate triangles (segments, points)
-// are handled the same way.
-bool triangleBoxOverlap(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c, const glm::dvec3& boxMin,
-                        const glm::dvec3& boxMax);
+// (a) Triangle / closed axis-aligned box overlap by Sutherland-Hodgman clipping of the triangle against the
+// six box planes, in double. Overlap <=> the clipped polygon is non-empty. Degenerate triangles (segments,
+// points) are handled the same way.
+bool triangleBoxOverlap(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c,
+                        const glm::dvec3& boxMin, const glm::dvec3& boxMax);
 
 // ---------------------------------------------------------------------------------------------------------
-// (b) Finest-level cubes a mesh overlaps. Cube (x, y, z) at `levels` is [1 + x h, 1 + (x+1) h] x ... in octree
-// space, h = 2^-levels. `margin` (octree units) grows every cube by that much on all sides (negative shrinks it):
-// a builder that is right up to rounding must lie between the shrunk and the grown sets. Brute force over the
-// cubes in each triangle's bounding box. Result sorted (by packCoord) and unique.
-std::vector<glm::ivec3> referenceLeafVoxels(const svo::Mesh& mesh, const svo::SceneTransform& transform, int levels,
-                                            double margin = 0.0);
+// (b) Finest-level cubes a mesh overlaps. Cube (x, y, z) at `levels` is [1 + x h, 1 + (x+1) h] x ... in
+// octree space, h = 2^-levels. `margin` (octree units) grows every cube by that much on all sides (negative
+// shrinks it): a builder that is right up to rounding must lie between the shrunk and the grown sets. Brute
+// force over the cubes in each triangle's bounding box. Result sorted (by packCoord) and unique.
+std::vector<glm::ivec3> referenceLeafVoxels(const svo::Mesh& mesh, const svo::SceneTransform& transform,
+                                            int levels, double margin = 0.0);
 
 // Packs integer cube coordinates (each < 2^21) into one sortable key.
 inline std::uint64_t packCoord(const glm::ivec3& c) {
@@ -44,9 +45,9 @@ void sortUnique(std::vector<glm::ivec3>& coords);
 // ---------------------------------------------------------------------------------------------------------
 // (d) Leaf voxels of a block or of a voxel tree, with the chain of contours of the voxel and its ancestors.
 struct ChainContour {
-  int level = 0;            // level of the voxel that owns the contour (root = 0)
-  glm::ivec3 coord{0};      // that voxel's integer coordinates at `level`
-  std::uint32_t bits = 0;   // raw contour value (decode with svo::decodeContour)
+  int level = 0;           // level of the voxel that owns the contour (root = 0)
+  glm::ivec3 coord{0};     // that voxel's integer coordinates at `level`
+  std::uint32_t bits = 0;  // raw contour value (decode with svo::decodeContour)
 };
 struct LeafVoxel {
   glm::ivec3 coord{0};  // integer cube coordinates at `level`
@@ -57,13 +58,14 @@ struct LeafVoxel {
 std::vector<LeafVoxel> walkLeaves(const svo::BlockView& block);
 // Walks builder records (root first, children contiguous in slot order).
 std::vector<LeafVoxel> walkLeaves(const svo::VoxelTree& tree);
-// Coordinates of the leaves at `level`, sorted and unique; `otherLevels` counts the leaves at any other level.
+// Coordinates of the leaves at `level`, sorted and unique; `otherLevels` counts the leaves at any other
+// level.
 std::vector<glm::ivec3> leafCoords(const std::vector<LeafVoxel>& leaves, int level, std::size_t* otherLevels);
 
 // ---------------------------------------------------------------------------------------------------------
 // (c) Brute-force ray caster over convex voxel shapes, double precision.
-// A slab is lo <= q.x <= hi for an integer-valued normal q (the contour's 6-bit normal, unscaled), x in octree
-// space. Keeping q integral makes q.d exact for axis-aligned and most quantized normals.
+// A slab is lo <= q.x <= hi for an integer-valued normal q (the contour's 6-bit normal, unscaled), x in
+// octree space. Keeping q integral makes q.d exact for axis-aligned and most quantized normals.
 struct Slab {
   glm::dvec3 q{0.0};
   double lo = 0.0, hi = 0.0;
@@ -80,10 +82,10 @@ Shape cubeShape(const glm::ivec3& coord, int level);
 // Clips the ray's t >= 0 part against the shape grown by `margin` (octree units, every face and slab moved
 // outwards by that distance; negative shrinks). Zero direction components are handled exactly (the ray is
 // inside a slab or not). Returns false when the clipped span is empty.
-bool clipRay(const Shape& shape, const glm::dvec3& origin, const glm::dvec3& direction, double margin, double& t0,
-             double& t1);
-bool clipBox(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& origin, const glm::dvec3& direction,
-             double margin, double& t0, double& t1);
+bool clipRay(const Shape& shape, const glm::dvec3& origin, const glm::dvec3& direction, double margin,
+             double& t0, double& t1);
+bool clipBox(const glm::dvec3& lo, const glm::dvec3& hi, const glm::dvec3& origin,
+             const glm::dvec3& direction, double margin, double& t0, double& t1);
 
 struct RefHit {
   int voxel = -1;  // index into the shape list; -1 = miss
@@ -93,10 +95,12 @@ struct RefHit {
 
 // First hit over all shapes (the smallest entry t; ties go to the lower index). Exact brute force; shapes are
 // bucketed by their level-3 ancestor cube only to skip buckets whose cube the ray enters after the best hit.
+// `minLength` > 0 ignores shapes the ray crosses for less than that (touching contacts).
 class RefCaster {
  public:
   explicit RefCaster(std::vector<Shape> shapes);
-  RefHit first(const glm::dvec3& origin, const glm::dvec3& direction, double margin = 0.0) const;
+  RefHit first(const glm::dvec3& origin, const glm::dvec3& direction, double margin = 0.0,
+               double minLength = 0.0) const;
   const std::vector<Shape>& shapes() const { return shapes_; }
 
  private:
@@ -110,6 +114,19 @@ class RefCaster {
 
 // ---------------------------------------------------------------------------------------------------------
 // (e) Closest distance from a point to a triangle (Ericson, "Real-Time Collision Detection" 5.1.5), double.
-double pointTriangleDistance(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c);
+double pointTriangleDistance(const glm::dvec3& p, const glm::dvec3& a, const glm::dvec3& b,
+                             const glm::dvec3& c);
+
+// ---------------------------------------------------------------------------------------------------------
+// (f) Test meshes.
+// UV sphere: 2 * slices * (stacks - 1) triangles, vertices exactly on the sphere.
+svo::Mesh makeSphere(const glm::dvec3& centre, double radius, int stacks, int slices);
+// Axis-aligned box surface, 12 triangles.
+svo::Mesh makeBox(const glm::dvec3& lo, const glm::dvec3& hi);
+// Random triangles with vertices in [lo, hi]: each triangle is a random point plus two random offsets of at
+// most `maxEdge` (clamped into the box).
+svo::Mesh makeRandomTriangles(std::uint64_t seed, int count, const glm::dvec3& lo, const glm::dvec3& hi,
+                              double maxEdge);
+void appendMesh(svo::Mesh& to, const svo::Mesh& from);
 
 }  // namespace svotest

@@ -88,7 +88,8 @@ TEST_F(Cli, BuildAndRenderRoundTrip) {
   ASSERT_EQ(r.exitCode, 0) << r.err;
   EXPECT_TRUE(fs::file_size(png) > 0);
   EXPECT_NE(r.out.find("Mrays/s"), std::string::npos);
-  CommandResult x = svo("render " + svoFile.string() + " -o " + exr.string() + " --width 32 --height 32 --aux");
+  CommandResult x =
+      svo("render " + svoFile.string() + " -o " + exr.string() + " --width 32 --height 32 --aux");
   ASSERT_EQ(x.exitCode, 0) << x.err;
 }
 
@@ -100,35 +101,41 @@ TEST_F(Cli, FlatMeshBuilds) {
 }
 
 TEST_F(Cli, MissingMesh) {
-  expectCleanFailure(svo("build " + (dir_ / "nope.obj").string() + " -o " + (dir_ / "o.svo").string()), "nope.obj",
-                     dir_ / "o.svo");
+  expectCleanFailure(svo("build " + (dir_ / "nope.obj").string() + " -o " + (dir_ / "o.svo").string()),
+                     "nope.obj", dir_ / "o.svo");
 }
 
 TEST_F(Cli, UnknownFormat) {
   const fs::path junk = write("junk.xyz", "this is not a mesh\n\x01\x02");
-  expectCleanFailure(svo("build " + junk.string() + " -o " + (dir_ / "o.svo").string()), "junk.xyz", dir_ / "o.svo");
+  expectCleanFailure(svo("build " + junk.string() + " -o " + (dir_ / "o.svo").string()), "junk.xyz",
+                     dir_ / "o.svo");
 }
 
 TEST_F(Cli, EmptyMesh) {
   const fs::path empty = write("empty.obj", "# nothing\n");
-  expectCleanFailure(svo("build " + empty.string() + " -o " + (dir_ / "o.svo").string()), "empty.obj", dir_ / "o.svo");
+  expectCleanFailure(svo("build " + empty.string() + " -o " + (dir_ / "o.svo").string()), "empty.obj",
+                     dir_ / "o.svo");
 }
 
 TEST_F(Cli, NonFiniteVertex) {
   const fs::path bad = write("nan.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n");
-  expectCleanFailure(svo("build " + bad.string() + " -o " + (dir_ / "o.svo").string()), "nan.obj", dir_ / "o.svo");
+  expectCleanFailure(svo("build " + bad.string() + " -o " + (dir_ / "o.svo").string()), "nan.obj",
+                     dir_ / "o.svo");
   const fs::path inf = write("inf.obj", "v 0 0 0\nv inf 0 0\nv 0 1 0\nf 1 2 3\n");
-  expectCleanFailure(svo("build " + inf.string() + " -o " + (dir_ / "o.svo").string()), "inf.obj", dir_ / "o.svo");
+  expectCleanFailure(svo("build " + inf.string() + " -o " + (dir_ / "o.svo").string()), "inf.obj",
+                     dir_ / "o.svo");
 }
 
 TEST_F(Cli, OnlyDegenerateTriangles) {
   const fs::path bad = write("degen.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nv 3 0 0\nf 1 2 3\nf 1 1 4\n");
-  expectCleanFailure(svo("build " + bad.string() + " -o " + (dir_ / "o.svo").string()), "triangles", dir_ / "o.svo");
+  expectCleanFailure(svo("build " + bad.string() + " -o " + (dir_ / "o.svo").string()), "triangles",
+                     dir_ / "o.svo");
 }
 
 TEST_F(Cli, LevelsOutOfRange) {
   for (const char* levels : {"0", "24", "-3", "ten"}) {
-    CommandResult r = svo("build " + tetrahedron().string() + " -o " + (dir_ / "o.svo").string() + " --levels " + levels);
+    CommandResult r =
+        svo("build " + tetrahedron().string() + " -o " + (dir_ / "o.svo").string() + " --levels " + levels);
     EXPECT_NE(r.exitCode, 0) << levels;
     EXPECT_NE(r.err.find("--levels"), std::string::npos) << r.err;
     EXPECT_FALSE(fs::exists(dir_ / "o.svo"));
@@ -149,7 +156,8 @@ TEST_F(Cli, TruncatedForeignAndCorruptStores) {
   expectCleanFailure(svo("render " + truncated.string() + " -o " + png.string()), "truncated", png);
   const fs::path shortHeader = write("short.svo", bytes.substr(0, 20));
   expectCleanFailure(svo("render " + shortHeader.string() + " -o " + png.string()), "short.svo", png);
-  const fs::path foreign = write("foreign.svo", "\x89PNG\r\n\x1a\n not an octree at all, but long enough to read");
+  const fs::path foreign =
+      write("foreign.svo", "\x89PNG\r\n\x1a\n not an octree at all, but long enough to read");
   expectCleanFailure(svo("render " + foreign.string() + " -o " + png.string()), "not an svostream file", png);
   std::string flipped = bytes;
   flipped[flipped.size() - 10] ^= 0x40;
@@ -166,11 +174,13 @@ TEST_F(Cli, BadCameraAndOutput) {
   ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + good.string() + " --levels 5").exitCode, 0);
   expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.bmp").string()), ".png or .exr",
                      dir_ / "x.bmp");
-  expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --eye 1,1,1 --target 1,1,1"),
-                     "eye", dir_ / "x.png");
+  expectCleanFailure(
+      svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --eye 1,1,1 --target 1,1,1"),
+      "eye", dir_ / "x.png");
   const fs::path cams = write("cams.json", "{\"eye\": [1, 2], \"target\": [0, 0, 0]}");
-  expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --camera " + cams.string()),
-                     "eye", dir_ / "x.png");
+  expectCleanFailure(
+      svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --camera " + cams.string()),
+      "eye", dir_ / "x.png");
 }
 
 }  // namespace

@@ -93,8 +93,8 @@ void runBuildBench(const BuildArgs& args) {
   const VdbMesh vdbMesh = toVdbMesh(mesh, scene.origin);
 #endif
 
-  Table table({"resolution", "ESVO time", "ESVO leaf voxels", "ESVO total voxels", "ESVO MB", "OpenVDB time",
-               "OpenVDB active voxels", "OpenVDB MB", "ESVO / OpenVDB time"});
+  Table table({"resolution", "ESVO time", "ESVO leaves", "ESVO voxels", "ESVO MB", "VDB time", "VDB active",
+               "VDB MB", "ESVO/VDB"});
   for (const std::int64_t resolution : resolutions) {
     const int levels = levelsOfResolution(resolution, "--resolutions");
     BuildOptions options;
@@ -119,23 +119,26 @@ void runBuildBench(const BuildArgs& args) {
     spdlog::info("{}^3: OpenVDB meshToLevelSet, {} runs ...", resolution, args.runs);
     peer = runOpenVdb(vdbMesh, scene.size / double(resolution), args.runs);
 #endif
-    const std::string notBuilt(kPeerNotBuilt);
-    table.addRow({fmt::format("{}^3", resolution), formatSeconds(esvo.median), formatCount(stats.leafVoxels),
-                  formatCount(totalVoxels), megabytes(blockBytes),
-                  peer ? formatSeconds(peer->seconds.median) : notBuilt,
-                  peer ? formatCount(peer->activeVoxels) : notBuilt,
-                  peer ? megabytes(peer->memoryBytes) : notBuilt,
-                  peer ? fmt::format("{:.2f}x", esvo.median / peer->seconds.median) : notBuilt});
+    // Without the peer its columns show a dash and the ratio says why.
+    const std::string none = "-";
+    table.addRow(
+        {fmt::format("{}^3", resolution), formatSeconds(esvo.median), formatCount(stats.leafVoxels),
+         formatCount(totalVoxels), megabytes(blockBytes), peer ? formatSeconds(peer->seconds.median) : none,
+         peer ? formatCount(peer->activeVoxels) : none, peer ? megabytes(peer->memoryBytes) : none,
+         peer ? fmt::format("{:.2f}x", esvo.median / peer->seconds.median) : std::string(kPeerNotBuilt)});
   }
 
-  printTitle(fmt::format("Building {} ({} triangles, scene cube {:.4g}), {} threads, median of {} runs",
-                         args.mesh, formatCount(mesh.triangles.size()), scene.size, threads, args.runs));
+  printTitle("Building: ESVO octree vs OpenVDB level set, same triangles");
+  fmt::print("{}: {} triangles; scene cube {:.4g}; {} threads; median of {} runs\n", args.mesh,
+             formatCount(mesh.triangles.size()), scene.size, threads, args.runs);
   table.print();
   fmt::print(
       "ESVO: svo::buildOctree (voxelize with contours, colors, normals + block layout), levels = log2 "
-      "resolution.\nOpenVDB: tools::meshToLevelSet<FloatGrid>, voxel size = scene cube / resolution, half "
-      "width "
-      "{:.0f} voxels. ESVO / OpenVDB < 1: ESVO faster.\n",
+      "resolution;\n  leaves = leaf voxels, voxels = voxels of all levels, MB = block bytes.\n"
+      "VDB: OpenVDB tools::meshToLevelSet<FloatGrid>, voxel size = scene cube / resolution, half width "
+      "{:.0f} "
+      "voxels;\n  active = active voxels of the narrow band, MB = Grid::memUsage.\n"
+      "ESVO/VDB: ratio of median times (< 1: ESVO faster).\n",
       kLevelSetHalfWidth);
 }
 

@@ -7,7 +7,6 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
-#include <numeric>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -52,7 +51,7 @@ struct RaycastArgs {
   int size = 1024;
   int runs = 5;
   float lodPixels = 1.0f;
-  std::string view = "0,0,-1";
+  std::string view = "-0.35,-0.25,-1";  // the default view of `svo render`
   int threads = 0;
 };
 
@@ -77,17 +76,19 @@ void forEachRowTile(int height, int threads, F&& traceRows) {
   });
 }
 
-// ESVO without shading: octreeRay + castRay per pixel, depth written like the Embree peer does.
+// ESVO without shading: PixelRays + castRay per pixel, depth written like the Embree peer does.
 TraceResult traceEsvo(const Octree& octree, const Camera& camera, const RenderOptions& options, int threads) {
   TraceResult result;
   result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
   const BlockView block = octree.block.view();
+  // Per-frame ray constants computed once, as svo::render does.
+  const PixelRays rays(octree.transform, camera, options.lodPixels);
   std::atomic<std::uint64_t> iterations{0};
   forEachRowTile(camera.height, threads, [&](int y0, int y1) {
     std::uint64_t tileIterations = 0;
     for (int y = y0; y < y1; ++y) {
       for (int x = 0; x < camera.width; ++x) {
-        const OctreeRay ray = octreeRay(octree.transform, camera, x, y, options.lodPixels);
+        const OctreeRay ray = rays(x, y);
         const CastHit hit = castRay(block, ray, options.cast);
         tileIterations += std::uint64_t(hit.iterations);
         if (hit.hit) result.depth[std::size_t(y) * camera.width + x] = hit.t;
@@ -151,6 +152,10 @@ class EmbreePeer {
   TraceResult trace(const Camera& camera, int threads) const {
     TraceResult result;
     result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
+    // Per-frame constants computed once, as svo::render does: the look-at basis and the eye relative to the
+    // scene centre.
+    const Camera::Basis basis = camera.basis();
+    const glm::vec3 origin(camera.eye - centre_);
     forEachRowTile(camera.height, threads, [&](int y0, int y1) {
       const unsigned savedCsr = _mm_getcsr();
       _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
@@ -159,9 +164,8 @@ class EmbreePeer {
       rtcInitIntersectContext(&context);
       for (int y = y0; y < y1; ++y) {
         for (int x = 0; x < camera.width; ++x) {
-          glm::dvec3 origin, direction;
-          camera.pixelRay(x, y, origin, direction);
-          origin -= centre_;
+          glm::dvec3 direction;
+          Camera::pixelRay(camera, basis, x, y, direction);
           RTCRayHit rayHit;
           rayHit.ray.org_x = float(origin.x);
           rayHit.ray.org_y = float(origin.y);
@@ -268,31 +272,34 @@ void printMemory(const BuildStats& stats, const Octree& octree) {
 
   printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, block {:.1f} MB)",
                          formatCount(stats.leafVoxels), double(octree.block.bytes().size()) / (1 << 20)));
-  Table table({"part", "ESVO B/voxel", "paper Table 1 B/voxel", "ESVO / paper"});
+  Table table({"part", "ESVO B/voxel", "paper B/voxel", "ESVO/paper"});
   const auto row = [&](std::string name, double ours, double paper) {
     table.addRow({std::move(name), fmt::format("{:.2f}", ours), fmt::format("~{:.0f}", paper),
                   fmt::format("{:.2f}x", ours / paper)});
   };
-  row("hierarchy (descriptors, far pointers, page headers)", hierarchy, kPaperHierarchyBytes);
+  row("hierarchy (incl. far pointers, page headers)", hierarchy, kPaperHierarchyBytes);
   row("contours", contours, kPaperContourBytes);
   row(hasColor ? "attributes (color + normal, uncompressed)" : "attributes (normal only, uncompressed)",
       attributes, paperAttributes);
-  row("total (incl. info section and padding)", total, paperTotal);
+  row("total (incl. info section, padding)", total, paperTotal);
   table.print();
   fmt::print("attribute values stored: {} colors ({} inherited), {} normals ({} inherited); {} contours\n",
              formatCount(layout.colorValues), formatCount(layout.inheritedColors),
              formatCount(layout.normalValues), formatCount(layout.inheritedNormals),
              formatCount(stats.contours));
+  const double paperWithColor =
+      kPaperHierarchyBytes + kPaperContourBytes + kPaperColorBytes + kPaperNormalBytes;
   fmt::print(
-      "paper: ~{:.0f} B/voxel with compressed attributes (hierarchy ~{:.0f}, contours ~{:.0f}{}, normal "
-      "{:.0f}).\n"
-      "uncompressed attributes here take {:.2f} B/voxel, {:.2f}x the paper's {:.0f}; the total is {:.2f} "
-      "B/voxel, "
-      "{:.2f}x the paper's ~{:.0f} ({:+.2f} B/voxel).\n",
-      paperTotal, kPaperHierarchyBytes, kPaperContourBytes,
-      hasColor ? fmt::format(", color {:.0f}", kPaperColorBytes) : std::string(", no color in this scene"),
-      kPaperNormalBytes, attributes, attributes / paperAttributes, paperAttributes, total, total / paperTotal,
-      paperTotal, total - paperTotal);
+      "paper Table 1: ~{:.0f} B/voxel with compressed attributes (hierarchy ~{:.0f}, contours ~{:.0f}, "
+      "color {:.0f}, normal {:.0f}){}.\n",
+      paperWithColor, kPaperHierarchyBytes, kPaperContourBytes, kPaperColorBytes, kPaperNormalBytes,
+      hasColor ? std::string()
+               : fmt::format("; this scene has no color, so ~{:.0f} is the comparable figure", paperTotal));
+  fmt::print(
+      "uncompressed attributes here: {:.2f} B/voxel, {:.2f}x the paper's compressed {:.0f} ({:+.2f}); "
+      "total {:.2f} B/voxel, {:.2f}x the paper's ~{:.0f} ({:+.2f}).\n",
+      attributes, attributes / paperAttributes, paperAttributes, attributes - paperAttributes, total,
+      total / paperTotal, paperTotal, total - paperTotal);
 }
 
 void printAgreement([[maybe_unused]] const std::vector<float>& esvo, [[maybe_unused]] const TraceResult* peer,
@@ -394,23 +401,23 @@ void runRaycastBench(const RaycastArgs& args) {
   peerSeconds = peer->seconds.median;
 #endif
 
-  printTitle(
-      fmt::format("Ray casting {} ({} triangles), {}x{} primary rays, {} levels, lod {} px, {} threads, "
-                  "median of {} runs",
-                  args.mesh, formatCount(mesh.triangles.size()), camera.width, camera.height, args.levels,
-                  args.lodPixels, threads, args.runs));
-  Table table({"method", "Mrays/s", "min / max Mrays/s", "median time", "hit pixels", "iterations/ray",
-               "ESVO / Embree"});
+  printTitle("Ray casting: ESVO vs Embree 3, same camera rays");
+  fmt::print("{}: {} triangles; {}x{} primary rays; {} levels; lod {} px; {} threads; median of {} runs\n",
+             args.mesh, formatCount(mesh.triangles.size()), camera.width, camera.height, args.levels,
+             args.lodPixels, threads, args.runs);
+  Table table({"method", "Mrays/s", "min/max", "time", "hit px", "iter/ray", "vs Embree"});
   addMethodRow(table, "ESVO svo::render (shaded)", shaded, rays, true, peerSeconds);
   addMethodRow(table, "ESVO castRay (depth only)", cast, rays, true, peerSeconds);
   if (peer) {
-    addMethodRow(table, "Embree 3 rtcIntersect1", *peer, rays, false, std::nullopt);
+    addMethodRow(table, "Embree 3 rtcIntersect1", *peer, rays, false, peerSeconds);
   } else {
     table.addRow({"Embree 3 rtcIntersect1", std::string(kPeerNotBuilt)});
   }
   table.print();
   fmt::print(
-      "ESVO / Embree is the ratio of throughputs (> 1: ESVO faster). Build: ESVO octree {}, Embree BVH {}.\n",
+      "Mrays/s: median, min/max over the runs; time: median wall time of one frame; iter/ray: ESVO loop\n"
+      "iterations per ray, all rays; vs Embree: throughput ratio (> 1: faster than Embree).\n"
+      "Build: ESVO octree {}, Embree BVH {}.\n",
       formatSeconds(esvoBuildSeconds), peer ? formatSeconds(peerBuildSeconds) : std::string(kPeerNotBuilt));
 
   printMemory(stats, octree);

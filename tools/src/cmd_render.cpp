@@ -12,7 +12,9 @@ namespace svo::tools {
 void checkWritableOutput(const std::filesystem::path& out);  // cmd_build.cpp
 
 namespace {
-glm::dvec3 vec3Of(const std::vector<double>& v) { return {v[0], v[1], v[2]}; }
+glm::dvec3 vec3Of(const std::vector<double>& v) {
+  return {v[0], v[1], v[2]};
+}
 }  // namespace
 
 void addRenderCommand(CLI::App& app) {
@@ -33,20 +35,30 @@ void addRenderCommand(CLI::App& app) {
   cmd->add_option("--target", args->target, "point looked at x,y,z (world)")->expected(3)->delimiter(',');
   cmd->add_option("--up", args->up, "up vector x,y,z")->expected(3)->delimiter(',')->capture_default_str();
   cmd->add_option("--view", args->view, "without --eye: look along this direction at the whole scene")
-      ->expected(3)->delimiter(',')->capture_default_str();
-  cmd->add_option("--fov", args->fov, "vertical field of view, degrees")->check(CLI::Range(1.0, 179.0))->capture_default_str();
+      ->expected(3)
+      ->delimiter(',')
+      ->capture_default_str();
+  cmd->add_option("--fov", args->fov, "vertical field of view, degrees")
+      ->check(CLI::Range(1.0, 179.0))
+      ->capture_default_str();
   cmd->add_option("--width", args->width, "image width")->check(CLI::Range(1, 16384))->capture_default_str();
-  cmd->add_option("--height", args->height, "image height")->check(CLI::Range(1, 16384))->capture_default_str();
-  cmd->add_option("--lod-pixels", args->options.lodPixels, "stop at voxels this many pixels across (0 = finest)")
-      ->check(CLI::Range(0.0, 64.0))->capture_default_str();
+  cmd->add_option("--height", args->height, "image height")
+      ->check(CLI::Range(1, 16384))
+      ->capture_default_str();
+  cmd->add_option("--lod-pixels", args->options.lodPixels,
+                  "stop at voxels this many pixels across (0 = finest)")
+      ->check(CLI::Range(0.0, 64.0))
+      ->capture_default_str();
   cmd->add_flag("--no-contours", args->noContours, "ignore contours: cube voxels");
   cmd->add_flag("--aux", args->aux, "EXR only: add depth (Z) and voxel-size-in-pixels channels");
-  cmd->add_option("--threads", args->options.threads, "threads (0 = all cores)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--threads", args->options.threads, "threads (0 = all cores)")
+      ->check(CLI::NonNegativeNumber);
   cmd->callback([args] {
     const std::filesystem::path out = args->out;
     const std::string ext = out.extension().string();
     if (ext != ".png" && ext != ".exr") throw UsageError(args->out + ": output must end in .png or .exr");
-    if (args->aux && ext != ".exr") throw UsageError("--aux needs an .exr output (PNG has no float channels)");
+    if (args->aux && ext != ".exr")
+      throw UsageError("--aux needs an .exr output (PNG has no float channels)");
     checkWritableOutput(out);
     const Octree octree = readOctree(args->in);
     Camera camera;
@@ -68,8 +80,8 @@ void addRenderCommand(CLI::App& app) {
     options.cast.contours = !args->noContours && octree.parameters.contours;
     const Frame frame = render(octree, camera, options);
     writeFrame(out, frame, args->aux);
-    std::printf("wrote %s (%dx%d): %.3f s, %.2f Mrays/s, %.1f iterations/ray\n", args->out.c_str(), frame.width,
-                frame.height, frame.seconds, frame.mraysPerSecond(), frame.meanIterations);
+    std::printf("wrote %s (%dx%d): %.3f s, %.2f Mrays/s, %.1f iterations/ray\n", args->out.c_str(),
+                frame.width, frame.height, frame.seconds, frame.mraysPerSecond(), frame.meanIterations);
   });
 }
 

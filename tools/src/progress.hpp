@@ -38,9 +38,9 @@ class ProgressBar {
     const double eta = fraction > 0.01 ? elapsed * (1.0 - fraction) / fraction : 0.0;
     constexpr int kWidth = 30;
     const int filled = int(fraction * kWidth);
-    std::fprintf(stderr, "%s%-8s [%s%s] %5.1f%%  %6.1fs elapsed  ETA %5.1fs%s", tty_ ? "\r" : "", phase_.c_str(),
-                 std::string(filled, '#').c_str(), std::string(kWidth - filled, '.').c_str(), fraction * 100.0,
-                 elapsed, eta, tty_ ? "" : "\n");
+    std::fprintf(stderr, "%s%-8s [%s%s] %5.1f%%  %6.1fs elapsed  ETA %5.1fs%s", tty_ ? "\r" : "",
+                 phase_.c_str(), std::string(filled, '#').c_str(), std::string(kWidth - filled, '.').c_str(),
+                 fraction * 100.0, elapsed, eta, tty_ ? "" : "\n");
     std::fflush(stderr);
   }
 

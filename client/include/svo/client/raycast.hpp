@@ -30,16 +30,16 @@ struct CastOptions {
 struct CastHit {
   bool hit = false;
   float t = 0.0f;
-  glm::vec3 position{0.0f};               // clamped into the hit voxel's cube (sec. 6.1, "hit position")
+  glm::vec3 position{0.0f};                 // clamped into the hit voxel's cube (sec. 6.1, "hit position")
   const ChildDescriptor* parent = nullptr;  // descriptor holding the hit voxel
   int childSlot = 0;                        // slot of the hit voxel in `parent`
   int scale = 0;                            // voxel size is 2^(scale - 23) octree units
   int iterations = 0;
-  bool leaf = false;                        // false when stopped by level of detail
+  bool leaf = false;  // false when stopped by level of detail
   // Descriptor and slot of every ancestor by scale, for attribute inheritance: ancestor at scale s is child
-  // `pathSlot[s]` of `pathParent[s]`. Valid for s in [scale, 22].
-  const ChildDescriptor* pathParent[kMaxLevels] = {};
-  std::uint8_t pathSlot[kMaxLevels] = {};
+  // `pathSlot[s]` of `pathParent[s]`. Valid for s in (scale, 22].
+  const ChildDescriptor* pathParent[kMaxLevels];  // left uninitialized: written by each PUSH
+  std::uint8_t pathSlot[kMaxLevels];
 
   float voxelSize() const;  // octree units
   glm::vec3 cubeMin{0.0f};  // hit voxel's cube, octree units

@@ -22,6 +22,13 @@ struct Camera {
 
   // World-space ray through pixel centre (x + 0.5, y + 0.5); direction unit length.
   void pixelRay(double x, double y, glm::dvec3& origin, glm::dvec3& direction) const;
+  // The look-at basis and image-plane scale, computed once per frame for pixelRay-equivalent rays.
+  struct Basis {
+    glm::dvec3 forward, right, up;
+    double tanHalf = 0.0, aspect = 1.0;
+  };
+  Basis basis() const;
+  static void pixelRay(const Camera& camera, const Basis& basis, double x, double y, glm::dvec3& direction);
   // Angle subtended by one pixel (radians), for the level-of-detail footprint.
   double pixelAngle() const;
   // Throws std::runtime_error when eye == target, up is parallel to the view, fov out of (0, 180) or a size
@@ -57,6 +64,20 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
 
 // The world-space ray of a pixel mapped into octree space with its level-of-detail footprint.
 OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px, double py, float lodPixels);
+
+// The same rays with the per-frame constants computed once (what render uses).
+class PixelRays {
+ public:
+  PixelRays(const SceneTransform& scene, const Camera& camera, float lodPixels);
+  OctreeRay operator()(double px, double py) const;
+
+ private:
+  const SceneTransform& scene_;
+  const Camera& camera_;
+  Camera::Basis basis_;
+  glm::vec3 origin_;
+  float footprintSlope_ = 0.0f;
+};
 
 // Writes PNG (8-bit sRGB) or EXR (float, with Z and voxelPixels channels when `withAux`) by extension.
 // Writes to a temporary name and renames; throws std::runtime_error naming the path on failure.

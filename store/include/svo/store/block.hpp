@@ -33,9 +33,9 @@ struct BlockInfo {
 };
 struct AttachmentEntry {
   AttachmentType type;
-  std::int32_t pointer;        // words from the info section to the attachment start (lookup array)
-  std::uint32_t rootValue;     // the root voxel's own value: what a chain of inheriting voxels ends at
-  std::uint32_t valueCount;    // values after the lookup array
+  std::int32_t pointer;      // words from the info section to the attachment start (lookup array)
+  std::uint32_t rootValue;   // the root voxel's own value: what a chain of inheriting voxels ends at
+  std::uint32_t valueCount;  // values after the lookup array
 };
 inline constexpr std::uint32_t kBlockInfoMagic = 0x4f464e49;  // "INFO"
 

@@ -24,7 +24,8 @@ inline constexpr std::uint32_t kMaxWordPointer = (1u << 24) - 1;
 
 // ---------------------------------------------------------------------------------------------------------
 // Child descriptor (Fig. 2). Word 0: [31:17] child pointer, [16] far, [15:8] valid mask, [7:0] leaf mask.
-// Word 1: [31:8] contour pointer, [7:0] contour mask. Bit i of a mask is child slot i (x = bit 0, y = 1, z = 2).
+// Word 1: [31:8] contour pointer, [7:0] contour mask. Bit i of a mask is child slot i (x = bit 0, y = 1, z =
+// 2).
 struct ChildDescriptor {
   std::uint32_t topology = 0;
   std::uint32_t contour = 0;
@@ -47,13 +48,16 @@ struct ChildDescriptor {
 static_assert(sizeof(ChildDescriptor) == kSlotBytes);
 
 // Index of a child among the set bits of `mask` below it: the k-th stored child (paper sec. 5.1).
-constexpr int childRank(std::uint8_t mask, int slot) { return std::popcount(unsigned(mask) & ((1u << slot) - 1)); }
+constexpr int childRank(std::uint8_t mask, int slot) {
+  return std::popcount(unsigned(mask) & ((1u << slot) - 1));
+}
 
 // ---------------------------------------------------------------------------------------------------------
 // Contour (Fig. 4): [6:0] thickness (unsigned), [13:7] position (signed), [19:14] nz, [25:20] ny, [31:26] nx
 // (signed). In the voxel's own frame u = (x - center) / size, so u in [-1/2, 1/2]^3, the contour is the slab
 //   | n.u - position | <= thickness / 2,   n = (nx, ny, nz) / kContourNormalScale.
-// With |n_i| <= 1 the projection n.u spans at most [-3/2, 3/2]; position and thickness are scaled to cover it.
+// With |n_i| <= 1 the projection n.u spans at most [-3/2, 3/2]; position and thickness are scaled to cover
+// it.
 inline constexpr float kContourNormalScale = 31.0f;            // 6-bit signed, +-31
 inline constexpr float kContourPositionStep = 1.5f / 63.0f;    // 7-bit signed, +-63 covers +-3/2
 inline constexpr float kContourThicknessStep = 3.0f / 127.0f;  // 7-bit unsigned, 127 covers 3

@@ -1,0 +1,584 @@
+// Camera math against closed forms, camera JSON loading, octree-space rays, frame rendering of a known cube,
+// and PNG / EXR output read back through OpenImageIO.
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <numbers>
+#include <optional>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+#include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
+#include <glm/geometric.hpp>
+
+#include "svo/client/render.hpp"
+
+namespace svo {
+namespace {
+
+namespace fs = std::filesystem;
+constexpr double kPi = std::numbers::pi;
+
+double angleBetween(glm::dvec3 a, glm::dvec3 b) {
+  return std::atan2(glm::length(glm::cross(a, b)), glm::dot(a, b));
+}
+
+Camera makeCamera(glm::dvec3 eye, glm::dvec3 target, int width, int height, double fov = 45.0) {
+  Camera c;
+  c.eye = eye;
+  c.target = target;
+  c.fovYDegrees = fov;
+  c.width = width;
+  c.height = height;
+  return c;
+}
+
+// A fresh folder per test, removed afterwards.
+class TempDir {
+ public:
+  TempDir() {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    path_ = fs::temp_directory_path() /
+            ("svo_test_render_" + std::string(info->name()) + "_" + std::to_string(std::random_device{}()));
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ignored;
+    fs::remove_all(path_, ignored);
+  }
+  const fs::path& path() const { return path_; }
+  fs::path write(const std::string& name, const std::string& text) const {
+    const fs::path p = path_ / name;
+    std::ofstream(p) << text;
+    return p;
+  }
+
+ private:
+  fs::path path_;
+};
+
+// Runs `f`, expects std::runtime_error, returns its message.
+template <class F>
+std::string errorOf(F&& f) {
+  try {
+    f();
+  } catch (const std::runtime_error& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << "no std::runtime_error thrown";
+  return {};
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Camera
+
+TEST(Camera, CentrePixelRayIsTheViewDirection) {
+  const Camera c = makeCamera({1.0, 2.0, 5.0}, {-2.0, 0.5, -1.0}, 640, 480, 60.0);
+  glm::dvec3 origin, direction;
+  // Pixel (w/2 - 0.5, h/2 - 0.5) has its centre exactly at the image centre.
+  c.pixelRay(c.width / 2 - 0.5, c.height / 2 - 0.5, origin, direction);
+  const glm::dvec3 view = glm::normalize(c.target - c.eye);
+  EXPECT_NEAR(glm::length(origin - c.eye), 0.0, 1e-12);
+  EXPECT_NEAR(direction.x, view.x, 1e-12);
+  EXPECT_NEAR(direction.y, view.y, 1e-12);
+  EXPECT_NEAR(direction.z, view.z, 1e-12);
+  EXPECT_NEAR(glm::length(direction), 1.0, 1e-12);
+}
+
+TEST(Camera, CornerRayAngleMatchesClosedForm) {
+  for (const auto& [width, height, fov] :
+       {std::tuple{640, 480, 60.0}, {300, 600, 45.0}, {512, 512, 90.0}, {1920, 1080, 10.0}, {7, 3, 150.0}}) {
+    const Camera c = makeCamera({0.0, 0.0, 3.0}, {0.0, 0.0, 0.0}, width, height, fov);
+    const double aspect = double(width) / height;
+    const double expected = std::atan(std::tan(fov * kPi / 360.0) * std::sqrt(aspect * aspect + 1.0));
+    const glm::dvec3 view(0.0, 0.0, -1.0);
+    // The four image corners: pixel "centres" half a pixel outside the first and last pixels.
+    for (const auto& [x, y] :
+         {std::pair{-0.5, -0.5}, {width - 0.5, -0.5}, {-0.5, height - 0.5}, {width - 0.5, height - 0.5}}) {
+      glm::dvec3 origin, direction;
+      c.pixelRay(x, y, origin, direction);
+      EXPECT_NEAR(angleBetween(direction, view), expected, 1e-12) << width << "x" << height << " fov " << fov;
+    }
+    // Top and bottom edge centres subtend exactly half the vertical fov.
+    glm::dvec3 origin, top, bottom;
+    c.pixelRay(width / 2.0 - 0.5, -0.5, origin, top);
+    c.pixelRay(width / 2.0 - 0.5, height - 0.5, origin, bottom);
+    EXPECT_NEAR(angleBetween(top, view), fov * kPi / 360.0, 1e-12);
+    EXPECT_NEAR(angleBetween(top, bottom), fov * kPi / 180.0, 1e-12);
+  }
+}
+
+TEST(Camera, ImageAxesAreRightHandedWithRowZeroAtTheTop) {
+  // Looking down -z with y up: image +x is world +x, image row 0 is world +y.
+  const Camera c = makeCamera({0.0, 0.0, 3.0}, {0.0, 0.0, 0.0}, 100, 80);
+  glm::dvec3 origin, topLeft, bottomRight;
+  c.pixelRay(0, 0, origin, topLeft);
+  c.pixelRay(99, 79, origin, bottomRight);
+  EXPECT_LT(topLeft.x, 0.0);
+  EXPECT_GT(topLeft.y, 0.0);
+  EXPECT_GT(bottomRight.x, 0.0);
+  EXPECT_LT(bottomRight.y, 0.0);
+  EXPECT_LT(topLeft.z, 0.0);
+  // Symmetric pixels give mirrored rays.
+  EXPECT_NEAR(topLeft.x, -bottomRight.x, 1e-12);
+  EXPECT_NEAR(topLeft.y, -bottomRight.y, 1e-12);
+}
+
+TEST(Camera, PixelAngleIsTheCentrePixelsAngle) {
+  const Camera c = makeCamera({0.0, 0.0, 3.0}, {0.0, 0.0, 0.0}, 800, 600, 50.0);
+  EXPECT_NEAR(c.pixelAngle(), 2.0 * std::tan(50.0 * kPi / 360.0) / 600.0, 1e-15);
+  // Two rays one pixel apart across the image centre subtend pixelAngle to first order.
+  glm::dvec3 origin, a, b;
+  c.pixelRay(399.5 - 0.5, 299.5 - 0.5, origin, a);
+  c.pixelRay(399.5 + 0.5, 299.5 - 0.5, origin, b);
+  EXPECT_NEAR(angleBetween(a, b), c.pixelAngle(), c.pixelAngle() * 1e-5);
+}
+
+TEST(Camera, ValidateRejectsBadCameras) {
+  const Camera good = makeCamera({0.0, 0.0, 3.0}, {0.0, 0.0, 0.0}, 64, 48);
+  EXPECT_NO_THROW(good.validate());
+  const auto expectBad = [&](auto change, const std::string& fragment) {
+    Camera c = good;
+    change(c);
+    const std::string message = errorOf([&] { c.validate(); });
+    EXPECT_NE(message.find(fragment), std::string::npos) << message;
+  };
+  expectBad([](Camera& c) { c.target = c.eye; }, "differ");
+  expectBad([](Camera& c) { c.up = {0.0, 0.0, -2.0}; }, "parallel");
+  expectBad([](Camera& c) { c.up = {0.0, 0.0, 0.0}; }, "parallel");
+  expectBad([](Camera& c) { c.fovYDegrees = 0.0; }, "fov");
+  expectBad([](Camera& c) { c.fovYDegrees = 180.0; }, "fov");
+  expectBad([](Camera& c) { c.fovYDegrees = -10.0; }, "fov");
+  expectBad([](Camera& c) { c.width = 0; }, "width");
+  expectBad([](Camera& c) { c.height = 16385; }, "width");
+  expectBad([](Camera& c) { c.eye.x = std::numeric_limits<double>::quiet_NaN(); }, "finite");
+  expectBad([](Camera& c) { c.fovYDegrees = std::numeric_limits<double>::infinity(); }, "finite");
+  Camera edge = good;
+  edge.width = 1, edge.height = 16384;
+  EXPECT_NO_THROW(edge.validate());
+}
+
+TEST(Camera, FramingFitsTheSceneCube) {
+  const SceneTransform scene{{10.0, -4.0, 2.0}, 8.0};
+  const glm::dvec3 centre = scene.origin + 4.0;
+  for (const glm::dvec3 view : {glm::dvec3(0, 0, -1), glm::dvec3(1, -1, -1), glm::dvec3(0, -3, 0),
+                                glm::dvec3(0, 1, 0), glm::dvec3(-2, 0.5, 1)}) {
+    for (const auto& [width, height] : {std::pair{512, 512}, {800, 300}, {200, 700}}) {
+      const Camera c = Camera::framing(scene, view, width, height);
+      ASSERT_NO_THROW(c.validate());
+      EXPECT_EQ(c.width, width);
+      EXPECT_EQ(c.height, height);
+      EXPECT_NEAR(glm::length(c.target - centre), 0.0, 1e-9);
+      EXPECT_NEAR(angleBetween(c.target - c.eye, view), 0.0, 1e-9);
+      // Every cube corner lies inside the image: its projection is within the half-extents.
+      const glm::dvec3 f = glm::normalize(c.target - c.eye);
+      const glm::dvec3 r = glm::normalize(glm::cross(f, c.up));
+      const glm::dvec3 u = glm::cross(r, f);
+      const double tanY = std::tan(c.fovYDegrees * kPi / 360.0), tanX = tanY * width / height;
+      for (int corner = 0; corner < 8; ++corner) {
+        const glm::dvec3 p =
+            scene.origin + scene.size * glm::dvec3(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1) - c.eye;
+        const double depth = glm::dot(p, f);
+        ASSERT_GT(depth, 0.0);
+        EXPECT_LE(std::abs(glm::dot(p, r)) / depth, tanX * (1 + 1e-9));
+        EXPECT_LE(std::abs(glm::dot(p, u)) / depth, tanY * (1 + 1e-9));
+      }
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// loadCamera
+
+TEST(LoadCamera, ReadsAllKeys) {
+  TempDir dir;
+  const fs::path file = dir.write("cam.json", R"({"eye": [1, 2, 3], "target": [0.5, 0, -1], "up": [0, 0, 1],
+                                                  "fov": 30.5, "width": 320, "height": 200})");
+  const Camera c = loadCamera(file);
+  EXPECT_EQ(c.eye, glm::dvec3(1, 2, 3));
+  EXPECT_EQ(c.target, glm::dvec3(0.5, 0, -1));
+  EXPECT_EQ(c.up, glm::dvec3(0, 0, 1));
+  EXPECT_EQ(c.fovYDegrees, 30.5);
+  EXPECT_EQ(c.width, 320);
+  EXPECT_EQ(c.height, 200);
+}
+
+TEST(LoadCamera, AppliesDefaults) {
+  TempDir dir;
+  const Camera c = loadCamera(dir.write("cam.json", R"({"eye": [0, 0, 4], "target": [0, 0, 0]})"));
+  EXPECT_EQ(c.up, glm::dvec3(0, 1, 0));
+  EXPECT_EQ(c.fovYDegrees, 45.0);
+  EXPECT_EQ(c.width, 512);
+  EXPECT_EQ(c.height, 512);
+}
+
+TEST(LoadCamera, BadFilesNameTheFileAndTheKey) {
+  TempDir dir;
+  struct Case {
+    const char* json;
+    const char* fragment;
+  };
+  const Case cases[] = {
+      {R"({"target": [0, 0, 0]})", "key 'eye'"},
+      {R"({"eye": "here", "target": [0, 0, 0]})", "key 'eye' must be an array of 3 numbers"},
+      {R"({"eye": [0, 0], "target": [0, 0, 0]})", "key 'eye' must be an array of 3 numbers"},
+      {R"({"eye": [0, 0, 1], "target": [0, "0", 0]})", "key 'target' must be an array of 3 numbers"},
+      {R"({"eye": [0, 0, 1], "target": [0, 0, 0], "fov": "wide"})", "key 'fov' must be a number"},
+      {R"({"eye": [0, 0, 1], "target": [0, 0, 0], "width": 3.5})", "key 'width' must be an integer"},
+      {R"({"eye": [0, 0, 1], "target": [0, 0, 0], "height": 0})", "key 'height' must be an integer"},
+      {R"({"eye": [0, 0, 1], "target": [0, 0, 0], "fovy": 30})", "key 'fovy' is not known"},
+      {R"({"eye": [1, 1, 1], "target": [1, 1, 1]})", "eye and target must differ"},
+      {R"({"eye": [0, 0, 1], "target": [0, 0, 0], "up": [0, 0, 5]})", "parallel"},
+      {R"({"eye": [0, 0, 1], "target": [0, 0, 0], "fov": 180})", "fov"},
+      {R"([1, 2, 3])", "JSON object"},
+      {R"({"eye": [0, 0, 1], )", "not valid JSON"},
+  };
+  int index = 0;
+  for (const Case& c : cases) {
+    const fs::path file = dir.write("bad" + std::to_string(index++) + ".json", c.json);
+    const std::string message = errorOf([&] { loadCamera(file); });
+    EXPECT_EQ(message.rfind(file.string() + ": ", 0), 0u) << message;
+    EXPECT_NE(message.find(c.fragment), std::string::npos) << c.json << " -> " << message;
+  }
+  const fs::path missing = dir.path() / "missing.json";
+  const std::string message = errorOf([&] { loadCamera(missing); });
+  EXPECT_NE(message.find(missing.string()), std::string::npos) << message;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// octreeRay
+
+TEST(OctreeRay, MapsWorldPointsAtTheSameT) {
+  const SceneTransform scene{{12.5, -3.0, 7.25}, 6.0};
+  const Camera c = makeCamera({30.0, 4.0, 20.0}, scene.origin + 3.0, 200, 100, 40.0);
+  for (const auto& [px, py] : {std::pair{0.0, 0.0}, {100.0, 50.0}, {199.0, 99.0}, {17.3, 80.9}}) {
+    glm::dvec3 origin, direction;
+    c.pixelRay(px, py, origin, direction);
+    const OctreeRay ray = octreeRay(scene, c, px, py, 2.0f);
+    for (const double t : {0.0, 1.0, 10.0, 25.0, 40.0}) {
+      const glm::dvec3 expected = scene.toOctree(origin + t * direction);
+      const glm::dvec3 actual = glm::dvec3(ray.origin) + t * glm::dvec3(ray.direction);
+      // Float rounding of the origin and direction: a few ulps of the coordinates (~4 in [1, 8]).
+      EXPECT_NEAR(glm::length(actual - expected), 0.0, 1e-5) << px << "," << py << " t " << t;
+    }
+    EXPECT_NEAR(ray.footprintSlope, c.pixelAngle() * 2.0 / scene.size, 1e-9);
+    EXPECT_EQ(ray.footprintOrigin, 0.0f);
+    const OctreeRay finest = octreeRay(scene, c, px, py, 0.0f);
+    EXPECT_EQ(finest.footprintSlope, 0.0f);
+    EXPECT_EQ(finest.footprintOrigin, 0.0f);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// render
+
+// The whole scene cube filled: a root with eight leaf children, all colored `color`, optionally with a
+// normal attachment holding `normal` everywhere.
+Octree solidCube(const SceneTransform& scene, glm::vec4 color, std::optional<glm::vec3> normal) {
+  VoxelTree tree;
+  tree.hasColors = true;
+  tree.hasNormals = normal.has_value();
+  tree.voxels.resize(9);
+  tree.voxels[0].firstChild = 1;
+  tree.voxels[0].childMask = 0xff;
+  for (VoxelRecord& v : tree.voxels) {
+    v.color = encodeColor(color);
+    if (normal) v.normal = encodeNormal(*normal);
+  }
+  Octree octree;
+  octree.transform = scene;
+  octree.block = layoutBlock(tree);
+  return octree;
+}
+
+// The brief's Phong model, recomputed here in double for a face with normal n seen along `view`.
+glm::dvec3 expectedShade(glm::dvec3 albedo, glm::dvec3 n, glm::dvec3 view, glm::dvec3 light) {
+  light = glm::normalize(light);
+  if (glm::dot(n, view) > 0.0) n = -n;
+  const double diffuse = std::max(0.0, glm::dot(n, -light));
+  const glm::dvec3 r = light - 2.0 * glm::dot(n, light) * n;
+  const double specular = std::pow(std::max(0.0, glm::dot(r, -view)), 32.0);
+  return albedo * (0.15 + 0.75 * diffuse) + glm::dvec3(0.25 * specular);
+}
+
+TEST(Render, SolidCubeFaceOnHasAnalyticDepthShadingAndVoxelSize) {
+  const SceneTransform scene{{-2.0, 1.0, 3.0}, 4.0};  // world cube [-2,2] x [1,5] x [3,7]
+  const glm::vec4 red(1.0f, 0.0f, 0.0f, 1.0f);
+  const Octree octree = solidCube(scene, red, std::nullopt);
+  // Face-on to the +z face (z = 7) from 10 units away, narrow view so the corners miss.
+  Camera camera = makeCamera({0.0, 3.0, 17.0}, {0.0, 3.0, 7.0}, 64, 48, 30.0);
+  RenderOptions options;
+  options.lodPixels = 0.0f;
+  const Frame frame = render(octree, camera, options);
+  ASSERT_EQ(frame.width, 64);
+  ASSERT_EQ(frame.height, 48);
+  ASSERT_EQ(frame.color.size(), 64u * 48u);
+
+  int hits = 0;
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      const std::size_t i = std::size_t(y) * camera.width + x;
+      glm::dvec3 origin, direction;
+      camera.pixelRay(x, y, origin, direction);
+      const double t = (7.0 - origin.z) / direction.z;
+      const glm::dvec3 p = origin + t * direction;
+      const bool inside = std::abs(p.x) < 2.0 && p.y > 1.0 && p.y < 5.0;
+      // Pixels whose ray grazes the face's edge may go either way in float.
+      const bool nearEdge =
+          std::abs(std::abs(p.x) - 2.0) < 1e-3 || std::abs(p.y - 1.0) < 1e-3 || std::abs(p.y - 5.0) < 1e-3;
+      if (nearEdge) continue;
+      if (!inside) {
+        EXPECT_EQ(frame.color[i].a, 0.0f) << x << "," << y;
+        EXPECT_EQ(frame.color[i], glm::vec4(options.background, 0.0f));
+        EXPECT_TRUE(std::isinf(frame.depth[i]));
+        EXPECT_EQ(frame.voxelPixels[i], 0.0f);
+        continue;
+      }
+      ++hits;
+      ASSERT_EQ(frame.color[i].a, 1.0f) << x << "," << y;
+      EXPECT_NEAR(frame.depth[i], t, 1e-4 * t) << x << "," << y;
+      // Leaf voxels are half the cube: 2 world units.
+      EXPECT_NEAR(frame.voxelPixels[i], 2.0 / (t * camera.pixelAngle()), 1e-3 * frame.voxelPixels[i]);
+      const glm::dvec3 shade =
+          expectedShade({1.0, 0.0, 0.0}, {0.0, 0.0, 1.0}, direction, glm::dvec3(options.lightDirection));
+      EXPECT_NEAR(frame.color[i].r, shade.r, 1e-4) << x << "," << y;
+      EXPECT_NEAR(frame.color[i].g, shade.g, 1e-4) << x << "," << y;
+      EXPECT_NEAR(frame.color[i].b, shade.b, 1e-4) << x << "," << y;
+    }
+  }
+  EXPECT_GT(hits, 64 * 48 / 4);
+  EXPECT_GT(frame.meanIterations, 0.0);
+  EXPECT_GE(frame.seconds, 0.0);
+}
+
+TEST(Render, NormalsFacingAwayAreFlippedAndThreadCountDoesNotMatter) {
+  const SceneTransform scene{{0.0, 0.0, 0.0}, 1.0};
+  const Camera camera = Camera::framing(scene, {0.3, -0.2, -1.0}, 40, 30);
+  RenderOptions options;
+  options.threads = 1;
+  const Frame towards =
+      render(solidCube(scene, glm::vec4(0.2f, 0.6f, 0.9f, 1.0f), glm::vec3(0, 0, 1)), camera, options);
+  options.threads = 0;
+  const Frame away =
+      render(solidCube(scene, glm::vec4(0.2f, 0.6f, 0.9f, 1.0f), glm::vec3(0, 0, -1)), camera, options);
+  int hits = 0;
+  for (std::size_t i = 0; i < towards.color.size(); ++i) {
+    hits += towards.color[i].a == 1.0f;
+    EXPECT_EQ(towards.depth[i], away.depth[i]);
+    // The cube-point normal encoding is not exactly symmetric under negation: ~3e-5 per component.
+    EXPECT_NEAR(towards.color[i].r, away.color[i].r, 1e-3);
+    EXPECT_NEAR(towards.color[i].g, away.color[i].g, 1e-3);
+    EXPECT_NEAR(towards.color[i].b, away.color[i].b, 1e-3);
+  }
+  EXPECT_GT(hits, 0);
+}
+
+TEST(Render, ContourSurfacesAreShadedWithTheContourNormal) {
+  // Every leaf holds the same tilted slab; seen along -z, rays enter it through its upper surface, inside the
+  // voxel rather than on a cube face, so the shading normal must be the slab's.
+  const glm::ivec3 qn = quantizeContourNormal({0.0, 1.0, 1.0});
+  std::uint32_t bits = 0;
+  ASSERT_TRUE(encodeContour(qn, -0.1, 0.1, bits));
+  const Contour contour = decodeContour(bits);
+  VoxelTree tree;
+  tree.voxels.resize(9);
+  tree.voxels[0].firstChild = 1;
+  tree.voxels[0].childMask = 0xff;
+  for (int i = 1; i < 9; ++i) tree.voxels[i].hasContour = true, tree.voxels[i].contour = bits;
+  Octree octree;
+  octree.transform = {{0.0, 0.0, 0.0}, 2.0};  // leaves are unit cubes; slot 4 is [0,1] x [0,1] x [1,2]
+  octree.block = layoutBlock(tree);
+  // A narrow view at the middle of slot 4's +z face: every ray stays well inside that leaf's x, y range.
+  const Camera camera = makeCamera({0.5, 0.5, 12.0}, {0.5, 0.5, 0.0}, 16, 16, 1.5);
+  RenderOptions options;
+  options.lodPixels = 0.0f;
+  const Frame frame = render(octree, camera, options);
+  const glm::dvec3 n = glm::dvec3(contour.normal);
+  const double surface = contour.position + 0.5 * contour.thickness;  // n.u on the upper surface
+  const glm::dvec3 centre(0.5, 0.5, 1.5);
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      const std::size_t i = std::size_t(y) * camera.width + x;
+      glm::dvec3 origin, direction;
+      camera.pixelRay(x, y, origin, direction);
+      // u(t) = origin - centre + t * direction (unit voxel); solve n.u(t) = surface.
+      const double t = (surface - glm::dot(n, origin - centre)) / glm::dot(n, direction);
+      ASSERT_EQ(frame.color[i].a, 1.0f) << x << "," << y;
+      EXPECT_NEAR(frame.depth[i], t, 1e-4 * t) << x << "," << y;
+      const glm::dvec3 shade =
+          expectedShade(glm::dvec3(0.8), glm::normalize(n), direction, glm::dvec3(options.lightDirection));
+      EXPECT_NEAR(frame.color[i].r, shade.r, 1e-4) << x << "," << y;
+      EXPECT_NEAR(frame.color[i].b, shade.b, 1e-4) << x << "," << y;
+    }
+  }
+}
+
+TEST(Render, RejectsBadOptions) {
+  const SceneTransform scene{{0.0, 0.0, 0.0}, 1.0};
+  const Octree octree = solidCube(scene, glm::vec4(1.0f), std::nullopt);
+  const Camera camera = Camera::framing(scene, {0, 0, -1}, 8, 8);
+  RenderOptions options;
+  options.lodPixels = -1.0f;
+  EXPECT_THROW(render(octree, camera, options), std::runtime_error);
+  options = {};
+  options.threads = -2;
+  EXPECT_THROW(render(octree, camera, options), std::runtime_error);
+  Camera bad = camera;
+  bad.target = bad.eye;
+  EXPECT_THROW(render(octree, bad, {}), std::runtime_error);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// writeFrame
+
+Frame randomFrame(int width, int height) {
+  std::mt19937 rng(1234);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  Frame f;
+  f.width = width, f.height = height;
+  const std::size_t n = std::size_t(width) * height;
+  for (std::size_t i = 0; i < n; ++i) {
+    const bool hit = i % 7 != 0;
+    f.color.emplace_back(unit(rng), unit(rng), unit(rng), hit ? 1.0f : 0.0f);
+    f.depth.push_back(hit ? 1.0f + 100.0f * unit(rng) : std::numeric_limits<float>::infinity());
+    f.voxelPixels.push_back(hit ? 0.01f + 10.0f * unit(rng) : 0.0f);
+  }
+  f.color[1] = glm::vec4(2.0f, -0.5f, 0.0031308f, 1.0f);  // out of range and at the sRGB knee
+  return f;
+}
+
+struct Image {
+  OIIO::ImageSpec spec;
+  std::vector<float> pixels;  // as float, interleaved
+  int channel(const std::string& name) const {
+    for (int c = 0; c < spec.nchannels; ++c)
+      if (spec.channelnames[c] == name) return c;
+    return -1;
+  }
+  float at(std::size_t pixel, int c) const { return pixels[pixel * spec.nchannels + c]; }
+};
+
+Image readImage(const fs::path& path) {
+  // Frames store unassociated alpha (a miss keeps the background color at alpha 0): read it back as stored.
+  OIIO::ImageSpec config;
+  config.attribute("oiio:UnassociatedAlpha", 1);
+  auto in = OIIO::ImageInput::open(path.string(), &config);
+  if (!in) throw std::runtime_error("cannot open " + path.string() + ": " + OIIO::geterror());
+  Image image;
+  image.spec = in->spec();
+  image.pixels.resize(std::size_t(image.spec.width) * image.spec.height * image.spec.nchannels);
+  if (!in->read_image(0, 0, 0, image.spec.nchannels, OIIO::TypeDesc::FLOAT, image.pixels.data()))
+    throw std::runtime_error("cannot read " + path.string() + ": " + in->geterror());
+  in->close();
+  return image;
+}
+
+double srgb(double linear) {
+  const double c = std::clamp(linear, 0.0, 1.0);
+  return c <= 0.0031308 ? 12.92 * c : 1.055 * std::pow(c, 1.0 / 2.4) - 0.055;
+}
+
+TEST(WriteFrame, ExrRoundTripWithAuxChannels) {
+  TempDir dir;
+  const Frame frame = randomFrame(37, 23);
+  const fs::path path = dir.path() / "frame.exr";
+  writeFrame(path, frame, true);
+  EXPECT_FALSE(fs::exists(dir.path() / "frame.exr.tmp"));
+  const Image image = readImage(path);
+  ASSERT_EQ(image.spec.width, 37);
+  ASSERT_EQ(image.spec.height, 23);
+  ASSERT_EQ(image.spec.nchannels, 6);
+  const int r = image.channel("R"), g = image.channel("G"), b = image.channel("B"), a = image.channel("A");
+  const int z = image.channel("Z"), vp = image.channel("voxelPixels");
+  ASSERT_TRUE(r >= 0 && g >= 0 && b >= 0 && a >= 0 && z >= 0 && vp >= 0);
+  EXPECT_EQ(image.spec.channelformat(z), OIIO::TypeDesc::FLOAT);
+  EXPECT_EQ(image.spec.channelformat(vp), OIIO::TypeDesc::FLOAT);
+  for (std::size_t i = 0; i < frame.color.size(); ++i) {
+    // Half keeps 11 significant bits.
+    const glm::vec4 c = frame.color[i];
+    EXPECT_NEAR(image.at(i, r), c.r, std::abs(c.r) * 1e-3 + 1e-7) << i;
+    EXPECT_NEAR(image.at(i, g), c.g, std::abs(c.g) * 1e-3 + 1e-7) << i;
+    EXPECT_NEAR(image.at(i, b), c.b, std::abs(c.b) * 1e-3 + 1e-7) << i;
+    EXPECT_EQ(image.at(i, a), c.a) << i;
+    EXPECT_EQ(image.at(i, z), frame.depth[i]) << i;  // float: exact, infinity included
+    EXPECT_EQ(image.at(i, vp), frame.voxelPixels[i]) << i;
+  }
+}
+
+TEST(WriteFrame, ExrWithoutAuxHasOnlyRgba) {
+  TempDir dir;
+  const Frame frame = randomFrame(5, 4);
+  writeFrame(dir.path() / "plain.exr", frame, false);
+  const Image image = readImage(dir.path() / "plain.exr");
+  EXPECT_EQ(image.spec.nchannels, 4);
+  EXPECT_EQ(image.channel("Z"), -1);
+}
+
+TEST(WriteFrame, PngRoundTripIsSrgbWithinOneStep) {
+  TempDir dir;
+  const Frame frame = randomFrame(31, 17);
+  for (const bool withAux : {false, true}) {
+    const fs::path path = dir.path() / (withAux ? "rgba.png" : "rgb.png");
+    writeFrame(path, frame, withAux);
+    const Image image = readImage(path);
+    ASSERT_EQ(image.spec.width, 31);
+    ASSERT_EQ(image.spec.height, 17);
+    ASSERT_EQ(image.spec.nchannels, withAux ? 4 : 3);
+    EXPECT_EQ(image.spec.format, OIIO::TypeDesc::UINT8);
+    for (std::size_t i = 0; i < frame.color.size(); ++i) {
+      const glm::vec4 c = frame.color[i];
+      for (int k = 0; k < 3; ++k)
+        EXPECT_NEAR(image.at(i, k), srgb(c[k]), 1.0 / 255.0 + 1e-6) << i << " channel " << k;
+      if (withAux) {
+        EXPECT_EQ(image.at(i, 3), c.a) << i;
+      }
+    }
+  }
+}
+
+TEST(WriteFrame, FailuresThrowNamingThePathAndLeaveNoFile) {
+  TempDir dir;
+  const Frame frame = randomFrame(4, 4);
+  const fs::path notADir = dir.write("file.txt", "x");
+  for (const fs::path& path : {fs::path("/proc/nonexistent/x.png"), notADir / "x.png", notADir / "x.exr",
+                               dir.path() / "missing" / "x.exr", dir.path() / "x.jpg"}) {
+    const std::string message = errorOf([&] { writeFrame(path, frame, true); });
+    EXPECT_EQ(message.rfind(path.string() + ": cannot write image (", 0), 0u) << message;
+    EXPECT_FALSE(fs::exists(path)) << path;
+    fs::path temporary = path;
+    temporary += ".tmp";
+    EXPECT_FALSE(fs::exists(temporary)) << temporary;
+  }
+  // A directory in the way: the image is written, the rename fails, the temporary is removed.
+  const fs::path blocked = dir.path() / "blocked.png";
+  fs::create_directories(blocked / "inside");
+  const std::string message = errorOf([&] { writeFrame(blocked, frame, false); });
+  EXPECT_NE(message.find("cannot write image"), std::string::npos) << message;
+  EXPECT_TRUE(fs::is_directory(blocked));
+  EXPECT_FALSE(fs::exists(dir.path() / "blocked.png.tmp"));
+  // A frame whose buffers do not match its size is refused before anything is written.
+  Frame broken = frame;
+  broken.depth.pop_back();
+  EXPECT_THROW(writeFrame(dir.path() / "broken.exr", broken, true), std::runtime_error);
+  EXPECT_FALSE(fs::exists(dir.path() / "broken.exr"));
+}
+
+TEST(WriteFrame, ReplacesAnExistingFile) {
+  TempDir dir;
+  const fs::path path = dir.write("old.png", "not an image");
+  writeFrame(path, randomFrame(3, 2), false);
+  const Image image = readImage(path);
+  EXPECT_EQ(image.spec.width, 3);
+}
+
+}  // namespace
+}  // namespace svo
