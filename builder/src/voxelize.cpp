@@ -289,9 +289,10 @@ class Voxelizer {
     if (contour) out.record.hasContour = true, out.record.contour = contour->bits;
 
     bool stop = finest;
+    std::optional<Aggregate> attributes;
     if (!finest && node.level > 0 && options_.geometryError > 0.0f && contour) {
       double colorSpread = 0.0, normalCos = 1.0;
-      attributesOf(pieces, cube, &colorSpread, &normalCos);
+      attributes = attributesOf(pieces, cube, &colorSpread, &normalCos);
       const double thicknessFinest = contour->thickness * std::ldexp(1.0, options_.levels - node.level);
       stop = thicknessFinest <= options_.geometryError &&
              (options_.colorError <= 0.0f || colorSpread <= options_.colorError) &&
@@ -300,7 +301,7 @@ class Voxelizer {
     }
     if (stop) {
       out.leaf = true;
-      out.leafAttributes = attributesOf(pieces, cube, nullptr, nullptr);
+      out.leafAttributes = attributes ? *attributes : attributesOf(pieces, cube, nullptr, nullptr);
       setAttributes(out.record, out.leafAttributes);
       return out;
     }
