@@ -53,7 +53,7 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   float t_min = std::max({2.0f * tx_coef - tx_bias, 2.0f * ty_coef - ty_bias, 2.0f * tz_coef - tz_bias});
   float t_max = std::min({tx_coef - tx_bias, ty_coef - ty_bias, tz_coef - tz_bias});
   float h = t_max;
-  t_min = std::max(t_min, 0.0f);
+  t_min = std::max(t_min, std::max(ray.tMin, 0.0f));
   t_max = std::min(t_max, ray.tMax);
   if (!(t_min <= t_max)) return hit;
 

@@ -24,7 +24,10 @@
 namespace svo {
 namespace {
 
+// Pixels per tile edge when the beam pass is off (sec. 6.2's 8x8; one task traces whole tiles).
 constexpr int kTileSize = 8;
+// Largest beam tile: past this the beam is wider than the detail it could skip to.
+constexpr int kMaxBeamTile = 64;
 // Phong terms (one white directional light).
 constexpr float kAmbient = 0.15f;
 constexpr float kDiffuse = 0.75f;
@@ -93,13 +96,17 @@ PixelRays::PixelRays(const SceneTransform& scene, const Camera& camera, float lo
   if (lodPixels > 0.0f) footprintSlope_ = float(camera.pixelAngle() * double(lodPixels) / scene.size);
 }
 
-OctreeRay PixelRays::operator()(double px, double py) const {
+glm::dvec3 PixelRays::direction(double px, double py) const {
   glm::dvec3 direction;
   Camera::pixelRay(camera_, basis_, px, py, direction);
+  return direction;
+}
+
+OctreeRay PixelRays::operator()(double px, double py) const {
   OctreeRay ray;
   ray.origin = origin_;
   // Scaling the direction by 1 / size keeps t in world units: octree point at t = toOctree(world point at t).
-  ray.direction = glm::vec3(direction / scene_.size);
+  ray.direction = glm::vec3(direction(px, py) / scene_.size);
   ray.footprintSlope = footprintSlope_;
   return ray;
 }
@@ -109,6 +116,24 @@ OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px
   return PixelRays(scene, camera, lodPixels)(px, py);
 }
 
+void forEachTile(int width, int height, int tileSize, int threads,
+                 const std::function<void(const PixelTile&)>& trace) {
+  const int tilesX = (width + tileSize - 1) / tileSize, tilesY = (height + tileSize - 1) / tileSize;
+  const auto traceTiles = [&](const tbb::blocked_range<int>& tiles) {
+    for (int t = tiles.begin(); t != tiles.end(); ++t) {
+      const int x0 = (t % tilesX) * tileSize, y0 = (t / tilesX) * tileSize;
+      trace(PixelTile{x0, y0, std::min(x0 + tileSize, width), std::min(y0 + tileSize, height)});
+    }
+  };
+  const tbb::blocked_range<int> all(0, tilesX * tilesY);
+  if (threads > 0) {
+    tbb::task_arena arena(threads);
+    arena.execute([&] { tbb::parallel_for(all, traceTiles); });
+  } else {
+    tbb::parallel_for(all, traceTiles);
+  }
+}
+
 Frame render(const Octree& octree, const Camera& camera, const RenderOptions& options) {
   camera.validate();
   if (!std::isfinite(options.lodPixels) || options.lodPixels < 0.0f)
@@ -116,6 +141,11 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
                              std::to_string(options.lodPixels) + ")");
   if (options.threads < 0)
     throw std::runtime_error("render: threads must be >= 0 (got " + std::to_string(options.threads) + ")");
+  if (options.beamTile < 0 || options.beamTile > kMaxBeamTile)
+    throw std::runtime_error("render: beamTile must be in [0, " + std::to_string(kMaxBeamTile) + "] (got " +
+                             std::to_string(options.beamTile) + ")");
+  // Without the beam, tiles of the paper's 8x8 still keep a task's rays coherent.
+  const int tileSize = options.beamTile > 0 ? options.beamTile : kTileSize;
   if (!finite(options.lightDirection) || !(glm::length(options.lightDirection) > 0.0f))
     throw std::runtime_error("render: the light direction must be finite and non-zero");
 
@@ -135,40 +165,21 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
   frame.depth.assign(pixels, std::numeric_limits<float>::infinity());
   frame.voxelPixels.assign(pixels, 0.0f);
 
-  const int tilesX = (camera.width + kTileSize - 1) / kTileSize;
-  const int tilesY = (camera.height + kTileSize - 1) / kTileSize;
   std::atomic<std::uint64_t> iterations{0};
-  const auto renderTiles = [&](const tbb::blocked_range<int>& tiles) {
-    std::uint64_t tileIterations = 0;
-    for (int tile = tiles.begin(); tile != tiles.end(); ++tile) {
-      const int x0 = (tile % tilesX) * kTileSize, y0 = (tile / tilesX) * kTileSize;
-      const int x1 = std::min(x0 + kTileSize, camera.width), y1 = std::min(y0 + kTileSize, camera.height);
-      for (int y = y0; y < y1; ++y) {
-        for (int x = x0; x < x1; ++x) {
-          const OctreeRay ray = rays(x, y);
-          const CastHit hit = castRay(block, ray, options.cast);
-          tileIterations += std::uint64_t(std::max(hit.iterations, 0));
-          if (!hit.hit) continue;
+  const auto start = std::chrono::steady_clock::now();
+  forEachTile(camera.width, camera.height, tileSize, options.threads, [&](const PixelTile& tile) {
+    const std::uint64_t tileIterations = castTile(
+        block, rays, tile, options.beamTile > 0, options.cast,
+        [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
           const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
-          // The octree direction is the unit world direction / size, so renormalizing gives the world one.
+          // The octree direction is the unit world direction / size: renormalized, the world one.
           const glm::vec3 viewDirection = glm::normalize(ray.direction);
           frame.color[i] = glm::vec4(shade(block, hit, viewDirection, shading), 1.0f);
           frame.depth[i] = hit.t;
           frame.voxelPixels[i] = float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
-        }
-      }
-    }
+        });
     iterations.fetch_add(tileIterations, std::memory_order_relaxed);
-  };
-  const tbb::blocked_range<int> allTiles(0, tilesX * tilesY);
-
-  const auto start = std::chrono::steady_clock::now();
-  if (options.threads > 0) {
-    tbb::task_arena arena(options.threads);
-    arena.execute([&] { tbb::parallel_for(allTiles, renderTiles); });
-  } else {
-    tbb::parallel_for(allTiles, renderTiles);
-  }
+  });
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations.load()) / double(pixels);
   return frame;

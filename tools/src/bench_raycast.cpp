@@ -33,8 +33,8 @@ namespace svo::tools::bench {
 
 namespace {
 
-// Rows of pixels one TBB task traces: 4 rows of a 1024-wide image are 4096 rays, enough to hide scheduling.
-constexpr int kRowsPerTile = 4;
+// Pixels per tile edge for every method: the renderer's (and the beam's) 8x8 tiles (sec. 6.2).
+constexpr int kTileSize = 8;
 // Largest image edge accepted, as Camera::validate does.
 constexpr int kMaxImageSize = 16384;
 // Paper Table 1 (ESVO, compressed attributes), bytes per leaf voxel: hierarchy, contours, DXT color, normal.
@@ -66,35 +66,22 @@ std::uint64_t countHits(const std::vector<float>& depth) {
   return std::uint64_t(std::count_if(depth.begin(), depth.end(), [](float d) { return std::isfinite(d); }));
 }
 
-// Runs `traceRows(y0, y1)` over tiles of rows in an arena of `threads` threads.
-template <class F>
-void forEachRowTile(int height, int threads, F&& traceRows) {
-  tbb::task_arena arena(threads);
-  arena.execute([&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, height, kRowsPerTile),
-                      [&](const tbb::blocked_range<int>& rows) { traceRows(rows.begin(), rows.end()); });
-  });
-}
-
-// ESVO without shading: PixelRays + castRay per pixel, depth written like the Embree peer does.
-TraceResult traceEsvo(const Octree& octree, const Camera& camera, const RenderOptions& options, int threads) {
+// ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles, depth written like the
+// Embree peer does; with `beam`, each tile first runs the beam pass (sec. 6.2).
+TraceResult traceEsvo(const Octree& octree, const Camera& camera, const RenderOptions& options, int threads,
+                      bool beam) {
   TraceResult result;
   result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
   const BlockView block = octree.block.view();
   // Per-frame ray constants computed once, as svo::render does.
   const PixelRays rays(octree.transform, camera, options.lodPixels);
   std::atomic<std::uint64_t> iterations{0};
-  forEachRowTile(camera.height, threads, [&](int y0, int y1) {
-    std::uint64_t tileIterations = 0;
-    for (int y = y0; y < y1; ++y) {
-      for (int x = 0; x < camera.width; ++x) {
-        const OctreeRay ray = rays(x, y);
-        const CastHit hit = castRay(block, ray, options.cast);
-        tileIterations += std::uint64_t(hit.iterations);
-        if (hit.hit) result.depth[std::size_t(y) * camera.width + x] = hit.t;
-      }
-    }
-    iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+  forEachTile(camera.width, camera.height, kTileSize, threads, [&](const PixelTile& tile) {
+    iterations.fetch_add(castTile(block, rays, tile, beam, options.cast,
+                                  [&](int x, int y, const OctreeRay&, const CastHit& hit) {
+                                    result.depth[std::size_t(y) * camera.width + x] = hit.t;
+                                  }),
+                         std::memory_order_relaxed);
   });
   result.hits = countHits(result.depth);
   result.meanIterations = double(iterations.load()) / double(result.depth.size());
@@ -156,14 +143,14 @@ class EmbreePeer {
     // scene centre.
     const Camera::Basis basis = camera.basis();
     const glm::vec3 origin(camera.eye - centre_);
-    forEachRowTile(camera.height, threads, [&](int y0, int y1) {
+    forEachTile(camera.width, camera.height, kTileSize, threads, [&](const PixelTile& tile) {
       const unsigned savedCsr = _mm_getcsr();
       _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
       _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
       RTCIntersectContext context;
       rtcInitIntersectContext(&context);
-      for (int y = y0; y < y1; ++y) {
-        for (int x = 0; x < camera.width; ++x) {
+      for (int y = tile.y0; y < tile.y1; ++y) {
+        for (int x = tile.x0; x < tile.x1; ++x) {
           glm::dvec3 direction;
           Camera::pixelRay(camera, basis, x, y, direction);
           RTCRayHit rayHit;
@@ -386,7 +373,12 @@ void runRaycastBench(const RaycastArgs& args) {
   }
   spdlog::info("ESVO castRay only: 1 warm-up + {} runs ...", args.runs);
   Timed cast;
-  cast.seconds = timeRuns(args.runs, [&] { cast.last = traceEsvo(octree, camera, renderOptions, threads); });
+  cast.seconds =
+      timeRuns(args.runs, [&] { cast.last = traceEsvo(octree, camera, renderOptions, threads, false); });
+  spdlog::info("ESVO castRay with the beam pass: 1 warm-up + {} runs ...", args.runs);
+  Timed beamed;
+  beamed.seconds =
+      timeRuns(args.runs, [&] { beamed.last = traceEsvo(octree, camera, renderOptions, threads, true); });
 
   std::optional<double> peerSeconds;
   std::optional<Timed> peer;
@@ -408,6 +400,7 @@ void runRaycastBench(const RaycastArgs& args) {
   Table table({"method", "Mrays/s", "min/max", "time", "hit px", "iter/ray", "vs Embree"});
   addMethodRow(table, "ESVO svo::render (shaded)", shaded, rays, true, peerSeconds);
   addMethodRow(table, "ESVO castRay (depth only)", cast, rays, true, peerSeconds);
+  addMethodRow(table, "ESVO castRay + beam (depth only)", beamed, rays, true, peerSeconds);
   if (peer) {
     addMethodRow(table, "Embree 3 rtcIntersect1", *peer, rays, false, peerSeconds);
   } else {
@@ -416,9 +409,20 @@ void runRaycastBench(const RaycastArgs& args) {
   table.print();
   fmt::print(
       "Mrays/s: median, min/max over the runs; time: median wall time of one frame; iter/ray: ESVO loop\n"
-      "iterations per ray, all rays; vs Embree: throughput ratio (> 1: faster than Embree).\n"
+      "iterations per ray, all rays; vs Embree: throughput ratio (> 1: faster than Embree). svo::render\n"
+      "uses the beam pass (sec. 6.2, {}x{} tiles); castRay rows without and with it; every method traces "
+      "the\n"
+      "same 8x8 pixel tiles.\n"
       "Build: ESVO octree {}, Embree BVH {}.\n",
-      formatSeconds(esvoBuildSeconds), peer ? formatSeconds(peerBuildSeconds) : std::string(kPeerNotBuilt));
+      renderOptions.beamTile, renderOptions.beamTile, formatSeconds(esvoBuildSeconds),
+      peer ? formatSeconds(peerBuildSeconds) : std::string(kPeerNotBuilt));
+  // The beam pass must not change any ray's result: count the pixels where it does.
+  std::uint64_t beamChanged = 0;
+  for (std::size_t i = 0; i < cast.last.depth.size(); ++i)
+    beamChanged += !(cast.last.depth[i] == beamed.last.depth[i] ||
+                     (std::isinf(cast.last.depth[i]) && std::isinf(beamed.last.depth[i])));
+  fmt::print("beam pass vs none: {} of {} pixels differ in depth.\n", formatCount(beamChanged),
+             formatCount(cast.last.depth.size()));
 
   printMemory(stats, octree);
   printAgreement(shaded.last.depth, peer ? &peer->last : nullptr, finestVoxel);

@@ -14,6 +14,7 @@ namespace svo {
 struct OctreeRay {
   glm::vec3 origin{0.0f};
   glm::vec3 direction{0.0f, 0.0f, -1.0f};
+  float tMin = 0.0f;  // nothing is hit before this t (the beam pass's bound, sec. 6.2)
   float tMax = 3.4e38f;
   // Level of detail: traversal stops at a voxel no larger than footprintOrigin + t * footprintSlope
   // (octree units). Zero slope and origin disable it.

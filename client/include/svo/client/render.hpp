@@ -1,13 +1,17 @@
 // Pinhole camera, Phong shading with one directional light, multi-threaded rendering, image output.
 #pragma once
 
+#include <cstdint>
 #include <filesystem>
+#include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
 #include <glm/vec3.hpp>
 #include <glm/vec4.hpp>
 
+#include "svo/client/beam.hpp"
 #include "svo/client/raycast.hpp"
 #include "svo/store/container.hpp"
 
@@ -42,6 +46,9 @@ Camera loadCamera(const std::filesystem::path& path);
 
 struct RenderOptions {
   float lodPixels = 1.0f;  // stop at voxels no larger than this many pixels; 0 = finest level
+  // Beam optimization (sec. 6.2): pixels per edge of the tile one coarse pass serves (the paper uses 4x4 or
+  // 8x8); 0 casts every ray from the eye.
+  int beamTile = 8;
   CastOptions cast;
   glm::vec3 lightDirection{-0.4f, -0.8f, -0.45f};  // towards the scene
   glm::vec3 background{0.08f, 0.09f, 0.11f};
@@ -71,6 +78,13 @@ class PixelRays {
   PixelRays(const SceneTransform& scene, const Camera& camera, float lodPixels);
   OctreeRay operator()(double px, double py) const;
 
+  // Unit world (= octree, up to scale) direction of the ray through (px + 0.5, py + 0.5).
+  glm::dvec3 direction(double px, double py) const;
+  const glm::vec3& origin() const { return origin_; }  // the eye in octree space, as every ray has it
+  const Camera& camera() const { return camera_; }
+  double sceneSize() const { return scene_.size; }
+  float footprintSlope() const { return footprintSlope_; }
+
  private:
   const SceneTransform& scene_;
   const Camera& camera_;
@@ -78,6 +92,33 @@ class PixelRays {
   glm::vec3 origin_;
   float footprintSlope_ = 0.0f;
 };
+
+// Runs `trace` over the image in tiles of `tileSize` pixels on `threads` threads (0 = all cores).
+void forEachTile(int width, int height, int tileSize, int threads,
+                 const std::function<void(const PixelTile&)>& trace);
+
+// Casts the rays of one tile, starting each at the tile's beam bound when `beam` (tiles whose beam meets
+// nothing cast no ray), and calls onHit(x, y, ray, hit) for each hit. Returns the ray-loop iterations.
+template <class OnHit>
+std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const PixelTile& tile, bool beam,
+                       const CastOptions& options, OnHit&& onHit) {
+  float tStart = 0.0f;
+  if (beam) {
+    tStart = castBeam(block, rays, tile).tStart;
+    if (!(tStart < std::numeric_limits<float>::infinity())) return 0;
+  }
+  std::uint64_t iterations = 0;
+  for (int y = tile.y0; y < tile.y1; ++y) {
+    for (int x = tile.x0; x < tile.x1; ++x) {
+      OctreeRay ray = rays(x, y);
+      ray.tMin = tStart;
+      const CastHit hit = castRay(block, ray, options);
+      iterations += std::uint64_t(hit.iterations);
+      if (hit.hit) onHit(x, y, ray, hit);
+    }
+  }
+  return iterations;
+}
 
 // Writes PNG (8-bit sRGB) or EXR (float, with Z and voxelPixels channels when `withAux`) by extension.
 // Writes to a temporary name and renames; throws std::runtime_error naming the path on failure.
