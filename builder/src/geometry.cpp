@@ -9,10 +9,10 @@
 namespace svo::geom {
 namespace {
 
-// Only the finest ancestors' slabs bound a voxel tightly; older ones only enlarge the hull a little.
-constexpr std::size_t kMaxHullSlabs = 2;
 // Points this close (relative to the voxel size) to a bounding plane count as on it.
 constexpr double kHullTolerance = 1e-9;
+// Two slab normals whose cross product along a face is below this are parallel there: no crossing point.
+constexpr double kParallelDeterminant = 1e-12;
 
 using glm::dvec3;
 
@@ -45,33 +45,45 @@ bool triangleOverlapsCube(const dvec3& a0, const dvec3& b0, const dvec3& c0, con
 }
 
 Polygon clipTriangleToCube(const dvec3& a, const dvec3& b, const dvec3& c, const Cube& cube) {
-  Polygon p, q;
-  p.v[0] = a, p.v[1] = b, p.v[2] = c, p.n = 3;
+  // Sutherland-Hodgman between two vertex buffers; a plane that cuts nothing (the common case) costs only
+  // the signed distances.
+  dvec3 buffers[2][kMaxClippedVertices + 3];
+  dvec3* p = buffers[0];
+  dvec3* q = buffers[1];
+  p[0] = a, p[1] = b, p[2] = c;
+  int n = 3;
   const dvec3 hi = cube.lo + cube.size;
+  double distance[kMaxClippedVertices + 3];
   for (int axis = 0; axis < 3; ++axis)
     for (int side = 0; side < 2; ++side) {
       // Keep where sign * (x[axis] - bound) <= 0.
       const double bound = side ? hi[axis] : cube.lo[axis];
       const double sign = side ? 1.0 : -1.0;
       bool allInside = true;
-      for (int i = 0; i < p.n; ++i) allInside &= sign * (p.v[i][axis] - bound) <= 0.0;
-      if (allInside) continue;  // most planes cut nothing: skip the copy
-      q.n = 0;
-      for (int i = 0; i < p.n; ++i) {
-        const dvec3& s = p.v[i];
-        const dvec3& e = p.v[(i + 1) % p.n];
-        const double ds = sign * (s[axis] - bound), de = sign * (e[axis] - bound);
-        if (ds <= 0.0) q.v[q.n++] = s;
+      for (int i = 0; i < n; ++i) {
+        distance[i] = sign * (p[i][axis] - bound);
+        allInside &= distance[i] <= 0.0;
+      }
+      if (allInside) continue;
+      int m = 0;
+      for (int i = 0; i < n; ++i) {
+        const int j = i + 1 == n ? 0 : i + 1;
+        const double ds = distance[i], de = distance[j];
+        if (ds <= 0.0) q[m++] = p[i];
         if ((ds < 0.0 && de > 0.0) || (ds > 0.0 && de < 0.0)) {
-          dvec3 x = s + (e - s) * (ds / (ds - de));
+          dvec3 x = p[i] + (p[j] - p[i]) * (ds / (ds - de));
           x[axis] = bound;  // exactly on the plane despite rounding
-          q.v[q.n++] = x;
+          q[m++] = x;
         }
       }
       std::swap(p, q);
-      if (p.n == 0) return p;
+      n = m;
+      if (n == 0) return {};
     }
-  return p;
+  Polygon out;
+  std::copy(p, p + n, out.v.begin());
+  out.n = n;
+  return out;
 }
 
 double polygonArea(const Polygon& p, dvec3* centroid) {
@@ -97,77 +109,74 @@ bool slabCutsCube(const Slab& slab, const Cube& cube) {
   return c - r < slab.lo || c + r > slab.hi;
 }
 
-std::vector<dvec3> hullVertices(const Cube& cube, std::span<const Slab> slabs) {
-  // The polytope's vertices are where three of its planes meet: cube corners, cube edges crossing a slab
-  // plane, and cube faces crossing two planes of different slabs. Enumerate those and keep the ones inside
-  // everything (an LP's vertex set, cheap for the few slabs that cut one voxel).
+HullVertices hullVertices(const Cube& cube, std::span<const Slab> slabs) {
+  // The polytope's vertices are where three of its planes meet: cube corners inside every slab, cube edges
+  // crossing a slab plane, and cube faces crossing two planes of different slabs. Each kind is found from
+  // the slabs' values at the cube corners, so only crossings that exist are ever solved for.
   const std::size_t first = slabs.size() > kMaxHullSlabs ? slabs.size() - kMaxHullSlabs : 0;
   slabs = slabs.subspan(first);
+  const std::size_t slabCount = slabs.size();
   const dvec3 lo = cube.lo, hi = cube.lo + cube.size;
   const double eps = kHullTolerance * cube.size;
-  auto inside = [&](const dvec3& x) {
-    for (int a = 0; a < 3; ++a)
-      if (x[a] < lo[a] - eps || x[a] > hi[a] + eps) return false;
-    for (const Slab& s : slabs) {
-      const double d = glm::dot(s.normal, x);
-      if (d < s.lo - eps || d > s.hi + eps) return false;
-    }
-    return true;
+  HullVertices out;
+  const auto add = [&](const dvec3& x) { out.v[out.n++] = x; };
+  const auto withinSlab = [&](std::size_t k, double value) {
+    return value >= slabs[k].lo - eps && value <= slabs[k].hi + eps;
   };
-  std::vector<dvec3> vertices;
+
+  std::array<dvec3, 8> corner;
+  double value[kMaxHullSlabs][8];  // n_k . corner
   for (int i = 0; i < 8; ++i) {
-    const dvec3 c(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z);
-    if (inside(c)) vertices.push_back(c);
-  }
-  struct Plane {
-    dvec3 n;
-    double d;
-    std::size_t slab;
-  };
-  std::array<Plane, 2 * kMaxHullSlabs> planes;
-  std::size_t planeCount = 0;
-  for (std::size_t k = 0; k < slabs.size(); ++k) {
-    planes[planeCount++] = {slabs[k].normal, slabs[k].lo, k};
-    planes[planeCount++] = {slabs[k].normal, slabs[k].hi, k};
-  }
-  // Cube edges (along axis a; the other two coordinates at lo or hi) against each plane.
-  for (int a = 0; a < 3; ++a) {
-    const int b = (a + 1) % 3, c = (a + 2) % 3;
-    for (int corner = 0; corner < 4; ++corner) {
-      dvec3 x;
-      x[b] = corner & 1 ? hi[b] : lo[b];
-      x[c] = corner & 2 ? hi[c] : lo[c];
-      for (std::size_t p = 0; p < planeCount; ++p) {
-        const Plane& pl = planes[p];
-        if (pl.n[a] == 0.0) continue;
-        x[a] = (pl.d - pl.n[b] * x[b] - pl.n[c] * x[c]) / pl.n[a];
-        if (inside(x)) vertices.push_back(x);
-      }
+    corner[i] = dvec3(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z);
+    bool inside = true;
+    for (std::size_t k = 0; k < slabCount; ++k) {
+      value[k][i] = glm::dot(slabs[k].normal, corner[i]);
+      inside &= withinSlab(k, value[k][i]);
     }
+    if (inside) add(corner[i]);
   }
-  // Cube faces (axis a fixed) against two planes of different slabs: a 2x2 system in the other coordinates.
-  for (int a = 0; a < 3; ++a) {
-    const int b = (a + 1) % 3, c = (a + 2) % 3;
-    for (int side = 0; side < 2; ++side) {
-      const double xa = side ? hi[a] : lo[a];
-      for (std::size_t p = 0; p < planeCount; ++p)
-        for (std::size_t q = p + 1; q < planeCount; ++q) {
-          const Plane &P = planes[p], &Q = planes[q];
-          if (P.slab == Q.slab) continue;
-          const double det = P.n[b] * Q.n[c] - P.n[c] * Q.n[b];
-          if (std::abs(det) < 1e-12) continue;
-          const double rp = P.d - P.n[a] * xa, rq = Q.d - Q.n[a] * xa;
-          dvec3 x;
-          x[a] = xa;
-          x[b] = (rp * Q.n[c] - rq * P.n[c]) / det;
-          x[c] = (P.n[b] * rq - Q.n[b] * rp) / det;
-          if (inside(x)) vertices.push_back(x);
+  // Cube edges: corners i and i | bit for each i without that bit. A plane of slab k crosses the edge where
+  // its value passes the plane's; the point is on the cube, on that plane (so inside slab k), and needs only
+  // the other slab's test.
+  for (int bit = 1; bit < 8; bit <<= 1)
+    for (int i = 0; i < 8; ++i) {
+      if (i & bit) continue;
+      const int j = i | bit;
+      for (std::size_t k = 0; k < slabCount; ++k)
+        for (const double d : {slabs[k].lo, slabs[k].hi}) {
+          const double vi = value[k][i] - d, vj = value[k][j] - d;
+          if (!((vi < 0.0 && vj > 0.0) || (vi > 0.0 && vj < 0.0))) continue;
+          const dvec3 x = corner[i] + (corner[j] - corner[i]) * (vi / (vi - vj));
+          bool inside = true;
+          for (std::size_t other = 0; other < slabCount; ++other)
+            if (other != k) inside &= withinSlab(other, glm::dot(slabs[other].normal, x));
+          if (inside) add(x);
         }
+    }
+  // Cube faces (axis a fixed) against a plane of each of two slabs: a 2x2 system in the other coordinates;
+  // the point is on both planes, so it only has to lie within the face.
+  if (slabCount == 2) {
+    static_assert(kMaxHullSlabs == 2);
+    for (int a = 0; a < 3; ++a) {
+      const int b = (a + 1) % 3, c = (a + 2) % 3;
+      const dvec3 &P = slabs[0].normal, &Q = slabs[1].normal;
+      const double det = P[b] * Q[c] - P[c] * Q[b];
+      if (std::abs(det) < kParallelDeterminant) continue;
+      for (const double xa : {lo[a], hi[a]})
+        for (const double dp : {slabs[0].lo, slabs[0].hi})
+          for (const double dq : {slabs[1].lo, slabs[1].hi}) {
+            const double rp = dp - P[a] * xa, rq = dq - Q[a] * xa;
+            dvec3 x;
+            x[a] = xa;
+            x[b] = (rp * Q[c] - rq * P[c]) / det;
+            x[c] = (P[b] * rq - Q[b] * rp) / det;
+            if (x[b] >= lo[b] - eps && x[b] <= hi[b] + eps && x[c] >= lo[c] - eps && x[c] <= hi[c] + eps)
+              add(x);
+          }
     }
   }
   // Interior vertices where three slab planes meet need three slabs; with at most two they cannot occur.
-  static_assert(kMaxHullSlabs <= 2);
-  return vertices;
+  return out;
 }
 
 }  // namespace svo::geom

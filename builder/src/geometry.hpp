@@ -39,8 +39,16 @@ struct Slab {
 // True when the slab removes some part of the cube (some corner lies strictly outside it).
 bool slabCutsCube(const Slab& slab, const Cube& cube);
 
-// The vertices of cube ∩ slabs (a convex polytope; the two finest slabs are used).
+// The vertices of cube ∩ slabs (a convex polytope; the two finest slabs are used), duplicates possible.
 // Empty when the intersection is empty.
-std::vector<glm::dvec3> hullVertices(const Cube& cube, std::span<const Slab> slabs);
+inline constexpr std::size_t kMaxHullSlabs = 2;  // older ancestors' slabs only enlarge the hull a little
+struct HullVertices {
+  // 8 corners, 12 edges x 4 planes, 6 faces x 4 plane pairs.
+  std::array<glm::dvec3, 8 + 12 * 2 * kMaxHullSlabs + 6 * 4> v;
+  int n = 0;
+  bool empty() const { return n == 0; }
+  std::span<const glm::dvec3> vertices() const { return {v.data(), std::size_t(n)}; }
+};
+HullVertices hullVertices(const Cube& cube, std::span<const Slab> slabs);
 
 }  // namespace svo::geom

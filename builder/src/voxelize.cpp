@@ -190,7 +190,7 @@ class Voxelizer {
     }
 
     const dvec3 centre = cube.centre();
-    const std::vector<dvec3> hull = slabs.empty() ? std::vector<dvec3>{} : geom::hullVertices(cube, slabs);
+    const geom::HullVertices hull = slabs.empty() ? geom::HullVertices{} : geom::hullVertices(cube, slabs);
     std::optional<ContourFit> best;
     double bestScore = 0.0;
     for (const dvec3& candidate : candidates) {
@@ -208,7 +208,7 @@ class Voxelizer {
         hullLo = -hullHi;
       } else {
         hullLo = 1e300, hullHi = -1e300;
-        for (const dvec3& v : hull) {
+        for (const dvec3& v : hull.vertices()) {
           const double d = glm::dot(n, v - centre) / cube.size;
           hullLo = std::min(hullLo, d), hullHi = std::max(hullHi, d);
         }
