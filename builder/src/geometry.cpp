@@ -162,14 +162,15 @@ HullVertices hullVertices(const Cube& cube, std::span<const Slab> slabs) {
       const dvec3 &P = slabs[0].normal, &Q = slabs[1].normal;
       const double det = P[b] * Q[c] - P[c] * Q[b];
       if (std::abs(det) < kParallelDeterminant) continue;
+      const double invDet = 1.0 / det;
       for (const double xa : {lo[a], hi[a]})
         for (const double dp : {slabs[0].lo, slabs[0].hi})
           for (const double dq : {slabs[1].lo, slabs[1].hi}) {
             const double rp = dp - P[a] * xa, rq = dq - Q[a] * xa;
             dvec3 x;
             x[a] = xa;
-            x[b] = (rp * Q[c] - rq * P[c]) / det;
-            x[c] = (P[b] * rq - Q[b] * rp) / det;
+            x[b] = (rp * Q[c] - rq * P[c]) * invDet;
+            x[c] = (P[b] * rq - Q[b] * rp) * invDet;
             if (x[b] >= lo[b] - eps && x[b] <= hi[b] + eps && x[c] >= lo[c] - eps && x[c] <= hi[c] + eps)
               add(x);
           }

@@ -181,6 +181,22 @@ TEST_F(Cli, BadCameraAndOutput) {
   expectCleanFailure(
       svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --camera " + cams.string()),
       "eye", dir_ / "x.png");
+  expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --beam-tile 65"),
+                     "--beam-tile", dir_ / "x.png");
+}
+
+TEST_F(Cli, BeamTileDoesNotChangeTheImage) {
+  // The beam pass (sec. 6.2) only skips space no ray can hit: the written PNGs are byte-identical.
+  const fs::path store = dir_ / "tet.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + store.string() + " --levels 7").exitCode, 0);
+  const std::string common = " --width 96 --height 80 --view 0.3,-0.5,-1";
+  ASSERT_EQ(svo("render " + store.string() + " -o " + (dir_ / "off.png").string() + common + " --beam-tile 0")
+                .exitCode,
+            0);
+  ASSERT_EQ(svo("render " + store.string() + " -o " + (dir_ / "on.png").string() + common + " --beam-tile 4")
+                .exitCode,
+            0);
+  EXPECT_EQ(slurp(dir_ / "off.png"), slurp(dir_ / "on.png"));
 }
 
 }  // namespace

@@ -49,6 +49,10 @@ void addRenderCommand(CLI::App& app) {
                   "stop at voxels this many pixels across (0 = finest)")
       ->check(CLI::Range(0.0, 64.0))
       ->capture_default_str();
+  cmd->add_option("--beam-tile", args->options.beamTile,
+                  "beam optimization (sec. 6.2): pixels per tile edge of one coarse pass (0 = off)")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
   cmd->add_flag("--no-contours", args->noContours, "ignore contours: cube voxels");
   cmd->add_flag("--aux", args->aux, "EXR only: add depth (Z) and voxel-size-in-pixels channels");
   cmd->add_option("--threads", args->options.threads, "threads (0 = all cores)")

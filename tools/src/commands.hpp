@@ -9,7 +9,7 @@ void addBuildCommand(CLI::App& app);     // cmd_build.cpp
 void addRenderCommand(CLI::App& app);    // cmd_render.cpp
 void addBenchCommands(CLI::App& bench);  // bench_*.cpp: `svo bench raycast`, `svo bench build`
 
-// Thrown by subcommands for bad input: main prints "svo: <message>" and exits 1.
+// Thrown by subcommands for a bad command line: main prints "svo: <message>" and exits 2.
 struct UsageError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };

@@ -15,10 +15,17 @@ int main(int argc, char** argv) {
   auto* bench = app.add_subcommand("bench", "benchmarks against peers measured in the same run");
   bench->require_subcommand(1);
   svo::tools::addBenchCommands(*bench);
+  // Exit codes: 0 success (help and --version too), 1 bad input or a failure while working, 2 a bad command
+  // line.
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
+    std::fprintf(stderr, "svo: %s\n", e.what());
+    return 2;
+  } catch (const svo::tools::UsageError& e) {
+    std::fprintf(stderr, "svo: %s\n", e.what());
+    return 2;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "svo: %s\n", e.what());
     return 1;
