@@ -198,16 +198,20 @@ Block::Block(AlignedBytes bytes) : bytes_(std::move(bytes)), view_(bytes_.data()
 
 // ---------------------------------------------------------------------------------------------------------
 // Layout.
-namespace {
+InheritanceRule::InheritanceRule(const LayoutOptions& options)
+    : colorSteps_(options.colorInheritSteps),
+      normalCos_(std::cos(options.normalInheritDegrees * 3.14159265f / 180.0f)) {}
 
-bool colorsClose(std::uint32_t a, std::uint32_t b, int steps) {
+bool InheritanceRule::color(std::uint32_t a, std::uint32_t b) const {
   for (int shift = 0; shift < 32; shift += 8)
-    if (std::abs(int((a >> shift) & 255u) - int((b >> shift) & 255u)) > steps) return false;
+    if (std::abs(int((a >> shift) & 255u) - int((b >> shift) & 255u)) > colorSteps_) return false;
   return true;
 }
-bool normalsClose(std::uint32_t a, std::uint32_t b, float cosTolerance) {
-  return a == b || glm::dot(decodeNormal(a), decodeNormal(b)) >= cosTolerance;
+bool InheritanceRule::normal(std::uint32_t a, std::uint32_t b) const {
+  return a == b || glm::dot(decodeNormal(a), decodeNormal(b)) >= normalCos_;
 }
+
+namespace {
 
 struct SlotPlan {
   std::vector<std::uint32_t> slotOf;     // voxel -> its descriptor slot (non-leaf voxels)
@@ -303,7 +307,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   }
 
   // Per non-leaf voxel: contours of its children, and which children's attributes differ from the parent's.
-  const float cosTolerance = std::cos(options.normalInheritDegrees * 3.14159265f / 180.0f);
+  const InheritanceRule inherits(options);
   std::vector<std::uint32_t> effectiveColor(n), effectiveNormal(n);
   effectiveColor[0] = tree.voxels[0].color;
   effectiveNormal[0] = tree.voxels[0].normal;
@@ -332,7 +336,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       effectiveColor[c] = effectiveColor[v];
       effectiveNormal[c] = effectiveNormal[v];
       if (tree.hasColors) {
-        if (colorsClose(child.color, effectiveColor[v], options.colorInheritSteps)) {
+        if (inherits.color(child.color, effectiveColor[v])) {
           ++stats.inheritedColors;
         } else {
           colors.push_back(child.color), e.colorMask |= std::uint8_t(1u << slot);
@@ -340,7 +344,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
         }
       }
       if (tree.hasNormals) {
-        if (normalsClose(child.normal, effectiveNormal[v], cosTolerance)) {
+        if (inherits.normal(child.normal, effectiveNormal[v])) {
           ++stats.inheritedNormals;
         } else {
           normals.push_back(child.normal), e.normalMask |= std::uint8_t(1u << slot);

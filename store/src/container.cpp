@@ -1,5 +1,8 @@
 #include "svo/store/container.hpp"
 
+#include <algorithm>
+#include <bit>
+#include <cstddef>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -15,8 +18,14 @@
 namespace svo {
 namespace {
 
-// zstd level for the block: fast to write, decompresses at GB/s (zstd manual: levels 1-3 are the fast range).
+// zstd level for slices: fast to write, decompresses at GB/s (zstd manual: levels 1-3 are the fast range).
 constexpr int kZstdLevel = 3;
+// Smallest slice size accepted: below this the per-slice header and directory entry dominate.
+constexpr std::uint32_t kMinSliceBytes = 256;
+// Largest decoded slice a reader accepts: a cube that cannot split further may exceed the slice size, but a
+// slice claims at most one level of one cube, and 1 GiB bounds what a corrupt directory can make us allocate.
+constexpr std::uint64_t kMaxSliceRawBytes = std::uint64_t(1) << 30;
+constexpr std::uint32_t kSliceMagic = 0x45434c53;  // "SLCE"
 
 // Fixed-size header at offset 0; little-endian, as x86-64 and the GPU both are.
 struct FileHeader {
@@ -29,14 +38,37 @@ struct FileHeader {
   float geometryError, colorError, normalError;
   std::uint32_t contours;
   std::uint32_t attachmentTypes;  // bit (type - 1) set for each attachment present
-  std::uint64_t blockOffset;
-  std::uint64_t blockCompressedBytes;
-  std::uint64_t blockRawBytes;
-  std::uint64_t blockChecksum;   // XXH3-64 of the compressed block
-  std::uint8_t reserved[144];    // room for later fields; zero
-  std::uint64_t headerChecksum;  // XXH3-64 of every byte above
+  std::uint32_t rootColor, rootNormal;
+  std::uint32_t sliceBytes;
+  std::uint32_t sliceCount;
+  std::uint64_t directoryOffset;
+  std::uint64_t directoryBytes;
+  std::uint64_t directoryChecksum;  // XXH3-64 of the directory
+  std::uint8_t reserved[136];       // room for later fields; zero
+  std::uint64_t headerChecksum;     // XXH3-64 of every byte above
 };
 static_assert(sizeof(FileHeader) == 256);
+
+// One directory record on disk.
+struct DirectoryEntry {
+  std::uint64_t offset;
+  std::uint64_t checksum;
+  std::uint32_t compressedBytes, rawBytes;
+  std::int32_t cubeCoord[3];
+  std::uint8_t cubeLevel, voxelLevel;
+  std::uint16_t reserved;
+  std::uint32_t parentCount, voxelCount, contourCount, colorCount, normalCount;
+  std::uint32_t parentSlice;
+};
+static_assert(sizeof(DirectoryEntry) == 64);
+
+// The head of a decoded slice; the counts must agree with the directory's and with the sections' sizes.
+struct SliceHead {
+  std::uint32_t magic;
+  std::uint32_t parentCount, splitCount, voxelCount, contourCount, colorCount, normalCount;
+  std::uint32_t attachments;  // bit 0 colors, bit 1 normals
+};
+static_assert(sizeof(SliceHead) == 32);
 
 std::uint64_t headerChecksum(const FileHeader& h) {
   return XXH3_64bits(&h, offsetof(FileHeader, headerChecksum));
@@ -46,101 +78,568 @@ std::uint64_t headerChecksum(const FileHeader& h) {
   throw std::runtime_error(path.string() + ": " + what);
 }
 
-}  // namespace
-
-void writeOctree(const std::filesystem::path& path, const Octree& octree) {
-  const AlignedBytes& raw = octree.block.bytes();
-  std::vector<char> compressed(ZSTD_compressBound(raw.size()));
-  const std::size_t packed =
-      ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), kZstdLevel);
-  if (ZSTD_isError(packed)) fail(path, std::string("compression failed: ") + ZSTD_getErrorName(packed));
-
-  FileHeader h{};
-  std::memcpy(h.magic, kFileMagic, sizeof h.magic);
-  h.version = kFileVersion;
-  h.headerBytes = sizeof(FileHeader);
-  for (int i = 0; i < 3; ++i) h.origin[i] = octree.transform.origin[i];
-  h.size = octree.transform.size;
-  h.levels = octree.parameters.levels;
-  h.geometryError = octree.parameters.geometryError;
-  h.colorError = octree.parameters.colorError;
-  h.normalError = octree.parameters.normalError;
-  h.contours = octree.parameters.contours;
-  const BlockView view = octree.block.view();
-  for (auto type : {AttachmentType::Color, AttachmentType::Normal})
-    if (view.attachment(type)) h.attachmentTypes |= 1u << (std::uint32_t(type) - 1);
-  h.blockOffset = sizeof(FileHeader);
-  h.blockCompressedBytes = packed;
-  h.blockRawBytes = raw.size();
-  h.blockChecksum = XXH3_64bits(compressed.data(), packed);
-  h.headerChecksum = headerChecksum(h);
-
-  // Temporary name in the same folder, flushed, then renamed: the target is never half-written.
-  const std::filesystem::path temp = path.string() + ".tmp." + std::to_string(::getpid());
-  {
-    std::FILE* f = std::fopen(temp.c_str(), "wb");
-    if (!f) fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
-    const bool ok = std::fwrite(&h, sizeof h, 1, f) == 1 &&
-                    std::fwrite(compressed.data(), 1, packed, f) == packed && std::fflush(f) == 0 &&
-                    ::fsync(::fileno(f)) == 0;
-    const int err = errno;
-    if (std::fclose(f) != 0 || !ok) {
-      std::remove(temp.c_str());
-      fail(path, std::string("cannot write (") + std::strerror(err) + ")");
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(temp, path, ec);
-  if (ec) {
-    std::filesystem::remove(temp);
-    fail(path, "cannot rename into place (" + ec.message() + ")");
-  }
+std::size_t bitBytes(std::size_t bits) {
+  return (bits + 7) / 8;
 }
 
-Octree readOctree(const std::filesystem::path& path) {
+std::size_t sliceRawBytes(const SliceHead& h) {
+  std::size_t bytes = sizeof(SliceHead) + bitBytes(h.parentCount) + h.splitCount + bitBytes(h.voxelCount) +
+                      4 * std::size_t(h.contourCount);
+  if (h.attachments & 1u) bytes += bitBytes(h.voxelCount) + 4 * std::size_t(h.colorCount);
+  if (h.attachments & 2u) bytes += bitBytes(h.voxelCount) + 4 * std::size_t(h.normalCount);
+  return bytes;
+}
+
+// Morton order of cube coordinates at one level (slot bits: x = bit 0, y = 1, z = 2): compare on the axis
+// with the highest differing bit, z winning ties, then y.
+bool mortonLess(const glm::ivec3& a, const glm::ivec3& b) {
+  const auto msbBelow = [](std::uint32_t x, std::uint32_t y) { return x < y && x < (x ^ y); };
+  int axis = 2;
+  std::uint32_t highest = std::uint32_t(a.z ^ b.z);
+  for (const int k : {1, 0}) {
+    const std::uint32_t d = std::uint32_t(a[k] ^ b[k]);
+    if (msbBelow(highest, d)) axis = k, highest = d;
+  }
+  return a[axis] < b[axis];
+}
+
+glm::ivec3 childCoord(const glm::ivec3& parent, int slot) {
+  return parent * 2 + glm::ivec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1);
+}
+
+// Appends bits LSB-first into bytes.
+class BitWriter {
+ public:
+  explicit BitWriter(std::vector<std::byte>& out) : out_(out) {}
+  void push(bool bit) {
+    if (count_ % 8 == 0) out_.push_back(std::byte{0});
+    if (bit) out_.back() |= std::byte(1u << (count_ % 8));
+    ++count_;
+  }
+
+ private:
+  std::vector<std::byte>& out_;
+  std::size_t count_ = 0;
+};
+
+void appendWord(std::vector<std::byte>& out, std::uint32_t word) {
+  const std::size_t at = out.size();
+  out.resize(at + 4);
+  std::memcpy(out.data() + at, &word, 4);
+}
+
+bool bitAt(const std::byte* bits, std::size_t i) {
+  return (std::to_integer<unsigned>(bits[i / 8]) >> (i % 8)) & 1u;
+}
+
+std::uint32_t wordAt(const std::byte* words, std::size_t i) {
+  std::uint32_t w;
+  std::memcpy(&w, words + 4 * i, 4);
+  return w;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Writing: the tree level by level in Morton (breadth-first, slot) order, where every cube of any level holds
+// a contiguous range of every deeper level.
+class StoreWriter {
+ public:
+  StoreWriter(const VoxelTree& tree, const StoreWriteOptions& options) : tree_(tree), options_(options) {
+    if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
+      throw std::invalid_argument("writeStore: the tree has no voxels below the root");
+    if (options.sliceBytes < kMinSliceBytes)
+      throw std::invalid_argument("writeStore: slice size must be at least " +
+                                  std::to_string(kMinSliceBytes) + " bytes (got " +
+                                  std::to_string(options.sliceBytes) + ")");
+    const InheritanceRule inherits(options.inheritance);
+    const std::size_t n = tree.voxels.size();
+    effectiveColor_.assign(n, 0), effectiveNormal_.assign(n, 0);
+    storesColor_.assign(n, 0), storesNormal_.assign(n, 0);
+    effectiveColor_[0] = tree.voxels[0].color, effectiveNormal_[0] = tree.voxels[0].normal;
+    levels_.push_back({{0u, glm::ivec3(0)}});
+    while (true) {
+      std::vector<Voxel> next;
+      for (const Voxel& parent : levels_.back()) {
+        const VoxelRecord& r = tree.voxels[parent.record];
+        for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
+          if (!(r.childMask >> slot & 1u)) continue;
+          if (c >= n) throw std::invalid_argument("writeStore: a child index is out of range");
+          const VoxelRecord& child = tree.voxels[c];
+          effectiveColor_[c] = effectiveColor_[parent.record];
+          effectiveNormal_[c] = effectiveNormal_[parent.record];
+          if (tree.hasColors && !inherits.color(child.color, effectiveColor_[parent.record]))
+            storesColor_[c] = 1, effectiveColor_[c] = child.color;
+          if (tree.hasNormals && !inherits.normal(child.normal, effectiveNormal_[parent.record]))
+            storesNormal_[c] = 1, effectiveNormal_[c] = child.normal;
+          next.push_back({c, childCoord(parent.coord, int(slot))});
+          ++c;
+        }
+      }
+      if (next.empty()) break;
+      if (levels_.size() > std::size_t(kMaxLevels))
+        throw std::invalid_argument("writeStore: the tree is deeper than " + std::to_string(kMaxLevels) +
+                                    " levels");
+      levels_.push_back(std::move(next));
+    }
+    // Prefix counts per level: children before each voxel, and the voxels with each kind of payload.
+    prefix_.resize(levels_.size());
+    for (std::size_t l = 0; l < levels_.size(); ++l) {
+      Prefix& p = prefix_[l];
+      const std::size_t count = levels_[l].size();
+      p.children.assign(count + 1, 0), p.splits.assign(count + 1, 0), p.contours.assign(count + 1, 0);
+      p.colors.assign(count + 1, 0), p.normals.assign(count + 1, 0);
+      for (std::size_t i = 0; i < count; ++i) {
+        const std::uint32_t v = levels_[l][i].record;
+        const VoxelRecord& r = tree.voxels[v];
+        p.children[i + 1] = p.children[i] + std::uint32_t(std::popcount(unsigned(r.childMask)));
+        p.splits[i + 1] = p.splits[i] + (r.childMask != 0);
+        p.contours[i + 1] = p.contours[i] + r.hasContour;
+        p.colors[i + 1] = p.colors[i] + storesColor_[v];
+        p.normals[i + 1] = p.normals[i] + storesNormal_[v];
+      }
+    }
+  }
+
+  // Plans the slices (cube splits included) and hands each one's raw bytes and entry to `emit`.
+  template <class Emit>
+  void run(Emit&& emit) {
+    plan(0, glm::ivec3(0), 1, 0, 1, SliceInfo::kNoSlice, emit);
+  }
+
+ private:
+  struct Voxel {
+    std::uint32_t record;
+    glm::ivec3 coord;
+  };
+  struct Prefix {
+    std::vector<std::uint32_t> children, splits, contours, colors, normals;
+  };
+
+  SliceHead headOf(int level, std::size_t a, std::size_t b) const {
+    const Prefix& up = prefix_[level - 1];
+    const Prefix& here = prefix_[level];
+    const std::uint32_t ca = up.children[a], cb = up.children[b];
+    SliceHead h{};
+    h.magic = kSliceMagic;
+    h.parentCount = std::uint32_t(b - a);
+    h.splitCount = up.splits[b] - up.splits[a];
+    h.voxelCount = cb - ca;
+    h.contourCount = here.contours[cb] - here.contours[ca];
+    h.colorCount = here.colors[cb] - here.colors[ca];
+    h.normalCount = here.normals[cb] - here.normals[ca];
+    h.attachments = (tree_.hasColors ? 1u : 0u) | (tree_.hasNormals ? 2u : 0u);
+    return h;
+  }
+
+  // The slices of cube (cubeLevel, cube) from voxel level `level` on; its parents are [a, b) of level - 1.
+  template <class Emit>
+  void plan(int cubeLevel, glm::ivec3 cube, int level, std::size_t a, std::size_t b,
+            std::uint32_t parentSlice, Emit& emit) {
+    if (level >= int(levels_.size())) return;
+    const SliceHead head = headOf(level, a, b);
+    if (head.voxelCount == 0) return;
+    if (sliceRawBytes(head) > options_.sliceBytes && cubeLevel < level - 1) {
+      // Split into the 8 sub-cubes; the parents of each are a contiguous run of the Morton-ordered level.
+      const int shift = level - 1 - (cubeLevel + 1);
+      const std::vector<Voxel>& parents = levels_[level - 1];
+      for (std::size_t i = a; i < b;) {
+        const glm::ivec3 sub = parents[i].coord >> shift;
+        std::size_t j = i;
+        while (j < b && (parents[j].coord >> shift) == sub) ++j;
+        plan(cubeLevel + 1, sub, level, i, j, parentSlice, emit);
+        i = j;
+      }
+      return;
+    }
+    SliceInfo info;
+    info.cubeLevel = cubeLevel;
+    info.cubeCoord = cube;
+    info.voxelLevel = level;
+    info.parentCount = head.parentCount;
+    info.voxelCount = head.voxelCount;
+    info.contourCount = head.contourCount;
+    info.colorCount = head.colorCount;
+    info.normalCount = head.normalCount;
+    info.parentSlice = parentSlice;
+    const std::uint32_t id = emit(encode(head, level, a, b), info);
+    const Prefix& up = prefix_[level - 1];
+    plan(cubeLevel, cube, level + 1, up.children[a], up.children[b], id, emit);
+  }
+
+  std::vector<std::byte> encode(const SliceHead& head, int level, std::size_t a, std::size_t b) const {
+    std::vector<std::byte> out(sizeof head);
+    std::memcpy(out.data(), &head, sizeof head);
+    out.reserve(sliceRawBytes(head));
+    const std::vector<Voxel>& parents = levels_[level - 1];
+    {
+      BitWriter split(out);
+      for (std::size_t i = a; i < b; ++i) split.push(tree_.voxels[parents[i].record].childMask != 0);
+    }
+    for (std::size_t i = a; i < b; ++i)
+      if (const std::uint8_t mask = tree_.voxels[parents[i].record].childMask) out.push_back(std::byte(mask));
+    const std::uint32_t ca = prefix_[level - 1].children[a], cb = prefix_[level - 1].children[b];
+    const std::vector<Voxel>& voxels = levels_[level];
+    const auto section = [&](auto has, auto value) {
+      {
+        BitWriter bits(out);
+        for (std::uint32_t i = ca; i < cb; ++i) bits.push(has(voxels[i].record));
+      }
+      for (std::uint32_t i = ca; i < cb; ++i)
+        if (has(voxels[i].record)) appendWord(out, value(voxels[i].record));
+    };
+    section([&](std::uint32_t v) { return tree_.voxels[v].hasContour; },
+            [&](std::uint32_t v) { return tree_.voxels[v].contour; });
+    if (tree_.hasColors)
+      section([&](std::uint32_t v) { return storesColor_[v] != 0; },
+              [&](std::uint32_t v) { return effectiveColor_[v]; });
+    if (tree_.hasNormals)
+      section([&](std::uint32_t v) { return storesNormal_[v] != 0; },
+              [&](std::uint32_t v) { return effectiveNormal_[v]; });
+    return out;
+  }
+
+  const VoxelTree& tree_;
+  const StoreWriteOptions& options_;
+  std::vector<std::uint32_t> effectiveColor_, effectiveNormal_;
+  std::vector<std::uint8_t> storesColor_, storesNormal_;
+  std::vector<std::vector<Voxel>> levels_;
+  std::vector<Prefix> prefix_;
+};
+
+}  // namespace
+
+SliceError::SliceError(std::uint32_t s, const std::string& what)
+    : std::runtime_error("slice " + std::to_string(s) + ": " + what), slice(s) {}
+
+std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const VoxelTree& tree,
+                                  const SceneTransform& transform, const BuildParameters& parameters,
+                                  const StoreWriteOptions& options) {
+  StoreWriter writer(tree, options);
+  // Temporary name in the same folder, flushed, then renamed: the target is never half-written.
+  const std::filesystem::path temp = path.string() + ".tmp." + std::to_string(::getpid());
+  std::FILE* f = std::fopen(temp.c_str(), "wb");
+  if (!f) fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
+  std::vector<SliceInfo> slices;
+  try {
+    const auto put = [&](const void* data, std::size_t bytes) {
+      if (std::fwrite(data, 1, bytes, f) != bytes)
+        fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
+    };
+    FileHeader h{};
+    put(&h, sizeof h);  // placeholder until the directory's place is known
+    std::uint64_t offset = sizeof h;
+    std::vector<char> compressed;
+    writer.run([&](const std::vector<std::byte>& raw, SliceInfo info) {
+      compressed.resize(ZSTD_compressBound(raw.size()));
+      const std::size_t packed =
+          ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), kZstdLevel);
+      if (ZSTD_isError(packed)) fail(path, std::string("compression failed: ") + ZSTD_getErrorName(packed));
+      info.offset = offset;
+      info.compressedBytes = std::uint32_t(packed);
+      info.rawBytes = std::uint32_t(raw.size());
+      info.checksum = XXH3_64bits(compressed.data(), packed);
+      put(compressed.data(), packed);
+      offset += packed;
+      slices.push_back(info);
+      return std::uint32_t(slices.size() - 1);
+    });
+    std::vector<DirectoryEntry> directory(slices.size());
+    for (std::size_t i = 0; i < slices.size(); ++i) {
+      const SliceInfo& s = slices[i];
+      directory[i] = DirectoryEntry{s.offset,
+                                    s.checksum,
+                                    s.compressedBytes,
+                                    s.rawBytes,
+                                    {s.cubeCoord.x, s.cubeCoord.y, s.cubeCoord.z},
+                                    std::uint8_t(s.cubeLevel),
+                                    std::uint8_t(s.voxelLevel),
+                                    0,
+                                    s.parentCount,
+                                    s.voxelCount,
+                                    s.contourCount,
+                                    s.colorCount,
+                                    s.normalCount,
+                                    s.parentSlice};
+    }
+    const std::size_t directoryBytes = directory.size() * sizeof(DirectoryEntry);
+    put(directory.data(), directoryBytes);
+
+    std::memcpy(h.magic, kFileMagic, sizeof h.magic);
+    h.version = kFileVersion;
+    h.headerBytes = sizeof(FileHeader);
+    for (int i = 0; i < 3; ++i) h.origin[i] = transform.origin[i];
+    h.size = transform.size;
+    h.levels = parameters.levels;
+    h.geometryError = parameters.geometryError;
+    h.colorError = parameters.colorError;
+    h.normalError = parameters.normalError;
+    h.contours = parameters.contours;
+    if (tree.hasColors) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Color) - 1);
+    if (tree.hasNormals) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Normal) - 1);
+    h.rootColor = tree.voxels[0].color;
+    h.rootNormal = tree.voxels[0].normal;
+    h.sliceBytes = options.sliceBytes;
+    h.sliceCount = std::uint32_t(slices.size());
+    h.directoryOffset = offset;
+    h.directoryBytes = directoryBytes;
+    h.directoryChecksum = XXH3_64bits(directory.data(), directoryBytes);
+    h.headerChecksum = headerChecksum(h);
+    if (std::fseek(f, 0, SEEK_SET) != 0) fail(path, "cannot seek to the header");
+    put(&h, sizeof h);
+    if (std::fflush(f) != 0 || ::fsync(::fileno(f)) != 0)
+      fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
+    const int closed = std::fclose(f);
+    f = nullptr;
+    if (closed != 0) fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
+    std::error_code ec;
+    std::filesystem::rename(temp, path, ec);
+    if (ec) fail(path, "cannot rename into place (" + ec.message() + ")");
+  } catch (...) {
+    if (f) std::fclose(f);
+    std::error_code ignored;
+    std::filesystem::remove(temp, ignored);
+    throw;
+  }
+  return slices;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+StoreReader::StoreReader(const std::filesystem::path& path) : path_(path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) fail(path, std::filesystem::exists(path) ? "cannot open" : "no such file");
+  std::error_code ec;
+  const std::uint64_t fileBytes = std::filesystem::file_size(path, ec);
+  if (ec) fail(path, "cannot read its size (" + ec.message() + ")");
   FileHeader h{};
   in.read(reinterpret_cast<char*>(&h), sizeof h);
   if (in.gcount() < std::streamsize(sizeof h.magic) || std::memcmp(h.magic, kFileMagic, sizeof h.magic) != 0)
     fail(path, "not an svostream file (bad magic)");
-  if (in.gcount() != std::streamsize(sizeof h)) fail(path, "truncated header");
+  if (in.gcount() < std::streamsize(offsetof(FileHeader, headerBytes))) fail(path, "truncated header");
   if (h.version != kFileVersion)
     fail(path, "unsupported file version " + std::to_string(h.version) + " (this build reads " +
                    std::to_string(kFileVersion) + ")");
+  if (in.gcount() != std::streamsize(sizeof h)) fail(path, "truncated header");
   if (h.headerBytes != sizeof h || headerChecksum(h) != h.headerChecksum)
     fail(path, "header checksum mismatch");
-  if (h.levels < 1 || h.levels > kMaxLevels || !(h.size > 0.0))
+  if (h.levels < 1 || h.levels > kMaxLevels || !(h.size > 0.0) || h.sliceBytes < kMinSliceBytes)
     fail(path, "header holds invalid scene parameters");
-  // Bound sizes before allocating: the raw block may not exceed what zstd's frame says nor 64 GiB.
-  constexpr std::uint64_t kMaxBlockBytes = std::uint64_t(64) << 30;
-  if (h.blockRawBytes == 0 || h.blockRawBytes > kMaxBlockBytes || h.blockRawBytes % kPageBytes != 0 ||
-      h.blockCompressedBytes == 0 || h.blockCompressedBytes > kMaxBlockBytes)
-    fail(path, "header holds invalid block sizes");
-  std::vector<char> compressed(h.blockCompressedBytes);
-  in.seekg(std::streamoff(h.blockOffset));
-  in.read(compressed.data(), std::streamsize(compressed.size()));
-  if (std::uint64_t(in.gcount()) != h.blockCompressedBytes)
-    fail(path, "truncated: block needs " + std::to_string(h.blockCompressedBytes) + " bytes, file has " +
-                   std::to_string(in.gcount()));
-  if (XXH3_64bits(compressed.data(), compressed.size()) != h.blockChecksum)
-    fail(path, "block checksum mismatch");
-  const unsigned long long frameBytes = ZSTD_getFrameContentSize(compressed.data(), compressed.size());
-  if (frameBytes != h.blockRawBytes) fail(path, "block size does not match its compressed frame");
-  AlignedBytes raw(h.blockRawBytes);
-  const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), compressed.data(), compressed.size());
-  if (ZSTD_isError(got) || got != h.blockRawBytes) fail(path, "block does not decompress");
+  if (h.directoryBytes != std::uint64_t(h.sliceCount) * sizeof(DirectoryEntry) ||
+      h.directoryOffset < sizeof h)
+    fail(path, "header holds an invalid directory location");
+  if (h.directoryOffset + h.directoryBytes > fileBytes)
+    fail(path, "truncated: the directory ends at byte " +
+                   std::to_string(h.directoryOffset + h.directoryBytes) + ", the file has " +
+                   std::to_string(fileBytes));
+  if (h.directoryOffset + h.directoryBytes != fileBytes)
+    fail(path, std::to_string(fileBytes - h.directoryOffset - h.directoryBytes) +
+                   " unexpected bytes after the directory");
 
+  header_.transform.origin = {h.origin[0], h.origin[1], h.origin[2]};
+  header_.transform.size = h.size;
+  header_.parameters = {h.levels, h.geometryError, h.colorError, h.normalError, h.contours};
+  header_.hasColors = h.attachmentTypes >> (std::uint32_t(AttachmentType::Color) - 1) & 1u;
+  header_.hasNormals = h.attachmentTypes >> (std::uint32_t(AttachmentType::Normal) - 1) & 1u;
+  header_.rootColor = h.rootColor;
+  header_.rootNormal = h.rootNormal;
+  header_.sliceBytes = h.sliceBytes;
+  header_.directoryOffset = h.directoryOffset;
+  header_.directoryBytes = h.directoryBytes;
+  header_.fileBytes = fileBytes;
+
+  std::vector<DirectoryEntry> directory(h.sliceCount);
+  in.seekg(std::streamoff(h.directoryOffset));
+  in.read(reinterpret_cast<char*>(directory.data()), std::streamsize(h.directoryBytes));
+  if (std::uint64_t(in.gcount()) != h.directoryBytes) fail(path, "truncated: cannot read the directory");
+  if (XXH3_64bits(directory.data(), h.directoryBytes) != h.directoryChecksum)
+    fail(path, "directory checksum mismatch");
+
+  // Slices tile the bytes between the header and the directory in order, so every byte has a checksum.
+  std::uint64_t expectedOffset = sizeof h;
+  slices_.reserve(directory.size());
+  for (std::size_t i = 0; i < directory.size(); ++i) {
+    const DirectoryEntry& e = directory[i];
+    const auto bad = [&](const std::string& what) {
+      fail(path, "directory entry " + std::to_string(i) + ": " + what);
+    };
+    if (e.offset != expectedOffset || e.compressedBytes == 0 ||
+        e.offset + e.compressedBytes > h.directoryOffset)
+      bad("slice bytes out of place");
+    expectedOffset += e.compressedBytes;
+    if (e.rawBytes < sizeof(SliceHead) || e.rawBytes > kMaxSliceRawBytes) bad("invalid slice size");
+    if (e.voxelLevel < 1 || e.voxelLevel > h.levels || e.cubeLevel >= e.voxelLevel) bad("invalid levels");
+    for (const std::int32_t c : e.cubeCoord)
+      if (c < 0 || std::int64_t(c) >= (std::int64_t(1) << e.cubeLevel)) bad("cube outside the octree");
+    if (e.parentSlice != SliceInfo::kNoSlice && e.parentSlice >= i) bad("parent slice does not come first");
+    SliceInfo s;
+    s.offset = e.offset;
+    s.compressedBytes = e.compressedBytes;
+    s.rawBytes = e.rawBytes;
+    s.checksum = e.checksum;
+    s.cubeCoord = {e.cubeCoord[0], e.cubeCoord[1], e.cubeCoord[2]};
+    s.cubeLevel = e.cubeLevel;
+    s.voxelLevel = e.voxelLevel;
+    s.parentCount = e.parentCount;
+    s.voxelCount = e.voxelCount;
+    s.contourCount = e.contourCount;
+    s.colorCount = e.colorCount;
+    s.normalCount = e.normalCount;
+    s.parentSlice = e.parentSlice;
+    slices_.push_back(s);
+  }
+  if (expectedOffset != h.directoryOffset) fail(path, "the slices do not end where the directory starts");
+}
+
+std::vector<std::byte> StoreReader::readSlice(std::uint32_t id) const {
+  if (id >= slices_.size()) throw SliceError(id, "no such slice");
+  const SliceInfo& s = slices_[id];
+  std::ifstream in(path_, std::ios::binary);
+  if (!in) fail(path_, "cannot open");
+  std::vector<char> compressed(s.compressedBytes);
+  in.seekg(std::streamoff(s.offset));
+  in.read(compressed.data(), std::streamsize(compressed.size()));
+  if (std::uint64_t(in.gcount()) != s.compressedBytes) throw SliceError(id, "truncated");
+  if (XXH3_64bits(compressed.data(), compressed.size()) != s.checksum)
+    throw SliceError(id, "checksum mismatch");
+  if (ZSTD_getFrameContentSize(compressed.data(), compressed.size()) != s.rawBytes)
+    throw SliceError(id, "size does not match its compressed frame");
+  std::vector<std::byte> raw(s.rawBytes);
+  const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), compressed.data(), compressed.size());
+  if (ZSTD_isError(got) || got != s.rawBytes) throw SliceError(id, "does not decompress");
+  return raw;
+}
+
+VoxelTree StoreReader::loadTree() const {
+  struct Node {
+    glm::ivec3 coord{0};
+    std::uint8_t childMask = 0;
+    bool covered = false;  // a slice has given this node's split bit
+    bool hasContour = false;
+    std::uint32_t contour = 0, color = 0, normal = 0;
+  };
+  const int levelCount = header_.parameters.levels;
+  std::vector<std::vector<Node>> levels(1);
+  levels[0].push_back({glm::ivec3(0), 0, false, false, 0, header_.rootColor, header_.rootNormal});
+  std::vector<std::vector<std::uint32_t>> slicesOf(levelCount + 1);
+  for (std::uint32_t i = 0; i < slices_.size(); ++i) slicesOf[slices_[i].voxelLevel].push_back(i);
+
+  for (int level = 1; level <= levelCount && !slicesOf[level].empty(); ++level) {
+    std::vector<Node>& parents = levels[level - 1];
+    std::vector<Node> voxels;
+    for (const std::uint32_t id : slicesOf[level]) {
+      const SliceInfo& s = slices_[id];
+      // The cube's parents: a contiguous Morton range of the level above.
+      const int shift = level - 1 - s.cubeLevel;
+      const glm::ivec3 first = s.cubeCoord << shift, last = first + ((1 << shift) - 1);
+      const auto lo =
+          std::lower_bound(parents.begin(), parents.end(), first,
+                           [](const Node& n, const glm::ivec3& c) { return mortonLess(n.coord, c); });
+      const auto hi =
+          std::upper_bound(parents.begin(), parents.end(), last,
+                           [](const glm::ivec3& c, const Node& n) { return mortonLess(c, n.coord); });
+      if (std::uint64_t(hi - lo) != s.parentCount)
+        throw SliceError(id, "expects " + std::to_string(s.parentCount) + " parent voxels, its cube has " +
+                                 std::to_string(hi - lo));
+      const std::vector<std::byte> raw = readSlice(id);
+      SliceHead head;
+      std::memcpy(&head, raw.data(), sizeof head);
+      const std::uint32_t attachments = (header_.hasColors ? 1u : 0u) | (header_.hasNormals ? 2u : 0u);
+      if (head.magic != kSliceMagic || head.parentCount != s.parentCount || head.voxelCount != s.voxelCount ||
+          head.contourCount != s.contourCount || head.colorCount != s.colorCount ||
+          head.normalCount != s.normalCount || head.attachments != attachments ||
+          head.splitCount > head.parentCount)
+        throw SliceError(id, "its head does not match the directory");
+      if (sliceRawBytes(head) != raw.size()) throw SliceError(id, "section sizes do not add up to its size");
+
+      const std::byte* cursor = raw.data() + sizeof head;
+      const std::byte* splitBits = cursor;
+      cursor += bitBytes(head.parentCount);
+      const std::byte* masks = cursor;
+      cursor += head.splitCount;
+      std::uint32_t split = 0;
+      std::vector<std::uint32_t> parentOf;  // parent index of each new voxel
+      for (auto p = lo; p != hi; ++p) {
+        if (p->covered) throw SliceError(id, "overlaps another slice's cube");
+        p->covered = true;
+        if (!bitAt(splitBits, std::size_t(p - lo))) continue;
+        if (split == head.splitCount) throw SliceError(id, "more split bits than valid masks");
+        const std::uint8_t mask = std::to_integer<std::uint8_t>(masks[split++]);
+        if (mask == 0) throw SliceError(id, "a split voxel with no children");
+        p->childMask = mask;
+        for (int slot = 0; slot < 8; ++slot)
+          if (mask >> slot & 1u) {
+            parentOf.push_back(std::uint32_t(p - parents.begin()));
+            voxels.push_back({childCoord(p->coord, slot), 0, false, false, 0, p->color, p->normal});
+          }
+      }
+      if (split != head.splitCount || parentOf.size() != head.voxelCount)
+        throw SliceError(id, "valid masks do not match the voxel count");
+      Node* added = voxels.data() + (voxels.size() - parentOf.size());
+      // Per-voxel sections: a presence bit each, then the present values in order.
+      const auto section = [&](std::uint32_t count, auto store) {
+        const std::byte* bits = cursor;
+        const std::byte* words = cursor + bitBytes(head.voxelCount);
+        std::uint32_t k = 0;
+        for (std::uint32_t i = 0; i < head.voxelCount; ++i) {
+          if (!bitAt(bits, i)) continue;
+          if (k == count) throw SliceError(id, "more presence bits than values");
+          store(added[i], wordAt(words, k++));
+        }
+        if (k != count) throw SliceError(id, "fewer presence bits than values");
+        cursor = words + 4 * std::size_t(count);
+      };
+      section(head.contourCount, [](Node& n, std::uint32_t w) { n.hasContour = true, n.contour = w; });
+      if (header_.hasColors) section(head.colorCount, [](Node& n, std::uint32_t w) { n.color = w; });
+      if (header_.hasNormals) section(head.normalCount, [](Node& n, std::uint32_t w) { n.normal = w; });
+    }
+    // Slices of one level cover disjoint cubes: sorting restores the level's Morton order, in which every
+    // parent's children are contiguous and follow their parents' order.
+    std::sort(voxels.begin(), voxels.end(),
+              [](const Node& a, const Node& b) { return mortonLess(a.coord, b.coord); });
+    levels.push_back(std::move(voxels));
+  }
+  for (std::size_t l = levels.size(); l <= std::size_t(levelCount); ++l)
+    if (!slicesOf[l].empty()) fail(path_, "slices of level " + std::to_string(l) + " have no parents");
+  if (levels.size() < 2) fail(path_, "the store holds no voxels");
+
+  VoxelTree tree;
+  tree.hasColors = header_.hasColors;
+  tree.hasNormals = header_.hasNormals;
+  std::size_t total = 0;
+  for (const auto& l : levels) total += l.size();
+  tree.voxels.reserve(total);
+  std::size_t nextChild = levels[0].size();
+  for (std::size_t l = 0; l < levels.size(); ++l) {
+    for (const Node& n : levels[l]) {
+      VoxelRecord r;
+      r.childMask = n.childMask;
+      r.firstChild = n.childMask ? std::uint32_t(nextChild) : 0;
+      nextChild += std::size_t(std::popcount(unsigned(n.childMask)));
+      r.hasContour = n.hasContour;
+      r.contour = n.contour;
+      r.color = n.color;
+      r.normal = n.normal;
+      tree.voxels.push_back(r);
+    }
+  }
+  return tree;
+}
+
+Octree readOctree(const std::filesystem::path& path) {
+  const StoreReader reader(path);
   Octree octree;
-  octree.transform.origin = {h.origin[0], h.origin[1], h.origin[2]};
-  octree.transform.size = h.size;
-  octree.parameters = {h.levels, h.geometryError, h.colorError, h.normalError, h.contours};
+  octree.transform = reader.header().transform;
+  octree.parameters = reader.header().parameters;
   try {
-    octree.block = Block(std::move(raw));
-  } catch (const std::exception& e) {
+    octree.block = layoutBlock(reader.loadTree());
+  } catch (const SliceError& e) {
+    fail(path, e.what());
+  } catch (const std::invalid_argument& e) {
     fail(path, e.what());
   }
   return octree;
+}
+
+void writeOctree(const std::filesystem::path& path, const Octree& octree, const StoreWriteOptions& options) {
+  writeStore(path, readBlock(octree.block.view()), octree.transform, octree.parameters, options);
 }
 
 }  // namespace svo

@@ -110,6 +110,19 @@ struct LayoutOptions {
   float normalInheritDegrees = 0.5f;
 };
 
+// Sec. 5.4: whether a child's attribute value is left out and inherited from its parent's effective value.
+// Shared by the block layout and the slice store, so both leave out the same values.
+class InheritanceRule {
+ public:
+  explicit InheritanceRule(const LayoutOptions& options);
+  bool color(std::uint32_t child, std::uint32_t parentEffective) const;
+  bool normal(std::uint32_t child, std::uint32_t parentEffective) const;
+
+ private:
+  int colorSteps_;
+  float normalCos_;
+};
+
 struct LayoutStats {
   std::uint64_t descriptorSlots = 0, farSlots = 0, pageHeaderSlots = 0, paddingSlots = 0;
   std::uint64_t contourWords = 0, colorValues = 0, normalValues = 0, inheritedColors = 0,

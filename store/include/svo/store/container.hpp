@@ -1,11 +1,21 @@
-// The `.svo` file. Until the slice store exists this holds one block: a fixed-size header at offset 0
-// (magic, version, scene transform, levels, attachment types, build parameters, block location, checksums),
-// then the block compressed with zstd. Written to a temporary name and renamed only when complete.
+// The `.svo` store (paper sec. 7, DESIGN.md): one file holding
+//   a 256-byte header at offset 0 (magic, version, scene transform, levels, build parameters, attachment
+//   types, the root voxel's attributes, slice size, directory location, checksum), slices, each one
+//   resolution level of one cube of the octree, zstd-compressed and XXH3-checksummed, the slice directory at
+//   the end (its location and checksum in the header).
+// A slice stores no positions or pointers: the levels above it say which voxels it holds (released code: a
+// split bit per node of the level above in its cube, a valid mask per split node, then contours and the
+// attribute values that differ from the parent's for the new voxels). When a cube's next level would exceed
+// the slice size, the cube splits into 8 sub-cubes with slices of their own. Header and directory sit at
+// known offsets, so the file can be read with range requests from a static server. Written to a temporary
+// name and renamed only when complete.
 #pragma once
 
 #include <cstdint>
 #include <filesystem>
+#include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <glm/vec3.hpp>
 
@@ -14,7 +24,9 @@
 namespace svo {
 
 inline constexpr char kFileMagic[8] = {'S', 'V', 'O', 'S', 'T', 'R', 'M', '\0'};
-inline constexpr std::uint32_t kFileVersion = 1;
+inline constexpr std::uint32_t kFileVersion = 2;
+// Default slice size: "about 1 MB at most" (sec. 7); a cube whose next level would exceed it splits.
+inline constexpr std::uint32_t kDefaultSliceBytes = 1u << 20;
 
 // Maps world space to the octree's [1, 2]^3: world = origin + (p - 1) * size.
 struct SceneTransform {
@@ -38,10 +50,75 @@ struct Octree {
   Block block;
 };
 
-// Writes atomically: `path` either keeps its old content or gets the complete new file.
-void writeOctree(const std::filesystem::path& path, const Octree& octree);
-// Throws std::runtime_error naming the file and what is wrong (missing, foreign, truncated, bad checksum,
-// unsupported version).
+// One entry of the slice directory.
+struct SliceInfo {
+  std::uint64_t offset = 0;           // file offset of the compressed bytes
+  std::uint32_t compressedBytes = 0;  // as stored
+  std::uint32_t rawBytes = 0;         // decoded
+  std::uint64_t checksum = 0;         // XXH3-64 of the compressed bytes
+  glm::ivec3 cubeCoord{0};            // the cube, at cubeLevel
+  std::int32_t cubeLevel = 0;
+  std::int32_t voxelLevel = 0;    // the level of the voxels the slice adds (their parents are one above)
+  std::uint32_t parentCount = 0;  // voxels of level voxelLevel - 1 in the cube
+  std::uint32_t voxelCount = 0;   // voxels the slice adds
+  std::uint32_t contourCount = 0;
+  std::uint32_t colorCount = 0, normalCount = 0;  // attribute values stored (the rest inherit)
+  std::uint32_t parentSlice = kNoSlice;           // the slice that added this cube's parents' level
+  static constexpr std::uint32_t kNoSlice = 0xFFFFFFFFu;
+};
+
+// What a store's header says.
+struct StoreHeader {
+  SceneTransform transform;
+  BuildParameters parameters;
+  bool hasColors = false, hasNormals = false;
+  std::uint32_t rootColor = 0, rootNormal = 0;  // the root voxel's own attribute values
+  std::uint32_t sliceBytes = kDefaultSliceBytes;
+  std::uint64_t directoryOffset = 0, directoryBytes = 0, fileBytes = 0;
+};
+
+// A slice that failed its checksum, does not decompress or does not decode. `slice` is its directory index.
+struct SliceError : std::runtime_error {
+  SliceError(std::uint32_t slice, const std::string& what);
+  std::uint32_t slice;
+};
+
+struct StoreWriteOptions {
+  std::uint32_t sliceBytes = kDefaultSliceBytes;  // raw bytes a slice may hold before its cube splits
+  LayoutOptions inheritance;                      // when a child inherits its parent's attribute (sec. 5.4)
+};
+
+// Writes the voxel tree as a slice store, atomically: `path` either keeps its old content or gets the
+// complete new file. Returns the directory written.
+std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const VoxelTree& tree,
+                                  const SceneTransform& transform, const BuildParameters& parameters,
+                                  const StoreWriteOptions& options = {});
+
+// Reads a store: the header and directory on open (checked), slices on demand (checksum verified before a
+// byte is decoded). Throws std::runtime_error naming the file and what is wrong; slice problems throw
+// SliceError.
+class StoreReader {
+ public:
+  explicit StoreReader(const std::filesystem::path& path);
+  const StoreHeader& header() const { return header_; }
+  const std::vector<SliceInfo>& slices() const { return slices_; }
+  const std::filesystem::path& path() const { return path_; }
+  // The slice's decoded bytes, after its checksum and size checks.
+  std::vector<std::byte> readSlice(std::uint32_t slice) const;
+  // Every slice decoded into one voxel tree (attributes resolved), with every structural invariant checked:
+  // slices cover disjoint parents, parent counts and masks agree, sizes match.
+  VoxelTree loadTree() const;
+
+ private:
+  std::filesystem::path path_;
+  StoreHeader header_;
+  std::vector<SliceInfo> slices_;
+};
+
+// The whole store as one in-memory octree (loadTree + layoutBlock): the same block the in-core builder makes.
 Octree readOctree(const std::filesystem::path& path);
+// Writes the octree's voxels (read back from its block) as a store.
+void writeOctree(const std::filesystem::path& path, const Octree& octree,
+                 const StoreWriteOptions& options = {});
 
 }  // namespace svo
