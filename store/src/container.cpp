@@ -409,6 +409,7 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path) {
   std::error_code ec;
   const std::uint64_t fileBytes = std::filesystem::file_size(path, ec);
   if (ec) fail(path, "cannot read its size (" + ec.message() + ")");
+  if (fileBytes == 0) fail(path, "empty file (0 bytes), not an svostream file");
   FileHeader h{};
   in.read(reinterpret_cast<char*>(&h), sizeof h);
   if (in.gcount() < std::streamsize(sizeof h.magic) || std::memcmp(h.magic, kFileMagic, sizeof h.magic) != 0)

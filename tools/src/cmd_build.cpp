@@ -29,6 +29,7 @@ void addBuildCommand(CLI::App& app) {
     BuildOptions options;
     bool noContours = false;
     int threads = 0;
+    std::uint64_t sliceBytes = kDefaultSliceBytes;
   };
   auto args = std::make_shared<Args>();
   auto* cmd = app.add_subcommand(
@@ -52,6 +53,11 @@ void addBuildCommand(CLI::App& app) {
   cmd->add_option("--normal-error", args->options.normalError,
                   "with --geometry-error: also require normals within this many degrees (0 = not checked)")
       ->check(CLI::Range(0.0, 180.0));
+  cmd->add_option("--slice-size", args->sliceBytes,
+                  "bytes a slice may hold before its cube splits into 8 (sec. 7; suffixes K, M)")
+      ->transform(CLI::AsSizeValue(false))
+      ->check(CLI::Range(std::uint64_t(256), std::uint64_t(1) << 30))
+      ->capture_default_str();
   cmd->add_option("--threads", args->threads, "worker threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
   cmd->callback([args] {
@@ -71,7 +77,9 @@ void addBuildCommand(CLI::App& app) {
     BuildStats stats;
     const Octree octree = buildOctree(mesh, options, &stats);
     bar.finish();
-    writeOctree(args->out, octree);
+    StoreWriteOptions storeOptions;
+    storeOptions.sliceBytes = std::uint32_t(args->sliceBytes);
+    writeOctree(args->out, octree, storeOptions);
     const LayoutStats& l = stats.layout;
     const double leaves = double(stats.leafVoxels);
     spdlog::info(

@@ -7,6 +7,7 @@ namespace svo::tools {
 
 void addBuildCommand(CLI::App& app);     // cmd_build.cpp
 void addRenderCommand(CLI::App& app);    // cmd_render.cpp
+void addStoreCommands(CLI::App& app);    // cmd_store.cpp: `svo verify`, `svo inspect`
 void addBenchCommands(CLI::App& bench);  // bench_*.cpp: `svo bench raycast`, `svo bench build`
 
 // Thrown by subcommands for a bad command line: main prints "svo: <message>" and exits 2.

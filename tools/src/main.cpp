@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", "svo 0.1.0");
   svo::tools::addBuildCommand(app);
   svo::tools::addRenderCommand(app);
+  svo::tools::addStoreCommands(app);
   auto* bench = app.add_subcommand("bench", "benchmarks against peers measured in the same run");
   bench->require_subcommand(1);
   svo::tools::addBenchCommands(*bench);

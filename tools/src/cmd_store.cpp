@@ -1,0 +1,158 @@
+// `svo verify STORE` and `svo inspect STORE`: every checksum and structural invariant of a slice store, and
+// what it holds per level (slices, voxels, branching, bytes per voxel per part, slice sizes).
+#include <algorithm>
+#include <bit>
+#include <cstdio>
+#include <map>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "commands.hpp"
+#include "svo/store/container.hpp"
+
+namespace svo::tools {
+namespace {
+
+// Slice size histogram buckets: powers of two of raw bytes, from 2^kFirstBucket up.
+constexpr int kFirstBucket = 6;
+
+std::size_t bitBytes(std::size_t bits) {
+  return (bits + 7) / 8;
+}
+
+struct LevelSummary {
+  std::uint64_t slices = 0, voxels = 0, parents = 0, contours = 0, colors = 0, normals = 0;
+  std::uint64_t rawBytes = 0, diskBytes = 0;
+  std::uint64_t hierarchyBytes = 0, contourBytes = 0, colorBytes = 0, normalBytes = 0;
+  std::uint32_t smallestSlice = 0xFFFFFFFFu, largestSlice = 0;
+};
+
+// Per slice, its raw bytes by part: presence bits belong to their part; split bits, valid masks and the
+// slice head are hierarchy.
+LevelSummary summarize(const SliceInfo& s, const StoreHeader& h) {
+  LevelSummary l;
+  l.slices = 1;
+  l.voxels = s.voxelCount;
+  l.parents = s.parentCount;
+  l.contours = s.contourCount;
+  l.colors = s.colorCount;
+  l.normals = s.normalCount;
+  l.rawBytes = s.rawBytes;
+  l.diskBytes = s.compressedBytes;
+  l.contourBytes = bitBytes(s.voxelCount) + 4ull * s.contourCount;
+  l.colorBytes = h.hasColors ? bitBytes(s.voxelCount) + 4ull * s.colorCount : 0;
+  l.normalBytes = h.hasNormals ? bitBytes(s.voxelCount) + 4ull * s.normalCount : 0;
+  l.hierarchyBytes = s.rawBytes - l.contourBytes - l.colorBytes - l.normalBytes;
+  l.smallestSlice = l.largestSlice = s.rawBytes;
+  return l;
+}
+
+void add(LevelSummary& to, const LevelSummary& l) {
+  to.slices += l.slices, to.voxels += l.voxels, to.parents += l.parents, to.contours += l.contours;
+  to.colors += l.colors, to.normals += l.normals, to.rawBytes += l.rawBytes, to.diskBytes += l.diskBytes;
+  to.hierarchyBytes += l.hierarchyBytes, to.contourBytes += l.contourBytes, to.colorBytes += l.colorBytes;
+  to.normalBytes += l.normalBytes;
+  to.smallestSlice = std::min(to.smallestSlice, l.smallestSlice);
+  to.largestSlice = std::max(to.largestSlice, l.largestSlice);
+}
+
+double per(std::uint64_t bytes, std::uint64_t voxels) {
+  return voxels ? double(bytes) / double(voxels) : 0.0;
+}
+
+void inspect(const std::string& path, bool json) {
+  const StoreReader reader(path);
+  const StoreHeader& h = reader.header();
+  std::map<int, LevelSummary> levels;
+  LevelSummary total;
+  std::map<int, std::uint64_t> histogram;  // log2 bucket -> slices
+  for (const SliceInfo& s : reader.slices()) {
+    const LevelSummary l = summarize(s, h);
+    add(levels[s.voxelLevel], l);
+    add(total, l);
+    ++histogram[std::max(kFirstBucket, int(std::bit_width(s.rawBytes)) - 1)];
+  }
+  if (json) {
+    nlohmann::json j;
+    j["file"] = path;
+    j["fileBytes"] = h.fileBytes;
+    j["levels"] = h.parameters.levels;
+    j["sliceBytes"] = h.sliceBytes;
+    j["attachments"] = nlohmann::json::array();
+    if (h.hasColors) j["attachments"].push_back("color");
+    if (h.hasNormals) j["attachments"].push_back("normal");
+    for (const auto& [level, l] : levels)
+      j["perLevel"].push_back({{"level", level},
+                               {"slices", l.slices},
+                               {"voxels", l.voxels},
+                               {"branching", l.parents ? double(l.voxels) / double(l.parents) : 0.0},
+                               {"rawBytes", l.rawBytes},
+                               {"diskBytes", l.diskBytes},
+                               {"hierarchyBytes", l.hierarchyBytes},
+                               {"contourBytes", l.contourBytes},
+                               {"colorBytes", l.colorBytes},
+                               {"normalBytes", l.normalBytes},
+                               {"smallestSlice", l.smallestSlice},
+                               {"largestSlice", l.largestSlice}});
+    for (const auto& [bucket, count] : histogram)
+      j["sliceSizeHistogram"].push_back({{"fromBytes", 1ull << bucket}, {"slices", count}});
+    std::printf("%s\n", j.dump(2).c_str());
+    return;
+  }
+  fmt::print("{}: {:.2f} MiB, {} levels, {} slices (slice size {} B), attachments:{}{}\n", path,
+             double(h.fileBytes) / (1 << 20), h.parameters.levels, reader.slices().size(), h.sliceBytes,
+             h.hasColors ? " color" : "", h.hasNormals ? " normal" : (h.hasColors ? "" : " none"));
+  fmt::print("{:>5} {:>7} {:>11} {:>6} {:>9} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10}\n", "level", "slices",
+             "voxels", "branch", "B/v disk", "B/v raw", "hierarchy", "contours", "colors", "normals",
+             "max slice");
+  const auto row = [&](const std::string& name, const LevelSummary& l) {
+    fmt::print("{:>5} {:>7} {:>11} {:>6.2f} {:>9.3f} {:>9.3f} {:>9.3f} {:>9.3f} {:>9.3f} {:>10.3f} {:>10}\n",
+               name, l.slices, l.voxels, l.parents ? double(l.voxels) / double(l.parents) : 0.0,
+               per(l.diskBytes, l.voxels), per(l.rawBytes, l.voxels), per(l.hierarchyBytes, l.voxels),
+               per(l.contourBytes, l.voxels), per(l.colorBytes, l.voxels), per(l.normalBytes, l.voxels),
+               l.largestSlice);
+  };
+  for (const auto& [level, l] : levels) row(std::to_string(level), l);
+  row("all", total);
+  fmt::print("bytes per voxel (B/v): disk = compressed, raw and its parts = decoded slice sections\n");
+  fmt::print("slice sizes (decoded bytes):\n");
+  const std::uint64_t most = std::max_element(histogram.begin(), histogram.end(), [](auto& a, auto& b) {
+                               return a.second < b.second;
+                             })->second;
+  for (const auto& [bucket, count] : histogram)
+    fmt::print("  {:>10} - {:<10} {:>6}  {}\n", 1ull << bucket, (2ull << bucket) - 1, count,
+               std::string(std::size_t(40.0 * double(count) / double(most) + 0.5), '#'));
+}
+
+}  // namespace
+
+void addStoreCommands(CLI::App& app) {
+  {
+    auto path = std::make_shared<std::string>();
+    auto* cmd = app.add_subcommand("verify", "check every checksum and structural invariant of a .svo store");
+    cmd->add_option("store", *path, "the .svo file")->required();
+    cmd->callback([path] {
+      // Any problem throws with the file and, for a slice, its number: main prints it and exits 1.
+      const StoreReader reader(*path);
+      const VoxelTree tree = reader.loadTree();
+      const Block block = layoutBlock(tree);  // the assembled octree passes the block validator too
+      std::printf("%s: ok (%zu slices, %zu voxels, %.2f MiB)\n", path->c_str(), reader.slices().size(),
+                  tree.voxels.size(), double(reader.header().fileBytes) / (1 << 20));
+    });
+  }
+  {
+    struct Args {
+      std::string path;
+      bool json = false;
+    };
+    auto args = std::make_shared<Args>();
+    auto* cmd =
+        app.add_subcommand("inspect", "per level: slices, voxels, branching, bytes per voxel, slice sizes");
+    cmd->add_option("store", args->path, "the .svo file")->required();
+    cmd->add_flag("--json", args->json, "print JSON instead of a table");
+    cmd->callback([args] { inspect(args->path, args->json); });
+  }
+}
+
+}  // namespace svo::tools
