@@ -307,8 +307,18 @@ class StoreWriter {
 
 }  // namespace
 
-SliceError::SliceError(std::uint32_t s, const std::string& what)
-    : std::runtime_error("slice " + std::to_string(s) + ": " + what), slice(s) {}
+SliceError::SliceError(std::uint32_t s, const std::string& message) : std::runtime_error(message), slice(s) {}
+
+SliceError StoreReader::sliceError(std::uint32_t id, const std::string& what) const {
+  std::string name = "slice " + std::to_string(id);
+  if (id < slices_.size()) {
+    const SliceInfo& s = slices_[id];
+    name += " (level " + std::to_string(s.voxelLevel) + ", cube (" + std::to_string(s.cubeCoord.x) + "," +
+            std::to_string(s.cubeCoord.y) + "," + std::to_string(s.cubeCoord.z) + ") of level " +
+            std::to_string(s.cubeLevel) + ")";
+  }
+  return SliceError(id, path_.string() + ": " + name + ": " + what);
+}
 
 std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const VoxelTree& tree,
                                   const SceneTransform& transform, const BuildParameters& parameters,
@@ -490,21 +500,21 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path) {
 }
 
 std::vector<std::byte> StoreReader::readSlice(std::uint32_t id) const {
-  if (id >= slices_.size()) throw SliceError(id, "no such slice");
+  if (id >= slices_.size()) throw sliceError(id, "no such slice");
   const SliceInfo& s = slices_[id];
   std::ifstream in(path_, std::ios::binary);
   if (!in) fail(path_, "cannot open");
   std::vector<char> compressed(s.compressedBytes);
   in.seekg(std::streamoff(s.offset));
   in.read(compressed.data(), std::streamsize(compressed.size()));
-  if (std::uint64_t(in.gcount()) != s.compressedBytes) throw SliceError(id, "truncated");
+  if (std::uint64_t(in.gcount()) != s.compressedBytes) throw sliceError(id, "truncated");
   if (XXH3_64bits(compressed.data(), compressed.size()) != s.checksum)
-    throw SliceError(id, "checksum mismatch");
+    throw sliceError(id, "checksum mismatch");
   if (ZSTD_getFrameContentSize(compressed.data(), compressed.size()) != s.rawBytes)
-    throw SliceError(id, "size does not match its compressed frame");
+    throw sliceError(id, "size does not match its compressed frame");
   std::vector<std::byte> raw(s.rawBytes);
   const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), compressed.data(), compressed.size());
-  if (ZSTD_isError(got) || got != s.rawBytes) throw SliceError(id, "does not decompress");
+  if (ZSTD_isError(got) || got != s.rawBytes) throw sliceError(id, "does not decompress");
   return raw;
 }
 
@@ -537,7 +547,7 @@ VoxelTree StoreReader::loadTree() const {
           std::upper_bound(parents.begin(), parents.end(), last,
                            [](const glm::ivec3& c, const Node& n) { return mortonLess(c, n.coord); });
       if (std::uint64_t(hi - lo) != s.parentCount)
-        throw SliceError(id, "expects " + std::to_string(s.parentCount) + " parent voxels, its cube has " +
+        throw sliceError(id, "expects " + std::to_string(s.parentCount) + " parent voxels, its cube has " +
                                  std::to_string(hi - lo));
       const std::vector<std::byte> raw = readSlice(id);
       SliceHead head;
@@ -547,8 +557,8 @@ VoxelTree StoreReader::loadTree() const {
           head.contourCount != s.contourCount || head.colorCount != s.colorCount ||
           head.normalCount != s.normalCount || head.attachments != attachments ||
           head.splitCount > head.parentCount)
-        throw SliceError(id, "its head does not match the directory");
-      if (sliceRawBytes(head) != raw.size()) throw SliceError(id, "section sizes do not add up to its size");
+        throw sliceError(id, "its head does not match the directory");
+      if (sliceRawBytes(head) != raw.size()) throw sliceError(id, "section sizes do not add up to its size");
 
       const std::byte* cursor = raw.data() + sizeof head;
       const std::byte* splitBits = cursor;
@@ -558,12 +568,12 @@ VoxelTree StoreReader::loadTree() const {
       std::uint32_t split = 0;
       std::vector<std::uint32_t> parentOf;  // parent index of each new voxel
       for (auto p = lo; p != hi; ++p) {
-        if (p->covered) throw SliceError(id, "overlaps another slice's cube");
+        if (p->covered) throw sliceError(id, "overlaps another slice's cube");
         p->covered = true;
         if (!bitAt(splitBits, std::size_t(p - lo))) continue;
-        if (split == head.splitCount) throw SliceError(id, "more split bits than valid masks");
+        if (split == head.splitCount) throw sliceError(id, "more split bits than valid masks");
         const std::uint8_t mask = std::to_integer<std::uint8_t>(masks[split++]);
-        if (mask == 0) throw SliceError(id, "a split voxel with no children");
+        if (mask == 0) throw sliceError(id, "a split voxel with no children");
         p->childMask = mask;
         for (int slot = 0; slot < 8; ++slot)
           if (mask >> slot & 1u) {
@@ -572,7 +582,7 @@ VoxelTree StoreReader::loadTree() const {
           }
       }
       if (split != head.splitCount || parentOf.size() != head.voxelCount)
-        throw SliceError(id, "valid masks do not match the voxel count");
+        throw sliceError(id, "valid masks do not match the voxel count");
       Node* added = voxels.data() + (voxels.size() - parentOf.size());
       // Per-voxel sections: a presence bit each, then the present values in order.
       const auto section = [&](std::uint32_t count, auto store) {
@@ -581,10 +591,10 @@ VoxelTree StoreReader::loadTree() const {
         std::uint32_t k = 0;
         for (std::uint32_t i = 0; i < head.voxelCount; ++i) {
           if (!bitAt(bits, i)) continue;
-          if (k == count) throw SliceError(id, "more presence bits than values");
+          if (k == count) throw sliceError(id, "more presence bits than values");
           store(added[i], wordAt(words, k++));
         }
-        if (k != count) throw SliceError(id, "fewer presence bits than values");
+        if (k != count) throw sliceError(id, "fewer presence bits than values");
         cursor = words + 4 * std::size_t(count);
       };
       section(head.contourCount, [](Node& n, std::uint32_t w) { n.hasContour = true, n.contour = w; });
@@ -631,8 +641,6 @@ Octree readOctree(const std::filesystem::path& path) {
   octree.parameters = reader.header().parameters;
   try {
     octree.block = layoutBlock(reader.loadTree());
-  } catch (const SliceError& e) {
-    fail(path, e.what());
   } catch (const std::invalid_argument& e) {
     fail(path, e.what());
   }

@@ -77,9 +77,10 @@ struct StoreHeader {
   std::uint64_t directoryOffset = 0, directoryBytes = 0, fileBytes = 0;
 };
 
-// A slice that failed its checksum, does not decompress or does not decode. `slice` is its directory index.
+// A slice that failed its checksum, does not decompress or does not decode. `slice` is its directory index;
+// the message names the file, the slice, its level and cube.
 struct SliceError : std::runtime_error {
-  SliceError(std::uint32_t slice, const std::string& what);
+  SliceError(std::uint32_t slice, const std::string& message);
   std::uint32_t slice;
 };
 
@@ -110,6 +111,8 @@ class StoreReader {
   VoxelTree loadTree() const;
 
  private:
+  SliceError sliceError(std::uint32_t slice, const std::string& what) const;
+
   std::filesystem::path path_;
   StoreHeader header_;
   std::vector<SliceInfo> slices_;

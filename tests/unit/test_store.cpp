@@ -1,0 +1,217 @@
+// The slice store (store/container.hpp) against independent references:
+//  - round trip: the store loaded whole and laid out gives the in-core builder's block byte for byte, for
+//    slice sizes from the smallest to one that never splits, with and without colors;
+//  - the slice hierarchy: voxel counts per level equal a breadth-first count of the source tree, slices of a
+//    level cover disjoint cubes that together hold every parent, and no slice exceeds the slice size unless
+//    its cube is one voxel of the level above (it cannot split further);
+//  - bad files: every single-byte corruption of a small store and every truncation is reported (header,
+//    directory or slice named), never decoded; wrong magic, version, a directory past the end, zero length.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+#include <set>
+#include <sstream>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "reference.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/store/container.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path tempPath(const std::string& name) {
+  return fs::temp_directory_path() / ("svo_store_" + std::to_string(::getpid()) + "_" + name);
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+void spit(const fs::path& p, const std::string& bytes) {
+  std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes;
+}
+
+svo::Octree coloredSphere(int levels) {
+  svo::Mesh m = svotest::makeSphere({0.1, 0.2, -0.3}, 1.0, 20, 20);
+  for (const glm::dvec3& p : m.positions)
+    m.colors.emplace_back(float(0.5 + 0.5 * p.x), float(0.5 + 0.5 * p.y), 0.3f, 1.0f);
+  svo::BuildOptions options;
+  options.levels = levels;
+  return svo::buildOctree(m, options);
+}
+
+svo::Octree plainTriangles(int levels) {
+  svo::BuildOptions options;
+  options.levels = levels;
+  return svo::buildOctree(svotest::makeRandomTriangles(3, 60, {-1, -1, -1}, {1, 1, 1}, 0.5), options);
+}
+
+// Voxels per level of a tree, breadth first from the root (level 0 = the root).
+std::vector<std::uint64_t> voxelsPerLevel(const svo::VoxelTree& tree) {
+  std::vector<std::uint64_t> counts;
+  std::vector<std::pair<std::uint32_t, int>> stack{{0u, 0}};
+  while (!stack.empty()) {
+    const auto [v, level] = stack.back();
+    stack.pop_back();
+    if (counts.size() <= std::size_t(level)) counts.resize(level + 1);
+    ++counts[level];
+    const svo::VoxelRecord& r = tree.voxels[v];
+    for (int c = 0; c < std::popcount(unsigned(r.childMask)); ++c)
+      stack.push_back({r.firstChild + c, level + 1});
+  }
+  return counts;
+}
+
+bool sameBlock(const svo::Octree& a, const svo::Octree& b) {
+  const auto& x = a.block.bytes();
+  const auto& y = b.block.bytes();
+  return x.size() == y.size() && std::memcmp(x.data(), y.data(), x.size()) == 0;
+}
+
+TEST(Store, RoundTripGivesTheInCoreBlockByteForByte) {
+  for (const bool colors : {true, false}) {
+    const svo::Octree octree = colors ? coloredSphere(7) : plainTriangles(6);
+    for (const std::uint32_t sliceBytes : {256u, 1024u, 16384u, 1u << 30}) {
+      const fs::path path = tempPath("roundtrip.svo");
+      svo::StoreWriteOptions options;
+      options.sliceBytes = sliceBytes;
+      svo::writeOctree(path, octree, options);
+      const svo::Octree back = svo::readOctree(path);
+      EXPECT_TRUE(sameBlock(octree, back))
+          << (colors ? "colored sphere" : "triangles") << ", slice size " << sliceBytes;
+      EXPECT_EQ(back.transform.origin, octree.transform.origin);
+      EXPECT_EQ(back.transform.size, octree.transform.size);
+      EXPECT_EQ(back.parameters.levels, octree.parameters.levels);
+      EXPECT_EQ(svo::StoreReader(path).header().hasColors, colors);
+      fs::remove(path);
+    }
+  }
+}
+
+TEST(Store, SlicesTileEachLevelWithinTheSliceSize) {
+  const svo::Octree octree = coloredSphere(8);
+  const svo::VoxelTree tree = svo::readBlock(octree.block.view());
+  const std::vector<std::uint64_t> expected = voxelsPerLevel(tree);
+  for (const std::uint32_t sliceBytes : {256u, 2048u, 65536u}) {
+    const fs::path path = tempPath("tile.svo");
+    svo::StoreWriteOptions options;
+    options.sliceBytes = sliceBytes;
+    svo::writeOctree(path, octree, options);
+    const svo::StoreReader reader(path);
+    std::map<int, std::uint64_t> voxels, parents;
+    std::set<std::tuple<int, int, int, int, int>> cubes;  // (voxel level, cube level, x, y, z)
+    std::size_t split = 0;
+    for (std::size_t i = 0; i < reader.slices().size(); ++i) {
+      const svo::SliceInfo& s = reader.slices()[i];
+      voxels[s.voxelLevel] += s.voxelCount;
+      parents[s.voxelLevel] += s.parentCount;
+      EXPECT_EQ(reader.readSlice(std::uint32_t(i)).size(), s.rawBytes);
+      const bool canSplit = s.cubeLevel < s.voxelLevel - 1;
+      if (canSplit) EXPECT_LE(s.rawBytes, sliceBytes) << "slice " << i;
+      split += s.cubeLevel > 0;
+      // Disjoint: no slice of the same level has this cube or one containing it.
+      for (int up = 0; up <= s.cubeLevel; ++up) {
+        const glm::ivec3 c = s.cubeCoord >> (s.cubeLevel - up);
+        EXPECT_EQ(cubes.count({s.voxelLevel, up, c.x, c.y, c.z}), 0u) << "slice " << i << " overlaps";
+      }
+      cubes.insert({s.voxelLevel, s.cubeLevel, s.cubeCoord.x, s.cubeCoord.y, s.cubeCoord.z});
+    }
+    for (std::size_t level = 1; level < expected.size(); ++level) {
+      EXPECT_EQ(voxels[int(level)], expected[level]) << "level " << level << ", slice size " << sliceBytes;
+      // Every voxel of the level above is some slice's parent (leaves included: their split bit is 0).
+      EXPECT_EQ(parents[int(level)], expected[level - 1]) << "level " << level;
+    }
+    if (sliceBytes <= 2048u) EXPECT_GT(split, 0u) << "small slices must split cubes";
+    fs::remove(path);
+  }
+}
+
+// A small store whose every byte is under some checksum.
+std::string smallStore(const fs::path& path) {
+  svo::StoreWriteOptions options;
+  options.sliceBytes = 512;
+  svo::writeOctree(path, coloredSphere(3), options);
+  return slurp(path);
+}
+
+std::string loadError(const fs::path& path) {
+  try {
+    const svo::StoreReader reader(path);
+    (void)svo::layoutBlock(reader.loadTree());
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return {};
+}
+
+TEST(Store, EverySingleByteCorruptionIsDetected) {
+  const fs::path path = tempPath("corrupt.svo");
+  const std::string bytes = smallStore(path);
+  ASSERT_EQ(loadError(path), "");
+  ASSERT_GT(svo::StoreReader(path).slices().size(), 3u);  // split cubes included
+  std::size_t header = 0, directory = 0, slice = 0;
+  const svo::StoreHeader h = svo::StoreReader(path).header();
+  for (std::size_t i = 0; i < bytes.size(); ++i) {
+    for (const unsigned char flip : {0x01, 0x80, 0xFF}) {
+      std::string bad = bytes;
+      bad[i] = char(bad[i] ^ flip);
+      spit(path, bad);
+      const std::string error = loadError(path);
+      ASSERT_NE(error, "") << "byte " << i << " xor " << int(flip) << " went unnoticed";
+      ASSERT_NE(error.find(path.string()), std::string::npos) << error;
+    }
+    if (i < 256)
+      ++header;
+    else if (i >= h.directoryOffset)
+      ++directory;
+    else
+      ++slice;
+  }
+  std::printf("[ STORE    ] %zu bytes x 3 flips detected: %zu header, %zu slice, %zu directory bytes\n",
+              bytes.size(), header, slice, directory);
+  fs::remove(path);
+}
+
+TEST(Store, TruncationsAndForeignFilesGiveClearErrors) {
+  const fs::path path = tempPath("trunc.svo");
+  const std::string bytes = smallStore(path);
+  // Every length through the header and the first slices, then every 7th.
+  for (std::size_t length = 0; length < bytes.size(); length += length < 512 ? 1 : 7) {
+    spit(path, bytes.substr(0, length));
+    const std::string error = loadError(path);
+    ASSERT_NE(error, "") << "truncated to " << length << " bytes";
+    if (length == 0) EXPECT_NE(error.find("empty file"), std::string::npos) << error;
+    if (length > 256) EXPECT_NE(error.find("truncated"), std::string::npos) << error;
+  }
+  spit(path, "\x89PNG\r\n\x1a\n and more bytes than a header would need to hold, surely");
+  EXPECT_NE(loadError(path).find("not an svostream file"), std::string::npos);
+  std::string version = bytes;
+  version[8] = 1;  // a version-1 (single block) file
+  spit(path, version);
+  EXPECT_NE(loadError(path).find("unsupported file version 1"), std::string::npos) << loadError(path);
+  spit(path, bytes + "trailing");
+  EXPECT_NE(loadError(path).find("unexpected bytes after the directory"), std::string::npos);
+  EXPECT_NE(loadError(tempPath("missing.svo")).find("no such file"), std::string::npos);
+  fs::remove(path);
+}
+
+TEST(Store, RejectsBadWriteOptions) {
+  svo::StoreWriteOptions options;
+  options.sliceBytes = 16;
+  EXPECT_THROW(svo::writeOctree(tempPath("bad.svo"), plainTriangles(3), options), std::invalid_argument);
+  EXPECT_FALSE(fs::exists(tempPath("bad.svo")));
+}
+
+}  // namespace
