@@ -9,6 +9,8 @@
 #include <sstream>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 #include "svo/store/container.hpp"
 
 namespace fs = std::filesystem;
@@ -183,6 +185,34 @@ TEST_F(Cli, BadCameraAndOutput) {
       "eye", dir_ / "x.png");
   expectCleanFailure(svo("render " + good.string() + " -o " + (dir_ / "x.png").string() + " --beam-tile 65"),
                      "--beam-tile", dir_ / "x.png");
+}
+
+TEST_F(Cli, VerifyAndInspect) {
+  const fs::path store = dir_ / "tet.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + store.string() + " --levels 6 --slice-size 256")
+                .exitCode,
+            0);
+  const CommandResult ok = svo("verify " + store.string());
+  EXPECT_EQ(ok.exitCode, 0) << ok.err;
+  EXPECT_NE(ok.out.find("ok"), std::string::npos) << ok.out;
+  // inspect --json: the per-level voxel counts add up to the tree's voxels below the root.
+  const CommandResult json = svo("inspect --json " + store.string());
+  ASSERT_EQ(json.exitCode, 0) << json.err;
+  const nlohmann::json j = nlohmann::json::parse(json.out);
+  std::uint64_t voxels = 0;
+  for (const auto& level : j.at("perLevel")) voxels += level.at("voxels").get<std::uint64_t>();
+  const svo::VoxelTree tree = svo::StoreReader(store).loadTree();
+  EXPECT_EQ(voxels + 1, tree.voxels.size());
+  EXPECT_EQ(svo("inspect " + store.string()).exitCode, 0);
+  // A flipped byte inside the slices: verify fails with one line naming the slice.
+  std::string bytes = slurp(store);
+  bytes[300] ^= 0x10;
+  const fs::path bad = write("bad.svo", bytes);
+  const CommandResult r = svo("verify " + bad.string());
+  EXPECT_EQ(r.exitCode, 1);
+  EXPECT_NE(r.err.find("slice"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("checksum"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
 }
 
 TEST_F(Cli, BeamTileDoesNotChangeTheImage) {
