@@ -83,6 +83,15 @@ TEST_F(Cli, BuildAndRenderRoundTrip) {
   ASSERT_EQ(b.exitCode, 0) << b.err;
   const svo::Octree octree = svo::readOctree(svoFile);
   EXPECT_EQ(octree.parameters.levels, 6);
+  // The build report: phases, and voxel counts per level that add up and match the store.
+  const nlohmann::json report = nlohmann::json::parse(slurp(dir_ / "tet.svo.build.json"));
+  for (const char* phase : {"load", "voxelize", "write"})
+    EXPECT_GE(report.at("phaseSeconds").at(phase).get<double>(), 0.0);
+  std::uint64_t voxels = 0;
+  for (const auto& v : report.at("voxelsPerLevel")) voxels += v.get<std::uint64_t>();
+  EXPECT_EQ(voxels, report.at("voxels").get<std::uint64_t>());
+  EXPECT_EQ(voxels, svo::StoreReader(svoFile).loadTree().voxels.size());
+  EXPECT_GT(report.at("peakResidentBytes").get<std::uint64_t>(), 0u);
   // No colors in an OBJ without materials: no color attachment (leave out what the scene does not need).
   EXPECT_EQ(octree.block.view().attachment(svo::AttachmentType::Color), nullptr);
   EXPECT_NE(octree.block.view().attachment(svo::AttachmentType::Normal), nullptr);

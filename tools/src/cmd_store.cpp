@@ -17,10 +17,6 @@ namespace {
 // Slice size histogram buckets: powers of two of raw bytes, from 2^kFirstBucket up.
 constexpr int kFirstBucket = 6;
 
-std::size_t bitBytes(std::size_t bits) {
-  return (bits + 7) / 8;
-}
-
 struct LevelSummary {
   std::uint64_t slices = 0, voxels = 0, parents = 0, contours = 0, colors = 0, normals = 0;
   std::uint64_t rawBytes = 0, diskBytes = 0;
@@ -40,10 +36,11 @@ LevelSummary summarize(const SliceInfo& s, const StoreHeader& h) {
   l.normals = s.normalCount;
   l.rawBytes = s.rawBytes;
   l.diskBytes = s.compressedBytes;
-  l.contourBytes = bitBytes(s.voxelCount) + 4ull * s.contourCount;
-  l.colorBytes = h.hasColors ? bitBytes(s.voxelCount) + 4ull * s.colorCount : 0;
-  l.normalBytes = h.hasNormals ? bitBytes(s.voxelCount) + 4ull * s.normalCount : 0;
-  l.hierarchyBytes = s.rawBytes - l.contourBytes - l.colorBytes - l.normalBytes;
+  const SliceParts parts = slicePartsOf(s, h.hasColors, h.hasNormals);
+  l.hierarchyBytes = parts.hierarchy;
+  l.contourBytes = parts.contours;
+  l.colorBytes = parts.colors;
+  l.normalBytes = parts.normals;
   l.smallestSlice = l.largestSlice = s.rawBytes;
   return l;
 }
