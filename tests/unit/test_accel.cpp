@@ -131,6 +131,55 @@ void checkRays(const svo::Mesh& mesh, const std::vector<Ray>& rays, const std::s
   }
 }
 
+// Rays lying exactly in each structure's own split planes / cell walls, rays along the lines where two of
+// them meet, and rays crossing a plane exactly at a mesh vertex's other coordinates.
+void checkPlaneRays(const svo::Mesh& mesh, std::size_t planesPerStructure, const std::string& scene) {
+  const Triangles tris = trianglesOf(mesh);
+  const auto brute = buildBruteForce(tris);
+  const Box b = boundsOf(mesh);
+  const dvec3 ext = glm::max(b.extent(), dvec3(1e-6));
+  for (const std::string& name : structureNames()) {
+    SCOPED_TRACE(scene + " / " + name);
+    const auto accel = buildByName(name, tris);
+    const auto planes = accel->planes(planesPerStructure);
+    std::mt19937_64 rng(17);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<Ray> rays;
+    for (std::size_t i = 0; i < planes.size(); ++i) {
+      const auto& pl = planes[i];
+      const int a1 = (pl.axis + 1) % 3, a2 = (pl.axis + 2) % 3;
+      Ray r;
+      r.origin[pl.axis] = pl.pos;
+      r.origin[a1] = b.lo[a1] - 0.1 * ext[a1];
+      r.origin[a2] = b.lo[a2] + u(rng) * ext[a2];
+      r.direction = dvec3(0.0);
+      r.direction[a1] = 1.0;
+      r.direction[a2] = u(rng) - 0.5;
+      rays.push_back(r);  // in the plane
+      r.direction[a2] = 0.0;
+      rays.push_back(r);  // in the plane, axis-parallel
+      const auto& other = planes[(i * 7 + 3) % planes.size()];
+      if (other.axis != pl.axis) {
+        Ray l;
+        l.origin[pl.axis] = pl.pos;
+        l.origin[other.axis] = other.pos;
+        const int free = 3 - pl.axis - other.axis;
+        l.origin[free] = b.lo[free] - 0.1 * ext[free];
+        l.direction = dvec3(0.0);
+        l.direction[free] = 1.0;
+        rays.push_back(l);  // along the line where two planes meet
+      }
+      // Crossing the plane where a vertex projects onto it.
+      const dvec3 v = mesh.positions[mesh.triangles[i % mesh.triangles.size()][0]];
+      dvec3 p = v;
+      p[pl.axis] = pl.pos;
+      const dvec3 d = randomUnit(rng);
+      rays.push_back(Ray{p - d, d});
+    }
+    for (const Ray& r : rays) expectSameHit(brute->closestHit(r), accel->closestHit(r), describe(r));
+  }
+}
+
 void checkBoxes(const svo::Mesh& mesh, int count, std::uint64_t seed, const std::string& scene) {
   const Triangles tris = trianglesOf(mesh);
   const auto brute = buildBruteForce(tris);
@@ -176,6 +225,12 @@ TEST_P(AccelScenes, LatticeRaysMatchBruteForce) {
   const SceneCase c = GetParam();
   const svo::Mesh mesh = offsetMesh(makeScene(c.kind, kSceneTriangles, 7), c.offset);
   checkRays(mesh, latticeRays(boundsOf(mesh), 32), sceneName(c.kind));
+}
+
+TEST_P(AccelScenes, RaysInSplitPlanesAndCellWallsMatchBruteForce) {
+  const SceneCase c = GetParam();
+  const svo::Mesh mesh = offsetMesh(makeScene(c.kind, kSceneTriangles, 7), c.offset);
+  checkPlaneRays(mesh, 2000, sceneName(c.kind));
 }
 
 TEST_P(AccelScenes, BoxQueriesMatchBruteForce) {
@@ -246,6 +301,7 @@ TEST(AccelStiff, LatticeVerticesEdgesAndPlanes) {
     rays.push_back(Ray{dvec3(o.x, o.y, 0.5), dvec3(0, 0, -1)});
   }
   checkRays(mesh, rays, "stiff");
+  checkPlaneRays(mesh, 5000, "stiff");
   checkBoxes(mesh, 200, 9, "stiff");
 }
 

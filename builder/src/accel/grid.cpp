@@ -184,6 +184,15 @@ class GridAccel final : public Accel {
     return filterBoxQuery(store_, std::move(candidates), box);
   }
 
+  std::vector<Plane> planes(std::size_t limit) const override {
+    std::vector<Plane> out;
+    for (const Grid& g : grids_)
+      for (int a = 0; a < 3; ++a)
+        for (int i = 0; i <= g.res[a] && out.size() < limit; ++i)
+          out.push_back(Plane{a, i == g.res[a] ? g.box.hi[a] : g.box.lo[a] + double(i) * g.cell[a]});
+    return out;
+  }
+
   Stats stats() const override {
     Stats s;
     s.triangles = store_.valid.size();

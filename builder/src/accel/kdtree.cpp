@@ -271,6 +271,13 @@ class KdTree final : public Accel {
     return filterBoxQuery(store_, std::move(candidates), box);
   }
 
+  std::vector<Plane> planes(std::size_t limit) const override {
+    std::vector<Plane> out;
+    for (const KdNode& n : nodes_)
+      if (!n.leaf() && out.size() < limit) out.push_back(Plane{n.axis(), n.split});
+    return out;
+  }
+
   Stats stats() const override {
     Stats s;
     s.triangles = store_.valid.size();

@@ -83,6 +83,13 @@ class Accel {
   // Ids of the triangles that overlap the closed box (separating-axis test), ascending.
   virtual std::vector<std::uint32_t> boxQuery(const Box& box) const = 0;
   virtual Stats stats() const = 0;
+  // The axis-aligned planes the structure cuts space at (kd split planes, grid cell walls, octree node
+  // walls), at most `limit` of them; for stiff-case tests that shoot rays exactly along them.
+  struct Plane {
+    int axis = 0;
+    double pos = 0.0;
+  };
+  virtual std::vector<Plane> planes(std::size_t limit) const { return {}; }
 };
 
 // ----- brute force: every triangle, the reference the others are tested against ----------------------
