@@ -403,6 +403,12 @@ TEST(AccelBadInput, ParametersOutOfRangeAreRejected) {
   k.leafSize = 0;
   expectThrowMentioning([&] { buildKdTree(t, k); }, "leaf");
   expectThrowMentioning([&] { orgResolution(dvec3(1), 10, 0.0); }, "λ");
+  OctreeParams o;
+  o.leafSize = 0;
+  expectThrowMentioning([&] { buildClassicOctree(t, o); }, "leaf");
+  o = OctreeParams{};
+  o.maxLevel = 22;
+  expectThrowMentioning([&] { OavmOctree::build(t, o); }, "level");
   expectThrowMentioning([&] { buildByName("bvh", t); }, "bvh");
   svo::Mesh badIndex = mesh;
   badIndex.triangles.push_back({0, 1, 999999});  // out of range: never hit, no crash
@@ -459,6 +465,94 @@ TEST(AccelKd, BinPoliciesAndDepthRule) {
       EXPECT_GT(s.leaves, 100u);
       for (const Ray& r : rays) expectSameHit(brute->closestHit(r), kd->closestHit(r), describe(r));
     }
+}
+
+}  // namespace
+
+namespace {
+
+// OAVM Sec. 3: local updates (insert / remove, re-merging up to the first type-2 node) answer exactly what a
+// full rebuild of the same triangle set answers, and keep every structural invariant.
+TEST(AccelOavm, LocalUpdatesMatchFullRebuild) {
+  const svo::Mesh full = makeScene(SceneKind::kRandomSoup, 1200, 21);
+  const Triangles all = trianglesOf(full);
+  const Box bounds = boundsOf(full);
+  std::mt19937_64 rng(8);
+  std::vector<char> present(full.triangles.size());
+  for (auto& p : present) p = char(rng() % 2);
+  auto subset = [&](std::vector<glm::uvec3>& idx) {
+    idx = full.triangles;
+    for (std::size_t i = 0; i < idx.size(); ++i)
+      if (!present[i]) idx[i] = glm::uvec3(0);  // degenerate: never indexed, ids kept
+    return Triangles{full.positions, idx};
+  };
+  OctreeParams params;
+  params.leafSize = 4;
+  std::vector<glm::uvec3> idx;
+  auto oavm = OavmOctree::build(subset(idx), params, bounds);
+  const std::vector<Ray> rays = randomRays(bounds, 1500, 6);
+  auto compare = [&](const std::string& when) {
+    SCOPED_TRACE(when);
+    oavm->checkInvariants();
+    std::vector<glm::uvec3> cur;
+    const Triangles now = subset(cur);
+    const auto rebuilt = OavmOctree::build(now, params, bounds);
+    const auto brute = buildBruteForce(now);
+    for (const Ray& r : rays) {
+      const Hit want = brute->closestHit(r);
+      expectSameHit(want, rebuilt->closestHit(r), describe(r));
+      expectSameHit(want, oavm->closestHit(r), describe(r));
+      ASSERT_EQ(want.hit(), oavm->anyHit(r));
+    }
+    for (int i = 0; i < 20; ++i) {
+      const dvec3 lo = bounds.lo + dvec3(0.05 * i) * bounds.extent();
+      const Box q{lo, lo + 0.2 * bounds.extent()};
+      ASSERT_EQ(brute->boxQuery(q), oavm->boxQuery(q));
+    }
+    EXPECT_EQ(rebuilt->stats().triangles, oavm->stats().triangles);
+  };
+  compare("initial");
+  for (int round = 0; round < 5; ++round) {
+    for (int op = 0; op < 150; ++op) {
+      const std::uint32_t id = std::uint32_t(rng() % full.triangles.size());
+      if (present[id])
+        oavm->remove(id);
+      else
+        oavm->insert(all, id);
+      present[id] = !present[id];
+    }
+    compare("round " + std::to_string(round));
+  }
+  // Empty a whole region (type-1 nodes, merging upwards), then everything (one volume), then refill.
+  for (std::uint32_t id = 0; id < present.size(); ++id)
+    if (present[id] && full.positions[full.triangles[id].x].x < 0.5) oavm->remove(id), present[id] = 0;
+  compare("left half emptied");
+  for (std::uint32_t id = 0; id < present.size(); ++id)
+    if (present[id]) oavm->remove(id), present[id] = 0;
+  compare("all removed");
+  EXPECT_EQ(oavm->stats().volumes, 1u);
+  EXPECT_EQ(oavm->stats().references, 0u);
+  for (std::uint32_t id = 0; id < present.size(); id += 2) oavm->insert(all, id), present[id] = 1;
+  compare("half reinserted");
+  // Bad updates.
+  EXPECT_THROW(oavm->remove(1), std::invalid_argument);       // not present
+  EXPECT_THROW(oavm->insert(all, 0), std::invalid_argument);  // already present
+  svo::Mesh outside = full;
+  outside.positions.push_back(dvec3(50, 50, 50));
+  outside.triangles.push_back({0, 1, std::uint32_t(outside.positions.size() - 1)});
+  EXPECT_THROW(oavm->insert(trianglesOf(outside), std::uint32_t(outside.triangles.size() - 1)),
+               std::invalid_argument);
+  oavm->checkInvariants();
+}
+
+TEST(AccelOavm, FewerPointersThanTheClassicOctreeWithTheSameLeaves) {
+  const svo::Mesh mesh = makeScene(SceneKind::kSphere, 20000, 1);
+  const Stats classic = buildClassicOctree(trianglesOf(mesh))->stats();
+  const Stats oavm = OavmOctree::build(trianglesOf(mesh))->stats();
+  EXPECT_EQ(classic.cells, oavm.cells);
+  EXPECT_EQ(classic.references, oavm.references);
+  EXPECT_LT(oavm.volumes, oavm.emptyLeaves);                          // empty leaves share merged volumes
+  EXPECT_LT(double(oavm.pointers), 0.55 * double(classic.pointers));  // paper: 54% fewer
 }
 
 }  // namespace

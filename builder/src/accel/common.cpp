@@ -195,7 +195,7 @@ std::unique_ptr<Accel> buildBruteForce(const Triangles& triangles) {
 }
 
 std::vector<std::string> structureNames() {
-  return {"kd-binned", "kd-sah", "ug", "rg", "rg2", "org"};
+  return {"kd-binned", "kd-sah", "ug", "rg", "rg2", "org", "octree", "oavm"};
 }
 
 std::unique_ptr<Accel> buildByName(const std::string& name, const Triangles& triangles) {
@@ -216,7 +216,8 @@ std::unique_ptr<Accel> buildByName(const std::string& name, const Triangles& tri
       p.kind = kind;
       return buildGrid(triangles, p);
     }
-  // OCTREE_NAMES
+  if (name == "octree") return buildClassicOctree(triangles);
+  if (name == "oavm") return OavmOctree::build(triangles);
   throw std::invalid_argument("accel: unknown structure '" + name + "'");
 }
 
