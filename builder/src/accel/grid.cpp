@@ -19,6 +19,10 @@ constexpr double kNaiveMinExtent = 1e-3;
 constexpr double kNaiveAxisCap = 1024.0;
 // ... and no naive grid gets more than this many times its target cell count (memory safety valve).
 constexpr double kNaiveCellCap = 64.0;
+// Memory safety valve for every kind (not from the paper): no sub-grid is built once the structure holds
+// this many cells per triangle plus kCellBudgetBase; RG and RG-2 reach it on flat scenes.
+constexpr double kCellBudgetPerTriangle = 64.0;
+constexpr double kCellBudgetBase = double(1 << 20);
 // ORG Algorithm 1 rounds to nearest; an axis never exceeds this many cells (λN stays far below it).
 constexpr double kAxisCap = double(1 << 24);
 }  // namespace
@@ -304,7 +308,8 @@ class GridAccel final : public Accel {
           const glm::ivec3 sub =
               cellPrims.empty() ? glm::ivec3(0) : subResolution(cellPrims, cb, depth, beta);
           const std::size_t ci = grids_[gi].firstCell + local;
-          if (sub.x > 0) {
+          const double budget = kCellBudgetPerTriangle * double(store_.valid.size()) + kCellBudgetBase;
+          if (sub.x > 0 && double(cells_.size()) + double(sub.x) * sub.y * sub.z <= budget) {
             const std::uint32_t child = build(cellPrims, cb, sub, depth + 1);
             cells_[ci] = Cell{child, kSubGrid};
           } else {
