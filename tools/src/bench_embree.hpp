@@ -37,7 +37,7 @@ inline constexpr std::uint32_t kNoPrimitive = 0xffffffffu;
 struct TraceResult {
   std::vector<float> depth;
   std::uint64_t hits = 0;
-  double meanIterations = 0.0;  // ESVO only
+  double meanIterations = 0.0;           // ESVO only
   std::vector<std::uint32_t> primitive;  // Embree: primID per pixel (kNoPrimitive for a miss)
 };
 

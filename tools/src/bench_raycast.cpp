@@ -71,7 +71,6 @@ TraceResult traceEsvo(const Octree& octree, const Camera& camera, const RenderOp
   return result;
 }
 
-
 struct Timed {
   Summary seconds;
   TraceResult last;  // the result of the last run
