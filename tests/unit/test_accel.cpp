@@ -64,6 +64,7 @@ std::vector<Ray> randomRays(const Box& box, int count, std::uint64_t seed) {
     r.direction = (i % 3 == 0) ? randomUnit(rng) * glm::length(ext) : b - a;
     if (r.direction == dvec3(0.0)) r.direction = dvec3(1, 0, 0);
     if (i % 7 == 0) r.tMax = 0.5;  // bounded segments
+    if (i % 5 == 0) r.tMin = 0.3;  // starting further along
     rays.push_back(r);
   }
   return rays;
