@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "geometry.hpp"
 #include "svo/builder/mesh.hpp"
 
 namespace svo::accel {
@@ -89,31 +90,12 @@ bool RayCtx::usable() const {
   return d != dvec3(0.0) && !std::isnan(tMin) && !std::isnan(tMax) && tMin <= tMax;
 }
 
-namespace {
-bool axisSeparates(const dvec3& axis, const dvec3& a, const dvec3& b, const dvec3& c, const dvec3& half) {
-  const double pa = glm::dot(axis, a), pb = glm::dot(axis, b), pc = glm::dot(axis, c);
-  const double r = half.x * std::abs(axis.x) + half.y * std::abs(axis.y) + half.z * std::abs(axis.z);
-  return std::min({pa, pb, pc}) > r || std::max({pa, pb, pc}) < -r;
-}
-}  // namespace
-
 bool triangleOverlapsBox(const Tri& tri, const Box& box) {
-  // Akenine-Möller's 13 axes, generalized from builder/src/geometry.cpp's cube test to a box.
-  for (int i = 0; i < 3; ++i)
+  for (int i = 0; i < 3; ++i)  // the cheap part first: bounding boxes
     if (std::min({tri.a[i], tri.b[i], tri.c[i]}) > box.hi[i] ||
         std::max({tri.a[i], tri.b[i], tri.c[i]}) < box.lo[i])
       return false;
-  const dvec3 centre = 0.5 * (box.lo + box.hi), half = 0.5 * (box.hi - box.lo);
-  const dvec3 a = tri.a - centre, b = tri.b - centre, c = tri.c - centre;
-  const dvec3 e0 = b - a, e1 = c - b, e2 = a - c;
-  if (axisSeparates(glm::cross(e0, e1), a, b, c, half)) return false;
-  const dvec3 axes[3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-  for (const dvec3& e : {e0, e1, e2})
-    for (const dvec3& u : axes) {
-      const dvec3 axis = glm::cross(u, e);
-      if (axis != dvec3(0.0) && axisSeparates(axis, a, b, c, half)) return false;
-    }
-  return true;
+  return geom::triangleOverlapsBox(tri.a, tri.b, tri.c, 0.5 * (box.lo + box.hi), 0.5 * (box.hi - box.lo));
 }
 
 bool boxesOverlap(const Box& a, const Box& b) {

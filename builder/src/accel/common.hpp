@@ -86,6 +86,28 @@ inline bool hits(const RayCtx& r, const TriangleStore& store, std::uint32_t id) 
   return intersect(r, store.tris[id], r.tMin, r.tMax, t, u, v);
 }
 
+// closestHit and anyHit of a structure from its one walk over candidate triangles: `walk(r, best, visit)`
+// offers triangle ids to `visit` (true: stop), may stop once nothing nearer than `best` can follow, and
+// returns whether `visit` stopped it.
+template <class Walk>
+Hit closestHitBy(const TriangleStore& store, const Ray& ray, Walk&& walk) {
+  Hit best;
+  const RayCtx r(ray);
+  if (!r.usable() || store.valid.empty()) return best;
+  walk(r, best, [&](std::uint32_t id) {
+    consider(r, store, id, best);
+    return false;
+  });
+  return best;
+}
+template <class Walk>
+bool anyHitBy(const TriangleStore& store, const Ray& ray, Walk&& walk) {
+  const Hit none;
+  const RayCtx r(ray);
+  if (!r.usable() || store.valid.empty()) return false;
+  return walk(r, none, [&](std::uint32_t id) { return hits(r, store, id); });
+}
+
 // Separating-axis test of a triangle against a closed box (exact up to double rounding).
 bool triangleOverlapsBox(const Tri& tri, const Box& box);
 inline Box grow(const Box& b, double margin) {

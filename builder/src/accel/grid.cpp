@@ -165,21 +165,12 @@ class GridAccel final : public Accel {
   }
 
   Hit closestHit(const Ray& ray) const override {
-    Hit best;
-    const RayCtx r(ray);
-    if (!r.usable() || store_.valid.empty()) return best;
-    traverse(r, 0, best, [&](std::uint32_t id) {
-      consider(r, store_, id, best);
-      return false;
-    });
-    return best;
+    return closestHitBy(store_, ray,
+                        [&](const RayCtx& r, const Hit& best, auto&& v) { return traverse(r, 0, best, v); });
   }
-
   bool anyHit(const Ray& ray) const override {
-    Hit none;
-    const RayCtx r(ray);
-    if (!r.usable() || store_.valid.empty()) return false;
-    return traverse(r, 0, none, [&](std::uint32_t id) { return hits(r, store_, id); });
+    return anyHitBy(store_, ray,
+                    [&](const RayCtx& r, const Hit& best, auto&& v) { return traverse(r, 0, best, v); });
   }
 
   std::vector<std::uint32_t> boxQuery(const Box& box) const override {

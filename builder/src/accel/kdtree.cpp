@@ -232,23 +232,12 @@ class KdTree final : public Accel {
   std::string name() const override { return p_.build == KdBuild::kExactSah ? "kd-sah" : "kd-binned"; }
 
   Hit closestHit(const Ray& ray) const override {
-    Hit best;
-    traverse(
-        ray,
-        [&](const RayCtx& r, std::uint32_t id) {
-          consider(r, store_, id, best);
-          return false;
-        },
-        best);
-    return best;
+    return closestHitBy(store_, ray,
+                        [&](const RayCtx& r, const Hit& best, auto&& v) { return traverse(r, best, v); });
   }
-
   bool anyHit(const Ray& ray) const override {
-    Hit none;
-    bool found = false;
-    traverse(
-        ray, [&](const RayCtx& r, std::uint32_t id) { return found = hits(r, store_, id); }, none);
-    return found;
+    return anyHitBy(store_, ray,
+                    [&](const RayCtx& r, const Hit& best, auto&& v) { return traverse(r, best, v); });
   }
 
   std::vector<std::uint32_t> boxQuery(const Box& box) const override {
@@ -383,14 +372,13 @@ class KdTree final : public Accel {
     buildExact(std::move(rightEvents), std::move(right), rb, depth + 1);
   }
 
-  // Front-to-back traversal with a stack; `visit(ray, id)` returns true to stop. Children a ray passes
-  // within the margin of are never culled, and planes parallel to the ray are handled without dividing.
+  // Front-to-back traversal with a stack; `visit(id)` returns true to stop (and so does this). Children a ray
+  // passes within the margin of are never culled, and planes parallel to the ray are handled without
+  // dividing.
   template <class Visit>
-  void traverse(const Ray& ray, Visit&& visit, const Hit& best) const {
-    const RayCtx r(ray);
-    if (!r.usable() || store_.valid.empty()) return;
+  bool traverse(const RayCtx& r, const Hit& best, Visit&& visit) const {
     double t0, t1;
-    if (!clipRay(r, root_, store_.fat, t0, t1)) return;
+    if (!clipRay(r, root_, store_.fat, t0, t1)) return false;
     struct Entry {
       std::uint32_t node;
       double t0, t1;
@@ -434,9 +422,9 @@ class KdTree final : public Accel {
         node = &nodes_[index];
       }
       for (std::uint32_t k = 0; k < node->count; ++k)
-        if (visit(r, refs_[node->payload() + k])) return;
+        if (visit(refs_[node->payload() + k])) return true;
       for (;;) {
-        if (top == 0) return;
+        if (top == 0) return false;
         const Entry e = stack[--top];
         if (e.t0 > best.t) continue;
         index = e.node, t0 = e.t0, t1 = e.t1;

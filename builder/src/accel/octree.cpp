@@ -213,20 +213,12 @@ class Oavm final : public OavmOctree {
   std::string name() const override { return "oavm"; }
 
   Hit closestHit(const Ray& ray) const override {
-    Hit best;
-    const RayCtx r(ray);
-    if (r.usable())
-      march(r, best, [&](std::uint32_t id) {
-        consider(r, store_, id, best);
-        return false;
-      });
-    return best;
+    return closestHitBy(store_, ray,
+                        [&](const RayCtx& r, const Hit& best, auto&& v) { return march(r, best, v); });
   }
-
   bool anyHit(const Ray& ray) const override {
-    Hit none;
-    const RayCtx r(ray);
-    return r.usable() && march(r, none, [&](std::uint32_t id) { return hits(r, store_, id); });
+    return anyHitBy(store_, ray,
+                    [&](const RayCtx& r, const Hit& best, auto&& v) { return march(r, best, v); });
   }
 
   std::vector<std::uint32_t> boxQuery(const Box& box) const override {
@@ -649,24 +641,12 @@ class ClassicOctree final : public Accel {
   std::string name() const override { return "octree"; }
 
   Hit closestHit(const Ray& ray) const override {
-    Hit best;
-    const RayCtx r(ray);
-    if (r.usable() && !store_.valid.empty()) {
-      double t0, t1;
-      if (clipRay(r, nodes_[0].box, store_.fat, t0, t1))
-        visit(r, 0, best, [&](std::uint32_t id) {
-          consider(r, store_, id, best);
-          return false;
-        });
-    }
-    return best;
+    return closestHitBy(store_, ray,
+                        [&](const RayCtx& r, const Hit& best, auto&& v) { return walk(r, best, v); });
   }
   bool anyHit(const Ray& ray) const override {
-    Hit none;
-    const RayCtx r(ray);
-    double t0, t1;
-    if (!r.usable() || store_.valid.empty() || !clipRay(r, nodes_[0].box, store_.fat, t0, t1)) return false;
-    return visit(r, 0, none, [&](std::uint32_t id) { return hits(r, store_, id); });
+    return anyHitBy(store_, ray,
+                    [&](const RayCtx& r, const Hit& best, auto&& v) { return walk(r, best, v); });
   }
   std::vector<std::uint32_t> boxQuery(const Box& box) const override {
     std::vector<std::uint32_t> out;
@@ -717,6 +697,12 @@ class ClassicOctree final : public Accel {
       nodes_[index].children[f] = c;
     }
     return index;
+  }
+
+  template <class Visit>
+  bool walk(const RayCtx& r, const Hit& best, Visit&& f) const {
+    double t0, t1;
+    return clipRay(r, nodes_[0].box, store_.fat, t0, t1) && visit(r, 0, best, f);
   }
 
   // Recursive front to back: children sorted by entry distance, skipped once the best hit is nearer.
