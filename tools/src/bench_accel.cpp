@@ -309,10 +309,19 @@ void runAccelBench(const AccelArgs& args) {
     if (std::find(known.begin(), known.end(), s) == known.end())
       throw UsageError("--structures: unknown '" + s + "' (known: " + knownList + ")");
   std::vector<accel::SceneKind> kinds;
-  for (const auto& name : splitList(args.scenes)) {
+  std::map<accel::SceneKind, std::int64_t> kindCap;  // "thin:100000": no larger thin scene
+  for (const auto& spec : splitList(args.scenes)) {
+    const std::string name = spec.substr(0, spec.find(':'));
+    std::int64_t cap = args.maxN;
+    if (spec.find(':') != std::string::npos) {
+      char* end = nullptr;
+      const double v = std::strtod(spec.c_str() + spec.find(':') + 1, &end);
+      if (!end || *end || !(v >= 1)) throw UsageError(fmt::format("--scenes: bad size cap in '{}'", spec));
+      cap = std::min(cap, std::int64_t(v));
+    }
     bool found = false;
     for (auto k : accel::allScenes())
-      if (accel::sceneName(k) == name) kinds.push_back(k), found = true;
+      if (accel::sceneName(k) == name) kinds.push_back(k), kindCap[k] = cap, found = true;
     if (!found) throw UsageError(fmt::format("--scenes: unknown scene '{}'", name));
   }
   std::vector<std::int64_t> sizes;
@@ -336,6 +345,7 @@ void runAccelBench(const AccelArgs& args) {
   }
   for (auto kind : kinds)
     for (auto n : sizes) {
+      if (n > kindCap[kind]) continue;
       const Mesh mesh = accel::makeScene(kind, std::size_t(n), args.seed);
       results.push_back(
           runScene(fmt::format("{} {}", accel::sceneName(kind), formatCount(mesh.triangles.size())),
@@ -408,8 +418,9 @@ void addAccelBench(CLI::App& bench) {
                   "mesh files (repeatable; default: the bunny and assimp test models found)");
   cmd->add_option("--sizes", args->sizes, "generated scene sizes, comma separated")->capture_default_str();
   cmd->add_option("--max-n", args->maxN, "skip scenes with more triangles than this")->capture_default_str();
-  cmd->add_option("--scenes", args->scenes,
-                  "generated scenes: thin, field, huge-tiny, sphere, soup (empty: none)")
+  cmd->add_option(
+         "--scenes", args->scenes,
+         "generated scenes: thin, field, huge-tiny, sphere, soup, each optionally name:maxN (empty: none)")
       ->capture_default_str();
   cmd->add_option("--structures", args->structures, "comma separated subset (default: all)");
   cmd->add_option("--size", args->size, "image width and height")->capture_default_str();
