@@ -287,7 +287,10 @@ class GridAccel final : public Accel {
       for (const auto& pr : pairs) sorted[fill[pr.first]++] = pr.second;
     }
     { decltype(pairs)().swap(pairs); }
-    // β of this grid: references / primitives, ≥ 1 (Sec. 2: each level then adds about λN cells, βN refs).
+    // β, the subdivision pointer ratio, of this grid: references / primitives, ≥ 1. Sec. 2's derivation
+    // (level k holds β^(k-1)·λN cells unless divided by β) needs β ≥ 1 as the references a subdivision
+    // produces per triangle it receives; the translated definition reads inverted (cell / sub-grid pointers,
+    // ≤ 1), which would raise the resolution instead. It is measured per grid, not estimated per cell.
     const double beta = std::max(1.0, prims.empty() ? 1.0 : double(sorted.size()) / double(prims.size()));
     std::vector<std::uint32_t> cellPrims;
     for (int z = 0; z < res.z; ++z)

@@ -474,7 +474,9 @@ class Oavm final : public OavmOctree {
   }
 
   // Leaf containing the finest-level cell q, searched from `level` (Sec. 2.4): up while the code does not
-  // exist at that level, down while the node is internal.
+  // exist at that level (parent = code >> 3), down while the node is internal (child = 8·code + F). The
+  // neighbour's code is re-encoded from integer coordinates: Eq. 7 (N' = N + 4α + 2β + γ) only holds
+  // between siblings whose coordinate bits do not carry, so it is not used as printed.
   std::uint32_t locate(const glm::u64vec3& q, int level) const {
     const int maxLevel = space_.maxLevel;
     for (;;) {
