@@ -110,7 +110,7 @@ struct KdParams {
   BinPolicy binPolicy = BinPolicy::kLinear;
   double binCoefficient = 0.4;    // Sec. 3.1: 0.4·n in Tables 1 and 2; tested 1.0, 0.4, 0.3, 0.1
   double traversalCost = 1.0;     // C_T of Eq. 2
-  double intersectionCost = 1.5;  // C_I of Eq. 2 (Wald & Havran's K_I / K_T ≈ 20/15 ≈ 1.5 scale)
+  double intersectionCost = 1.5;  // C_I of Eq. 2; no value in the paper (Wald & Havran: K_I/K_T = 20/15)
   std::size_t leafSize = 1;       // Sec. 3: "node split threshold 1"
   double depthBase = 8.0;         // Sec. 2.2.3: max depth 8 + 1.3·log2 N
   double depthSlope = 1.3;
@@ -146,10 +146,9 @@ glm::ivec3 orgResolution(const glm::dvec3& extent, double n, double lambda);
 
 // ----- octrees (Yuan et al. 2017) -----------------------------------------------------------------------
 struct OctreeParams {
-  std::size_t leafSize = 8;  // a node with more triangles than this is subdivided
+  std::size_t leafSize = 8;  // more triangles: subdivide (no value in the OAVM paper)
   int maxLevel = -1;  // deepest level; -1: round((8 + 1.3·log2 N) / 3), the kd-tree rule per octree level
-  double maxGrowth =
-      4.0;  // do not subdivide when the children would hold > maxGrowth × the node's references
+  double maxGrowth = 4.0;  // ours: no subdivision when the children would hold > 4× the node's references
   void validate() const;
 };
 
