@@ -238,4 +238,23 @@ TEST_F(Cli, BeamTileDoesNotChangeTheImage) {
   EXPECT_EQ(slurp(dir_ / "off.png"), slurp(dir_ / "on.png"));
 }
 
+TEST_F(Cli, BenchAccelWritesTablesMarkdownAndPlot) {
+  const fs::path md = dir_ / "accel.md", png = dir_ / "accel.png";
+  CommandResult r =
+      svo("bench accel --mesh " + tetrahedron().string() +
+          " --sizes 500 --scenes field,sphere --structures kd-binned,org,oavm --size 24 --threads 1"
+          " --markdown " +
+          md.string() + " --plot " + png.string());
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  for (const char* word :
+       {"tet.obj", "field", "sphere", "kd-binned", "org", "oavm", "Mrays/s", "Paper claims"})
+    EXPECT_NE(r.out.find(word), std::string::npos) << word << "\n" << r.out;
+  EXPECT_NE(slurp(md).find("| org |"), std::string::npos);
+  EXPECT_GT(fs::file_size(png), 0u);
+  expectCleanFailure(svo("bench accel --structures bvh --markdown " + md.string() + "x"), "bvh",
+                     md.string() + "x");
+  expectCleanFailure(svo("bench accel --scenes nowhere --markdown " + md.string() + "x"), "nowhere",
+                     md.string() + "x");
+}
+
 }  // namespace

@@ -25,6 +25,7 @@ inline constexpr std::string_view kPeerNotBuilt = "peer not built";
 // Registered by addBenchCommands (bench_common.cpp).
 void addRaycastBench(CLI::App& bench);  // bench_raycast.cpp
 void addBuildBench(CLI::App& bench);    // bench_build.cpp
+void addAccelBench(CLI::App& bench);    // bench_accel.cpp
 
 // Median, smallest and largest of a set of samples (seconds, or any other unit).
 struct Summary {
