@@ -19,6 +19,7 @@ void addBenchCommands(CLI::App& bench) {
   bench::addRaycastBench(bench);
   bench::addBuildBench(bench);
   bench::addAccelBench(bench);
+  bench::addStabilityBench(bench);
 }
 
 }  // namespace svo::tools
