@@ -33,8 +33,6 @@ constexpr float kAmbient = 0.15f;
 constexpr float kDiffuse = 0.75f;
 constexpr float kSpecular = 0.25f;
 constexpr float kShininess = 32.0f;
-// Albedo of a scene built without colors.
-constexpr float kNeutralGrey = 0.8f;
 
 bool finite(glm::vec3 v) {
   return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
@@ -77,18 +75,22 @@ struct Shading {
 glm::vec3 shade(const BlockView& block, const CastHit& hit, glm::vec3 viewDirection, const Shading& s) {
   const glm::vec3 albedo = s.hasColor
                                ? glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)))
-                               : glm::vec3(kNeutralGrey);
-  glm::vec3 n = s.hasNormal ? decodeNormal(hitAttribute(block, hit, AttachmentType::Normal))
-                            : estimateNormal(hit, s.contours);
-  // Thin surfaces are voxelized from both sides: light the side the viewer sees.
-  if (glm::dot(n, viewDirection) > 0.0f) n = -n;
-  const float diffuse = std::max(0.0f, glm::dot(n, -s.lightDirection));
-  const glm::vec3 reflected = glm::reflect(s.lightDirection, n);
-  const float specular = std::pow(std::max(0.0f, glm::dot(reflected, -viewDirection)), kShininess);
-  return albedo * (kAmbient + kDiffuse * diffuse) + glm::vec3(kSpecular * specular);
+                               : glm::vec3(kNeutralGreyAlbedo);
+  const glm::vec3 n = s.hasNormal ? decodeNormal(hitAttribute(block, hit, AttachmentType::Normal))
+                                  : estimateNormal(hit, s.contours);
+  return shadePhong(albedo, n, viewDirection, s.lightDirection);
 }
 
 }  // namespace
+
+glm::vec3 shadePhong(glm::vec3 albedo, glm::vec3 n, glm::vec3 viewDirection, glm::vec3 lightDirection) {
+  // Thin surfaces are voxelized from both sides: light the side the viewer sees.
+  if (glm::dot(n, viewDirection) > 0.0f) n = -n;
+  const float diffuse = std::max(0.0f, glm::dot(n, -lightDirection));
+  const glm::vec3 reflected = glm::reflect(lightDirection, n);
+  const float specular = std::pow(std::max(0.0f, glm::dot(reflected, -viewDirection)), kShininess);
+  return albedo * (kAmbient + kDiffuse * diffuse) + glm::vec3(kSpecular * specular);
+}
 
 PixelRays::PixelRays(const SceneTransform& scene, const Camera& camera, float lodPixels)
     : scene_(scene), camera_(camera), basis_(camera.basis()), origin_(scene.toOctree(camera.eye)) {

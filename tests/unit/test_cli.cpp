@@ -224,6 +224,23 @@ TEST_F(Cli, VerifyAndInspect) {
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
 }
 
+TEST_F(Cli, BenchQualityWritesReportPlotAndImages) {
+  const fs::path out = dir_ / "quality";
+  const CommandResult r = svo("bench quality " + tetrahedron().string() +
+                              " --size 48 --levels 4,5 --runs 1 --threads 1 -o " + out.string());
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  const std::string report = slurp(out / "quality.md");
+  // 2 levels x 4 lod x contours on/off x beam on/off = 32 settings, one table row each.
+  EXPECT_EQ(std::count(report.begin(), report.end(), '\n') >= 32, true) << report;
+  EXPECT_NE(report.find("## Goals"), std::string::npos);
+  for (const char* png : {"reference.png", "best.png", "worst-difference.png", "error-vs-time.png"}) {
+    EXPECT_TRUE(fs::exists(out / png)) << png;
+    EXPECT_GT(fs::file_size(out / png), 100u) << png;
+  }
+  expectCleanFailure(svo("bench quality " + tetrahedron().string() + " --levels 4,x -o " + out.string()),
+                     "--levels", dir_ / "nothing");
+}
+
 TEST_F(Cli, BeamTileDoesNotChangeTheImage) {
   // The beam pass (sec. 6.2) only skips space no ray can hit: the written PNGs are byte-identical.
   const fs::path store = dir_ / "tet.svo";

@@ -20,6 +20,7 @@ void addBenchCommands(CLI::App& bench) {
   bench::addBuildBench(bench);
   bench::addAccelBench(bench);
   bench::addStabilityBench(bench);
+  bench::addQualityBench(bench);
 }
 
 }  // namespace svo::tools

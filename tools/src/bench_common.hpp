@@ -27,6 +27,7 @@ void addRaycastBench(CLI::App& bench);    // bench_raycast.cpp
 void addBuildBench(CLI::App& bench);      // bench_build.cpp
 void addAccelBench(CLI::App& bench);      // bench_accel.cpp
 void addStabilityBench(CLI::App& bench);  // bench_stability.cpp
+void addQualityBench(CLI::App& bench);    // bench_quality.cpp
 
 // Median, smallest and largest of a set of samples (seconds, or any other unit).
 struct Summary {
@@ -42,6 +43,15 @@ double timeSeconds(F&& f) {
   const auto start = std::chrono::steady_clock::now();
   f();
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// One warm-up, then `runs` timed runs of `run`; only the call itself is timed.
+template <class F>
+Summary timeRuns(int runs, F&& run) {
+  run();  // warm-up: page faults, TBB workers, caches
+  std::vector<double> samples;
+  for (int i = 0; i < runs; ++i) samples.push_back(timeSeconds(run));
+  return summarize(std::move(samples));
 }
 
 // A table printed with aligned columns: the first column left-aligned, the others right-aligned.

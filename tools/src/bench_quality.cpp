@@ -1,0 +1,374 @@
+// `svo bench quality MESH`: error against run time for every quality knob. The exact reference is the
+// triangle mesh ray cast with our kd-tree (builder/accel) under the renderer's own Phong model, with normals
+// and colors interpolated from the mesh; each voxel setting (octree levels, level of detail, contours on/off,
+// beam on/off) is timed (median of runs) and compared with it: color RMSE and PSNR (OpenImageIO's
+// ImageBufAlgo::compare, linear RGB), depth error where both hit (mean and 99th percentile of |dt| in finest
+// voxels) and silhouette mismatch (pixels hit by exactly one). Writes a Markdown report, PNG plots of each
+// error against time with the Pareto front marked, the reference image and difference images of the best and
+// worst settings.
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <OpenImageIO/imagebuf.h>
+#include <OpenImageIO/imagebufalgo.h>
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+#include <glm/geometric.hpp>
+
+#include "bench_common.hpp"
+#include "plot.hpp"
+#include "svo/builder/accel/accel.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/client/render.hpp"
+
+namespace svo::tools::bench {
+namespace {
+
+// Level-of-detail settings swept (issue: 0.5, 1, 2, 4 pixels).
+constexpr float kLodSweep[] = {0.5f, 1.0f, 2.0f, 4.0f};
+// Beam settings swept: the paper's 8x8 tile, and off.
+constexpr int kBeamSweep[] = {8, 0};
+// Difference images are scaled by this so small errors are visible.
+constexpr float kDifferenceGain = 4.0f;
+// Tail quantile of the depth error.
+constexpr double kDepthQuantile = 0.99;
+// Goals at 1 voxel per pixel with contours (issue 6): silhouette mismatch and depth p99.
+constexpr double kGoalSilhouettePercent = 1.0;
+constexpr double kGoalDepthVoxels = 1.0;
+
+struct QualityArgs {
+  std::string mesh;
+  std::string levels = "8,9,10";
+  int size = 512;
+  int runs = 3;
+  std::string view = "-0.35,-0.25,-1";
+  int threads = 0;
+  std::string out = "out/quality";
+};
+
+struct Image {
+  int width = 0, height = 0;
+  std::vector<glm::vec3> color;
+  std::vector<float> depth;  // world distance, infinity for a miss
+};
+
+// The mesh ray cast through the kd-tree, shaded like svo::render with interpolated normals and colors.
+Image renderReference(const Mesh& mesh, const accel::Accel& kd, const Camera& camera,
+                      const RenderOptions& options, int threads) {
+  std::vector<glm::dvec3> normals(mesh.positions.size(), glm::dvec3(0.0));
+  for (const glm::uvec3& t : mesh.triangles) {
+    // Area-weighted: the unnormalized cross product is twice the area times the unit normal.
+    const glm::dvec3 n =
+        glm::cross(mesh.positions[t.y] - mesh.positions[t.x], mesh.positions[t.z] - mesh.positions[t.x]);
+    for (int k = 0; k < 3; ++k) normals[t[k]] += n;
+  }
+  const bool hasColor = mesh.hasColor();
+  const glm::vec3 light = glm::normalize(options.lightDirection);
+  Image image;
+  image.width = camera.width, image.height = camera.height;
+  image.color.assign(std::size_t(camera.width) * camera.height, options.background);
+  image.depth.assign(image.color.size(), std::numeric_limits<float>::infinity());
+  const Camera::Basis basis = camera.basis();
+  forEachTile(camera.width, camera.height, 8, threads, [&](const PixelTile& tile) {
+    for (int y = tile.y0; y < tile.y1; ++y)
+      for (int x = tile.x0; x < tile.x1; ++x) {
+        accel::Ray ray;
+        ray.origin = camera.eye;
+        Camera::pixelRay(camera, basis, x, y, ray.direction);
+        const accel::Hit hit = kd.closestHit(ray);
+        if (!hit.hit()) continue;
+        const glm::uvec3 t = mesh.triangles[hit.triangle];
+        const double w0 = 1.0 - hit.u - hit.v;
+        glm::dvec3 n = w0 * normals[t.x] + hit.u * normals[t.y] + hit.v * normals[t.z];
+        if (!(glm::length(n) > 0.0))
+          n = glm::cross(mesh.positions[t.y] - mesh.positions[t.x],
+                         mesh.positions[t.z] - mesh.positions[t.x]);
+        glm::vec3 albedo(kNeutralGreyAlbedo);
+        if (hasColor) {
+          glm::vec4 c = mesh.materialOf(hit.triangle).baseColor;
+          if (!mesh.colors.empty())
+            c *= float(w0) * mesh.colors[t.x] + float(hit.u) * mesh.colors[t.y] +
+                 float(hit.v) * mesh.colors[t.z];
+          albedo = glm::vec3(c);
+        }
+        const std::size_t i = std::size_t(y) * camera.width + x;
+        image.color[i] = shadePhong(albedo, glm::vec3(glm::normalize(n)), glm::vec3(ray.direction), light);
+        image.depth[i] = float(hit.t);
+      }
+  });
+  return image;
+}
+
+OIIO::ImageBuf toImageBuf(const Image& image) {
+  OIIO::ImageBuf buf(OIIO::ImageSpec(image.width, image.height, 3, OIIO::TypeDesc::FLOAT));
+  std::vector<float> pixels(image.color.size() * 3);
+  for (std::size_t i = 0; i < image.color.size(); ++i)
+    for (int c = 0; c < 3; ++c) pixels[3 * i + c] = std::clamp(image.color[i][c], 0.0f, 1.0f);
+  buf.set_pixels(OIIO::ROI::All(), OIIO::TypeDesc::FLOAT, pixels.data());
+  return buf;
+}
+
+void writePng(const std::filesystem::path& path, const OIIO::ImageBuf& linear) {
+  OIIO::ImageBuf srgb = OIIO::ImageBufAlgo::colorconvert(linear, "linear", "sRGB");
+  if (!srgb.write(path.string(), OIIO::TypeDesc::UINT8))
+    throw std::runtime_error(path.string() + ": cannot write (" + srgb.geterror() + ")");
+}
+
+struct Setting {
+  int levels = 0;
+  float lod = 1.0f;
+  bool contours = true;
+  int beam = 8;
+  std::string family() const {
+    return fmt::format("{}, {}", contours ? "contours" : "cubes", beam ? "beam" : "no beam");
+  }
+  std::string name() const { return fmt::format("L{} lod {} {}", levels, lod, family()); }
+};
+
+struct Measured {
+  Setting setting;
+  double seconds = 0.0;
+  double rmse = 0.0, psnr = 0.0;
+  double depthMean = 0.0, depthTail = 0.0;  // finest voxels
+  double silhouettePercent = 0.0;
+  double buildSeconds = 0.0;
+  std::uint64_t storeBytes = 0;
+  Image image;
+};
+
+void compare(const Image& reference, const Image& voxels, double finestVoxel, Measured& m) {
+  const OIIO::ImageBufAlgo::CompareResults r =
+      OIIO::ImageBufAlgo::compare(toImageBuf(voxels), toImageBuf(reference), 1.0f, 1.0f);
+  m.rmse = r.rms_error;
+  m.psnr = r.PSNR;
+  std::vector<double> depth;
+  std::size_t mismatch = 0;
+  for (std::size_t i = 0; i < reference.depth.size(); ++i) {
+    const bool a = std::isfinite(reference.depth[i]), b = std::isfinite(voxels.depth[i]);
+    if (a && b) depth.push_back(std::abs(double(voxels.depth[i]) - double(reference.depth[i])) / finestVoxel);
+    mismatch += a != b;
+  }
+  m.silhouettePercent = 100.0 * double(mismatch) / double(reference.depth.size());
+  if (!depth.empty()) {
+    std::sort(depth.begin(), depth.end());
+    double sum = 0.0;
+    for (const double d : depth) sum += d;
+    m.depthMean = sum / double(depth.size());
+    m.depthTail = depth[std::min(depth.size() - 1, std::size_t(kDepthQuantile * double(depth.size())))];
+  }
+}
+
+// Settings no other setting beats in both time and the error `of`.
+std::vector<const Measured*> paretoFront(const std::vector<Measured>& all, double Measured::*of) {
+  std::vector<const Measured*> front;
+  for (const Measured& m : all) {
+    const bool dominated = std::any_of(all.begin(), all.end(), [&](const Measured& o) {
+      return &o != &m && o.seconds <= m.seconds && o.*of <= m.*of && (o.seconds < m.seconds || o.*of < m.*of);
+    });
+    if (!dominated) front.push_back(&m);
+  }
+  std::sort(front.begin(), front.end(),
+            [](const Measured* a, const Measured* b) { return a->seconds < b->seconds; });
+  return front;
+}
+
+void runQualityBench(const QualityArgs& args) {
+  requireRuns(args.runs);
+  if (args.size < 16 || args.size > 8192)
+    throw UsageError(fmt::format("--size must be in [16, 8192] (got {})", args.size));
+  // "8,9,10" as the resolutions 256,512,1024 for the shared validator (powers of two, no duplicates).
+  std::vector<int> levelList;
+  {
+    std::string resolutions;
+    std::stringstream list(args.levels);
+    for (std::string part; std::getline(list, part, ',');) {
+      int level = 0;
+      try {
+        level = std::stoi(part);
+      } catch (const std::exception&) {
+        throw UsageError(fmt::format("--levels: '{}' is not a number", part));
+      }
+      if (level < 1 || level > kMaxLevels)
+        throw UsageError(fmt::format("--levels: {} is not in [1, {}]", level, kMaxLevels));
+      resolutions += (resolutions.empty() ? "" : ",") + std::to_string(std::int64_t(1) << level);
+    }
+    for (const std::int64_t r : parseResolutions(resolutions, "--levels"))
+      levelList.push_back(levelsOfResolution(r, "--levels"));
+  }
+  const glm::dvec3 view = parseDirection(args.view, "--view");
+  const int threads = resolveThreads(args.threads);
+  const std::filesystem::path out = args.out;
+  std::filesystem::create_directories(out);
+
+  const Mesh mesh = loadBenchMesh(args.mesh);
+  const SceneTransform scene = fitSceneCube(mesh);
+  const Camera camera = Camera::framing(scene, view, args.size, args.size);
+  spdlog::info("reference: kd-tree over {} triangles ...", mesh.triangles.size());
+  const std::unique_ptr<accel::Accel> kd = accel::buildByName("kd-binned", accel::trianglesOf(mesh));
+  RenderOptions base;
+  base.threads = threads;
+  Image reference;
+  const Summary referenceTime =
+      timeRuns(args.runs, [&] { reference = renderReference(mesh, *kd, camera, base, threads); });
+  writePng(out / "reference.png", toImageBuf(reference));
+
+  std::vector<Measured> all;
+  for (const int levels : levelList) {
+    BuildOptions build;
+    build.levels = levels;
+    spdlog::info("building {} levels ...", levels);
+    Octree octree;
+    const double buildSeconds = timeSeconds([&] { octree = buildOctree(mesh, build); });
+    const std::filesystem::path store = out / fmt::format("L{}.svo", levels);
+    writeOctree(store, octree);
+    const std::uint64_t storeBytes = std::filesystem::file_size(store);
+    std::filesystem::remove(store);
+    const double finestVoxel = scene.size / double(std::int64_t(1) << levels);
+    for (const bool contours : {true, false})
+      for (const float lod : kLodSweep)
+        for (const int beam : kBeamSweep) {
+          Measured m;
+          m.setting = {levels, lod, contours, beam};
+          m.buildSeconds = buildSeconds, m.storeBytes = storeBytes;
+          RenderOptions options = base;
+          options.lodPixels = lod;
+          options.cast.contours = contours;
+          options.beamTile = beam;
+          Frame frame;
+          m.seconds = timeRuns(args.runs, [&] { frame = render(octree, camera, options); }).median;
+          m.image.width = frame.width, m.image.height = frame.height;
+          m.image.color.resize(frame.color.size());
+          for (std::size_t i = 0; i < frame.color.size(); ++i) m.image.color[i] = glm::vec3(frame.color[i]);
+          m.image.depth = std::move(frame.depth);
+          compare(reference, m.image, finestVoxel, m);
+          all.push_back(std::move(m));
+        }
+  }
+
+  // Table, sorted by time.
+  std::vector<const Measured*> byTime;
+  for (const Measured& m : all) byTime.push_back(&m);
+  std::sort(byTime.begin(), byTime.end(),
+            [](const Measured* a, const Measured* b) { return a->seconds < b->seconds; });
+  const auto front = paretoFront(all, &Measured::rmse);
+  const auto onFront = [&](const Measured* m) {
+    return std::find(front.begin(), front.end(), m) != front.end();
+  };
+  Table table({"setting", "render", "RMSE", "PSNR dB", "depth mean", "depth p99", "silhouette", "build",
+               "store MB", "Pareto"});
+  std::string markdown = fmt::format(
+      "# svo bench quality: {}\n\n{} triangles, {}x{} pixels, {} threads, median of {} runs. Reference: "
+      "kd-tree ray "
+      "cast of the mesh, same camera and Phong shading, normals and colors interpolated from the mesh; its "
+      "render "
+      "takes {}.\n\n| setting | render ms | RMSE | PSNR dB | depth mean (vox) | depth p99 (vox) | silhouette "
+      "% | build s | "
+      "store MB | Pareto (RMSE) |\n|---|---|---|---|---|---|---|---|---|---|\n",
+      args.mesh, mesh.triangles.size(), args.size, args.size, threads, args.runs,
+      formatSeconds(referenceTime.median));
+  for (const Measured* m : byTime) {
+    table.addRow({m->setting.name(), formatSeconds(m->seconds), fmt::format("{:.4f}", m->rmse),
+                  fmt::format("{:.2f}", m->psnr), fmt::format("{:.3f}", m->depthMean),
+                  fmt::format("{:.3f}", m->depthTail), fmt::format("{:.3f}%", m->silhouettePercent),
+                  formatSeconds(m->buildSeconds), fmt::format("{:.2f}", double(m->storeBytes) / (1 << 20)),
+                  onFront(m) ? "*" : ""});
+    markdown += fmt::format(
+        "| {} | {:.2f} | {:.4f} | {:.2f} | {:.3f} | {:.3f} | {:.3f} | {:.2f} | {:.2f} | {} |\n",
+        m->setting.name(), 1e3 * m->seconds, m->rmse, m->psnr, m->depthMean, m->depthTail,
+        m->silhouettePercent, m->buildSeconds, double(m->storeBytes) / (1 << 20), onFront(m) ? "yes" : "");
+  }
+  printTitle("Error against render time (reference: kd-tree ray cast of the mesh)");
+  table.print();
+
+  // Goals at 1 voxel per pixel with contours, and whether the contour front dominates the cube renders.
+  std::string goals = "\n## Goals (1 voxel per pixel, contours, beam)\n\n";
+  for (const Measured& m : all) {
+    if (m.setting.lod != 1.0f || !m.setting.contours || m.setting.beam == 0) continue;
+    goals += fmt::format(
+        "- {} levels: silhouette mismatch {:.3f}% (goal <= {}%: {}), depth p99 {:.3f} voxels (goal <= {}: "
+        "{})\n",
+        m.setting.levels, m.silhouettePercent, kGoalSilhouettePercent,
+        m.silhouettePercent <= kGoalSilhouettePercent ? "met" : "missed", m.depthTail, kGoalDepthVoxels,
+        m.depthTail <= kGoalDepthVoxels ? "met" : "missed");
+  }
+  std::size_t cubes = 0, dominatedCubes = 0;
+  for (const Measured& c : all) {
+    if (c.setting.contours) continue;
+    ++cubes;
+    dominatedCubes += std::any_of(all.begin(), all.end(), [&](const Measured& o) {
+      return o.setting.contours && o.seconds <= c.seconds && o.rmse <= c.rmse;
+    });
+  }
+  goals +=
+      fmt::format("- cube-voxel renders matched or beaten (time and RMSE) by a contour render: {} of {}\n",
+                  dominatedCubes, cubes);
+  fmt::print("{}", goals);
+  markdown += goals;
+
+  // Plots: each error against time, one series per knob family, and the Pareto front.
+  std::vector<plot::Panel> panels;
+  const std::vector<std::pair<std::string, double Measured::*>> metrics = {
+      {"color RMSE", &Measured::rmse},
+      {"depth p99 (finest voxels)", &Measured::depthTail},
+      {"silhouette mismatch (%)", &Measured::silhouettePercent}};
+  for (const auto& [title, metric] : metrics) {
+    plot::Panel panel{title, {}};
+    std::map<std::string, plot::Series> families;
+    for (const Measured* m : byTime) {
+      plot::Series& s = families[m->setting.family()];
+      s.name = m->setting.family();
+      s.points.push_back({1e3 * m->seconds, std::max((*m).*metric, 1e-4)});
+    }
+    for (auto& [name, s] : families) panel.series.push_back(std::move(s));
+    plot::Series pareto{"Pareto front", {}};
+    for (const Measured* m : paretoFront(all, metric))
+      pareto.points.push_back({1e3 * m->seconds, std::max((*m).*metric, 1e-4)});
+    panel.series.push_back(std::move(pareto));
+    panels.push_back(std::move(panel));
+  }
+  plot::writeLogLogPlot(out / "error-vs-time.png", panels, "render time (ms)", "error (log)");
+
+  // Difference images of the best and worst settings by RMSE.
+  const auto [best, worst] = std::minmax_element(
+      all.begin(), all.end(), [](const Measured& a, const Measured& b) { return a.rmse < b.rmse; });
+  for (const auto& [label, m] : {std::pair{"best", &*best}, std::pair{"worst", &*worst}}) {
+    Image diff = m->image;
+    for (std::size_t i = 0; i < diff.color.size(); ++i)
+      diff.color[i] =
+          glm::min(glm::abs(m->image.color[i] - reference.color[i]) * kDifferenceGain, glm::vec3(1.0f));
+    writePng(out / fmt::format("{}.png", label), toImageBuf(m->image));
+    writePng(out / fmt::format("{}-difference.png", label), toImageBuf(diff));
+    markdown += fmt::format("\n{} setting by RMSE: {} (RMSE {:.4f}); difference x{}: `{}-difference.png`\n",
+                            label, m->setting.name(), m->rmse, kDifferenceGain, label);
+  }
+  markdown += "\n![error against time](error-vs-time.png)\n";
+  std::ofstream(out / "quality.md") << markdown;
+  fmt::print("report: {}, plot: {}, images: reference.png, best/worst(-difference).png in {}\n",
+             (out / "quality.md").string(), (out / "error-vs-time.png").string(), out.string());
+}
+
+}  // namespace
+
+void addQualityBench(CLI::App& bench) {
+  auto args = std::make_shared<QualityArgs>();
+  CLI::App* cmd = bench.add_subcommand(
+      "quality", "error against render time for every quality knob, vs the exact triangle reference");
+  cmd->add_option("mesh", args->mesh, "triangle mesh")->required();
+  cmd->add_option("--levels", args->levels, "octree depths to build, comma-separated")->capture_default_str();
+  cmd->add_option("--size", args->size, "image width and height")->capture_default_str();
+  cmd->add_option("--runs", args->runs, "timed runs per setting; the median is reported")
+      ->capture_default_str();
+  cmd->add_option("--view", args->view, "view direction x,y,z for Camera::framing")->capture_default_str();
+  cmd->add_option("--threads", args->threads, "threads (0 = all cores)")->capture_default_str();
+  cmd->add_option("-o,--output", args->out, "folder for the report, plots and images")->capture_default_str();
+  cmd->callback([args] { runQualityBench(*args); });
+}
+
+}  // namespace svo::tools::bench
