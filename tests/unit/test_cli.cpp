@@ -229,4 +229,22 @@ TEST_F(Cli, BeamTileDoesNotChangeTheImage) {
   EXPECT_EQ(slurp(dir_ / "off.png"), slurp(dir_ / "on.png"));
 }
 
+TEST_F(Cli, GenWritesALoadableSceneAndRejectsBadParameters) {
+  const fs::path ply = dir_ / "city.ply";
+  const CommandResult ok = svo("gen city --triangles 2k --seed 4 -o " + ply.string());
+  ASSERT_EQ(ok.exitCode, 0) << ok.err;
+  EXPECT_NE(ok.out.find("wrote"), std::string::npos) << ok.out;
+  ASSERT_EQ(svo("build " + ply.string() + " -o " + (dir_ / "city.svo").string() + " --levels 6").exitCode, 0);
+
+  const fs::path target = dir_ / "bad.ply";
+  expectCleanFailure(svo("gen castle -o " + target.string()), "unknown scene kind", target);
+  expectCleanFailure(svo("gen terrain --triangles 0 -o " + target.string()), "--triangles", target);
+  expectCleanFailure(svo("gen terrain --triangles 1e15 -o " + target.string()), "--triangles", target);
+  expectCleanFailure(svo("gen terrain --triangles lots -o " + target.string()), "--triangles", target);
+  expectCleanFailure(svo("gen sphere -o " + (dir_ / "scene.obj").string()), ".ply", dir_ / "scene.obj");
+  const fs::path missing = dir_ / "no" / "such" / "folder" / "scene.ply";
+  expectCleanFailure(svo("gen sphere -o " + missing.string()), "does not exist", missing);
+  EXPECT_EQ(svo("gen castle -o " + target.string()).exitCode, 2);
+}
+
 }  // namespace
