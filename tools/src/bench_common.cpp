@@ -18,6 +18,7 @@ namespace svo::tools {
 void addBenchCommands(CLI::App& bench) {
   bench::addRaycastBench(bench);
   bench::addBuildBench(bench);
+  bench::addStoreBench(bench);
 }
 
 }  // namespace svo::tools

@@ -1,12 +1,14 @@
 // Shared pieces of `svo bench`: argument validation, repeated timing with median / min / max, and plain
-// terminal tables. The benches themselves live in bench_raycast.cpp (Embree peer) and bench_build.cpp
-// (OpenVDB peer); heavy peer headers stay inside those .cpp files.
+// terminal tables. The benches themselves live in bench_raycast.cpp (Embree peer), bench_build.cpp (OpenVDB
+// peer) and bench_store.cpp (slice store I/O, builds on 1 and 2 threads); heavy peer headers stay inside
+// those .cpp files.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -25,11 +27,26 @@ inline constexpr std::string_view kPeerNotBuilt = "peer not built";
 // Registered by addBenchCommands (bench_common.cpp).
 void addRaycastBench(CLI::App& bench);  // bench_raycast.cpp
 void addBuildBench(CLI::App& bench);    // bench_build.cpp
+void addStoreBench(CLI::App& bench);    // bench_store.cpp
 
 // Median, smallest and largest of a set of samples (seconds, or any other unit).
 struct Summary {
   double median = 0.0, min = 0.0, max = 0.0;
 };
+
+// ----- the OpenVDB peer of a build (bench_build.cpp; shared by `bench build` and `bench store`) ----------
+// OpenVDB's default narrow-band half width, in voxels (LEVEL_SET_HALF_WIDTH).
+inline constexpr float kLevelSetHalfWidth = 3.0f;
+struct LevelSetResult {
+  Summary seconds;
+  std::uint64_t activeVoxels = 0;  // of the last run's narrow band
+  std::uint64_t memoryBytes = 0;   // Grid::memUsage of the last run
+};
+// `runs` timed calls of OpenVDB tools::meshToLevelSet<FloatGrid> over the mesh with voxels of `voxelSize`,
+// points taken relative to `corner` (the scene cube's) so that the voxel grid lines up with the octree's.
+// Threads: what the calling context allows TBB. nullopt when built without SVO_BENCH_PEERS.
+std::optional<LevelSetResult> openVdbLevelSet(const Mesh& mesh, glm::dvec3 corner, double voxelSize,
+                                              int runs);
 // Throws std::invalid_argument when `samples` is empty. The median of an even count is the mean of the two
 // middle samples.
 Summary summarize(std::vector<double> samples);
@@ -40,6 +57,15 @@ double timeSeconds(F&& f) {
   const auto start = std::chrono::steady_clock::now();
   f();
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// One warm-up, then `runs` timed runs of `run`; only the call itself is timed.
+template <class F>
+Summary timeRuns(int runs, F&& run) {
+  run();  // warm-up: page faults, TBB workers, caches
+  std::vector<double> samples;
+  for (int i = 0; i < runs; ++i) samples.push_back(timeSeconds(run));
+  return summarize(std::move(samples));
 }
 
 // A table printed with aligned columns: the first column left-aligned, the others right-aligned.

@@ -220,15 +220,6 @@ struct Timed {
   TraceResult last;  // the result of the last run
 };
 
-// One warm-up, then `runs` timed runs of `run`; only the call itself is timed.
-template <class F>
-Summary timeRuns(int runs, F&& run) {
-  run();  // warm-up: page faults, TBB workers, caches
-  std::vector<double> samples;
-  for (int i = 0; i < runs; ++i) samples.push_back(timeSeconds(run));
-  return summarize(std::move(samples));
-}
-
 std::string mrays(double rays, double seconds) {
   return fmt::format("{:.2f}", rays / seconds * 1e-6);
 }

@@ -44,7 +44,7 @@ struct GenOptions {
 //   hairball: every vertex within the unit ball (|p| <= 1);
 //   sphere:   kSphereMinRadius <= |p| <= 1.
 inline constexpr double kTerrainHeight = 0.5;    // a quarter of the extent: hilly, not a wall
-inline constexpr double kCityMaxHeight = 0.6;    // tallest tower, a bit under a third of the extent
+inline constexpr double kCityMaxHeight = 0.625;  // tallest tower, under a third of the extent, exact in float
 inline constexpr double kSphereMinRadius = 0.8;  // bumps reach 20% of the radius inwards
 struct GenBounds {
   glm::dvec3 min{0.0}, max{0.0};
