@@ -507,43 +507,47 @@ class AtomicOutput {
   std::vector<char> buffer_;
 };
 
+// ----- the kinds ------------------------------------------------------------------------------------------
+
+struct KindEntry {
+  SceneKind kind;
+  std::string_view name;
+  Mesh (*generate)(const GenOptions&);
+  GenBounds bounds;  // what gen.hpp promises
+};
+const KindEntry kKindTable[] = {
+    {SceneKind::Terrain, "terrain", terrain, {{-1.0, 0.0, -1.0}, {1.0, kTerrainHeight, 1.0}}},
+    {SceneKind::City, "city", city, {{-1.0, 0.0, -1.0}, {1.0, kCityMaxHeight, 1.0}}},
+    {SceneKind::Hairball, "hairball", hairball, {glm::dvec3(-1.0), glm::dvec3(1.0)}},
+    {SceneKind::Sphere, "sphere", sphere, {glm::dvec3(-1.0), glm::dvec3(1.0)}},
+};
+
+const KindEntry& entry(SceneKind kind) {
+  for (const KindEntry& e : kKindTable)
+    if (e.kind == kind) return e;
+  throw std::invalid_argument("unknown scene kind " + std::to_string(int(kind)));
+}
+
 }  // namespace
 
 std::optional<SceneKind> parseSceneKind(std::string_view name) {
-  for (const SceneKind k : {SceneKind::Terrain, SceneKind::City, SceneKind::Hairball, SceneKind::Sphere})
-    if (name == sceneKindName(k)) return k;
+  for (const KindEntry& e : kKindTable)
+    if (name == e.name) return e.kind;
   return std::nullopt;
 }
 
 std::string_view sceneKindName(SceneKind kind) {
-  switch (kind) {
-    case SceneKind::Terrain:
-      return "terrain";
-    case SceneKind::City:
-      return "city";
-    case SceneKind::Hairball:
-      return "hairball";
-    case SceneKind::Sphere:
-      return "sphere";
-  }
-  return "?";
+  return entry(kind).name;
 }
 
 std::string sceneKindList() {
-  return "terrain, city, hairball, sphere";
+  std::string list;
+  for (const KindEntry& e : kKindTable) list += (list.empty() ? "" : ", ") + std::string(e.name);
+  return list;
 }
 
 GenBounds sceneBounds(SceneKind kind) {
-  switch (kind) {
-    case SceneKind::Terrain:
-      return {{-1.0, 0.0, -1.0}, {1.0, kTerrainHeight, 1.0}};
-    case SceneKind::City:
-      return {{-1.0, 0.0, -1.0}, {1.0, kCityMaxHeight, 1.0}};
-    case SceneKind::Hairball:
-    case SceneKind::Sphere:
-      return {glm::dvec3(-1.0), glm::dvec3(1.0)};
-  }
-  return {};
+  return entry(kind).bounds;
 }
 
 Mesh generateScene(const GenOptions& options) {
@@ -551,21 +555,7 @@ Mesh generateScene(const GenOptions& options) {
     throw std::invalid_argument("triangle target " + std::to_string(options.triangles) + " is outside [" +
                                 std::to_string(kMinGenTriangles) + ", " + std::to_string(kMaxGenTriangles) +
                                 "]");
-  Mesh mesh;
-  switch (options.kind) {
-    case SceneKind::Terrain:
-      mesh = terrain(options);
-      break;
-    case SceneKind::City:
-      mesh = city(options);
-      break;
-    case SceneKind::Hairball:
-      mesh = hairball(options);
-      break;
-    case SceneKind::Sphere:
-      mesh = sphere(options);
-      break;
-  }
+  Mesh mesh = entry(options.kind).generate(options);
   if (options.progress) options.progress(1.0);
   return mesh;
 }
