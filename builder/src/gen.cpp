@@ -13,10 +13,12 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 #include <numbers>
 #include <stdexcept>
 #include <vector>
 
+#include <fmt/format.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <glm/geometric.hpp>
@@ -528,6 +530,21 @@ const KindEntry& entry(SceneKind kind) {
   throw std::invalid_argument("unknown scene kind " + std::to_string(int(kind)));
 }
 
+// Progress of a writer in records (vertices, faces), reported about every write buffer's worth.
+class RecordProgress {
+ public:
+  RecordProgress(const std::function<void(double)>& report, std::uint64_t total)
+      : report_(report), total_(std::max<std::uint64_t>(total, 1)) {}
+  void tick() {
+    if (report_ && ++done_ % kReportEvery == 0) report_(double(done_) / double(total_));
+  }
+
+ private:
+  static constexpr std::uint64_t kReportEvery = kWriteBuffer / 16;
+  const std::function<void(double)>& report_;
+  std::uint64_t total_, done_ = 0;
+};
+
 }  // namespace
 
 std::optional<SceneKind> parseSceneKind(std::string_view name) {
@@ -574,23 +591,84 @@ void writePly(const std::filesystem::path& path, const Mesh& mesh, const std::st
   header += "element face " + std::to_string(mesh.triangles.size()) +
             "\nproperty list uchar int vertex_indices\nend_header\n";
   out.text(header);
-  // Progress in records (vertices + faces), reported about every write buffer's worth.
-  const std::uint64_t total = mesh.positions.size() + mesh.triangles.size();
-  constexpr std::uint64_t kReportEvery = kWriteBuffer / 16;
-  std::uint64_t done = 0;
-  const auto tick = [&] {
-    if (progress && ++done % kReportEvery == 0) progress(double(done) / double(total));
-  };
+  RecordProgress records(progress, mesh.positions.size() + mesh.triangles.size());
   for (std::size_t v = 0; v < mesh.positions.size(); ++v) {
     out.put(glm::vec3(mesh.positions[v]));
     if (colors)
       for (int k = 0; k < 3; ++k) out.put(toSrgb8(mesh.colors[v][k]));
-    tick();
+    records.tick();
   }
   for (const glm::uvec3& t : mesh.triangles) {
     out.put(std::uint8_t(3));
     out.put(glm::ivec3(t));
-    tick();
+    records.tick();
+  }
+  out.commit();
+  if (progress) progress(1.0);
+}
+
+void writeGlb(const std::filesystem::path& path, const Mesh& mesh, const std::string& generator,
+              const std::function<void(double)>& progress) {
+  const bool colors = !mesh.colors.empty();
+  if (colors && mesh.colors.size() != mesh.positions.size())
+    throw std::invalid_argument("writeGlb: colors and positions differ in count");
+  const std::uint64_t nv = mesh.positions.size(), nt = mesh.triangles.size();
+  // Binary chunk: float positions, then RGBA8 colors, then uint32 indices; every part 4-byte aligned.
+  const std::uint64_t positionBytes = 12 * nv, colorBytes = colors ? 4 * nv : 0, indexBytes = 12 * nt;
+  const std::uint64_t binBytes = positionBytes + colorBytes + indexBytes;
+  glm::vec3 lo(std::numeric_limits<float>::max()), hi(-std::numeric_limits<float>::max());
+  for (const glm::dvec3& p : mesh.positions) lo = glm::min(lo, glm::vec3(p)), hi = glm::max(hi, glm::vec3(p));
+  std::string name;
+  for (const char c : generator)
+    if (c != '"' && c != '\\' && static_cast<unsigned char>(c) >= 0x20) name += c;  // a JSON-safe string
+  // glTF 2.0 codes: ARRAY_BUFFER 34962, ELEMENT_ARRAY_BUFFER 34963, FLOAT 5126, UNSIGNED_BYTE 5121,
+  // UNSIGNED_INT 5125, mode TRIANGLES 4. Accessor 0 positions, 1 indices, 2 colors; views alike.
+  std::string json = fmt::format(
+      R"({{"asset":{{"version":"2.0","generator":"{}"}},"scene":0,"scenes":[{{"nodes":[0]}}],)"
+      R"("nodes":[{{"mesh":0}}],"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0{}}},"indices":1,)"
+      R"("mode":4}}]}}],"buffers":[{{"byteLength":{}}}],"bufferViews":[)"
+      R"({{"buffer":0,"byteOffset":0,"byteLength":{},"target":34962}},)"
+      R"({{"buffer":0,"byteOffset":{},"byteLength":{},"target":34963}})",
+      name, colors ? R"(,"COLOR_0":2)" : "", binBytes, positionBytes, positionBytes + colorBytes, indexBytes);
+  if (colors)
+    json += fmt::format(R"(,{{"buffer":0,"byteOffset":{},"byteLength":{},"target":34962}})", positionBytes,
+                        colorBytes);
+  json += fmt::format(R"(],"accessors":[{{"bufferView":0,"componentType":5126,"count":{},"type":"VEC3",)"
+                      R"("min":[{:.9g},{:.9g},{:.9g}],"max":[{:.9g},{:.9g},{:.9g}]}},)"
+                      R"({{"bufferView":1,"componentType":5125,"count":{},"type":"SCALAR"}})",
+                      nv, lo.x, lo.y, lo.z, hi.x, hi.y, hi.z, 3 * nt);
+  if (colors)
+    json += fmt::format(
+        R"(,{{"bufferView":2,"componentType":5121,"normalized":true,"count":{},"type":"VEC4"}})", nv);
+  json += "]}";
+  json.append((4 - json.size() % 4) % 4, ' ');  // chunks are 4-byte aligned; JSON pads with spaces
+  const std::uint64_t total = 12 + 8 + json.size() + 8 + binBytes;
+  if (total > 0xFFFFFFFFull)
+    throw std::runtime_error(path.string() + ": " + std::to_string(total) +
+                             " bytes exceed the 4 GiB a GLB file can hold (write .ply instead)");
+  AtomicOutput out(path);
+  out.put(std::uint32_t(0x46546C67));  // "glTF"
+  out.put(std::uint32_t(2));
+  out.put(std::uint32_t(total));
+  out.put(std::uint32_t(json.size()));
+  out.put(std::uint32_t(0x4E4F534A));  // "JSON"
+  out.text(json);
+  out.put(std::uint32_t(binBytes));
+  out.put(std::uint32_t(0x004E4942));  // "BIN\0"
+  RecordProgress records(progress, 2 * nv + nt);
+  for (const glm::dvec3& p : mesh.positions) {
+    out.put(glm::vec3(p));
+    records.tick();
+  }
+  if (colors)
+    for (const glm::vec4& c : mesh.colors) {
+      // glTF vertex colors are linear.
+      for (int k = 0; k < 4; ++k) out.put(std::uint8_t(std::lround(std::clamp(c[k], 0.0f, 1.0f) * 255.0f)));
+      records.tick();
+    }
+  for (const glm::uvec3& t : mesh.triangles) {
+    out.put(t);
+    records.tick();
   }
   out.commit();
   if (progress) progress(1.0);

@@ -137,10 +137,9 @@ void checkBounds(svo::SceneKind kind, const svo::Mesh& mesh) {
   }
 }
 
-TEST_P(Gen, PlyDecodesToTheSameTriangles) {
-  const svo::Mesh mesh = generate(GetParam(), 20000, 21);
-  const fs::path path = dir_ / "scene.ply";
-  svo::writePly(path, mesh, "round trip");
+// Writes the mesh with `write`, loads it back with loadMesh and compares triangle by triangle; colors may
+// differ by `colorTolerance` (linear units).
+void expectRoundTrip(const svo::Mesh& mesh, const fs::path& path, float colorTolerance) {
   svo::MeshLoadReport report;
   const svo::Mesh loaded = svo::loadMesh(path, &report);
   EXPECT_EQ(report.droppedDegenerate, 0u);
@@ -151,11 +150,26 @@ TEST_P(Gen, PlyDecodesToTheSameTriangles) {
     for (int k = 0; k < 3; ++k) {
       const std::uint32_t a = mesh.triangles[t][k], b = loaded.triangles[t][k];
       ASSERT_EQ(loaded.positions[b], mesh.positions[a]) << "triangle " << t << " corner " << k;
-      // 8-bit sRGB in the file: within half a step after decoding, which is at most 2.27 / 510 in linear
-      // units (the steepest slope of the sRGB decoding curve, at 1, is 2.27).
       const glm::vec4 d = glm::abs(loaded.colors[b] - mesh.colors[a]);
-      ASSERT_LE(std::max({d.r, d.g, d.b, d.a}), 2.28f / 510.0f) << "triangle " << t << " corner " << k;
+      ASSERT_LE(std::max({d.r, d.g, d.b, d.a}), colorTolerance) << "triangle " << t << " corner " << k;
     }
+}
+
+TEST_P(Gen, PlyDecodesToTheSameTriangles) {
+  const svo::Mesh mesh = generate(GetParam(), 20000, 21);
+  svo::writePly(dir_ / "scene.ply", mesh, "round trip");
+  // 8-bit sRGB in the file: within half a step after decoding, which is at most 2.27 / 510 in linear units
+  // (the steepest slope of the sRGB decoding curve, at 1, is 2.27).
+  expectRoundTrip(mesh, dir_ / "scene.ply", 2.28f / 510.0f);
+}
+
+TEST_P(Gen, GlbDecodesToTheSameTriangles) {
+  const svo::Mesh mesh = generate(GetParam(), 20000, 21);
+  svo::writeGlb(dir_ / "scene.glb", mesh, "round \"trip\"");
+  svo::writeGlb(dir_ / "again.glb", mesh, "round \"trip\"");
+  EXPECT_EQ(slurp(dir_ / "scene.glb"), slurp(dir_ / "again.glb"));
+  // Linear 8-bit colors in the file: within half a step, plus float rounding.
+  expectRoundTrip(mesh, dir_ / "scene.glb", 0.5f / 255.0f + 1e-6f);
 }
 
 INSTANTIATE_TEST_SUITE_P(Kinds, Gen, ::testing::ValuesIn(kKinds), kindName);

@@ -60,6 +60,12 @@ double physicalMemoryBytes() {
   return pages > 0 && pageSize > 0 ? double(pages) * double(pageSize) : 0.0;
 }
 
+std::string lowerExtension(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
+}
+
 struct GenArgs {
   std::string kind, triangles = "1M", out;
   std::uint64_t seed = 1;
@@ -85,9 +91,9 @@ GenOptions validate(const GenArgs& args) {
   options.triangles = *count;
   options.seed = args.seed;
   const std::filesystem::path out(args.out);
-  std::string ext = out.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-  if (ext != ".ply") throw UsageError(fmt::format("{}: the output must be a .ply file", args.out));
+  const std::string ext = lowerExtension(out);
+  if (ext != ".ply" && ext != ".glb")
+    throw UsageError(fmt::format("{}: the output must be a .ply or .glb file", args.out));
   checkWritableOutput(out);
   return options;
 }
@@ -107,9 +113,14 @@ void runGen(const GenArgs& args) {
   {
     std::optional<ProgressBar> bar;
     if (bars) bar.emplace("write");
-    writePly(args.out, mesh,
-             fmt::format("svo gen {} --triangles {} --seed {}", args.kind, options.triangles, options.seed),
-             bar ? std::function<void(double)>([&bar](double f) { bar->update(f); }) : nullptr);
+    const std::string comment =
+        fmt::format("svo gen {} --triangles {} --seed {}", args.kind, options.triangles, options.seed);
+    const std::function<void(double)> report =
+        bar ? std::function<void(double)>([&bar](double f) { bar->update(f); }) : nullptr;
+    if (lowerExtension(args.out) == ".ply")
+      writePly(args.out, mesh, comment, report);
+    else
+      writeGlb(args.out, mesh, comment, report);
   }
   const auto written = std::chrono::steady_clock::now();
   const GenBounds bounds = sceneBounds(options.kind);
@@ -130,7 +141,8 @@ void runGen(const GenArgs& args) {
 
 void addGenCommand(CLI::App& app) {
   auto args = std::make_shared<GenArgs>();
-  auto* cmd = app.add_subcommand("gen", "generate a procedural test scene (" + sceneKindList() + ") as PLY");
+  auto* cmd =
+      app.add_subcommand("gen", "generate a procedural test scene (" + sceneKindList() + ") as PLY or GLB");
   cmd->add_option("kind", args->kind, sceneKindList())->required();
   cmd->add_option("--triangles", args->triangles,
                   fmt::format("target triangle count, suffixes k M G (the result is within {:.0f}%)",
@@ -138,7 +150,7 @@ void addGenCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--seed", args->seed, "random seed: the same seed gives the same file")
       ->capture_default_str();
-  cmd->add_option("-o,--output", args->out, "output .ply file (binary)")->required();
+  cmd->add_option("-o,--output", args->out, "output file: .ply (binary) or .glb (binary glTF)")->required();
   cmd->callback([args] { runGen(*args); });
 }
 

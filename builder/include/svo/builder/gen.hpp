@@ -1,5 +1,6 @@
 // Procedural test scenes (`svo gen`): fractal terrain, a city of boxes, a hairball of thin tubes and a bumpy
-// sphere, deterministic from a seed and scaling to tens of millions of triangles; streamed binary PLY output.
+// sphere, deterministic from a seed and scaling to tens of millions of triangles; streamed binary PLY or GLB
+// output.
 #pragma once
 
 #include <cstdint>
@@ -62,6 +63,12 @@ Mesh generateScene(const GenOptions& options);
 // same folder and renames it when complete. Throws std::runtime_error naming the file on failure; `path`
 // keeps its old content then. `comment` goes into the header (one line).
 void writePly(const std::filesystem::path& path, const Mesh& mesh, const std::string& comment = {},
+              const std::function<void(double)>& progress = {});
+
+// The same as a binary glTF 2.0 (.glb): float positions, linear RGBA8 vertex colors (COLOR_0), uint32
+// indices; streamed and renamed into place like writePly. Throws std::runtime_error when the file would
+// pass the format's 4 GiB limit (over 150 M triangles). `generator` goes into asset.generator.
+void writeGlb(const std::filesystem::path& path, const Mesh& mesh, const std::string& generator = "svo gen",
               const std::function<void(double)>& progress = {});
 
 }  // namespace svo
