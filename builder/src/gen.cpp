@@ -28,7 +28,7 @@ namespace svo {
 
 namespace {
 
-// ----- deterministic randomness -------------------------------------------------------------------------
+// ----- deterministic randomness ----------------------------------------------------------------------------
 
 // SplitMix64's finalizer (Steele, Lea & Flood 2014): a bijective 64-bit mix with full avalanche.
 std::uint64_t mix(std::uint64_t x) {
@@ -67,7 +67,7 @@ class Random {
 // Stream ids: different uses of the same seed draw unrelated numbers.
 enum Stream : std::uint64_t { kNoiseStream = 1, kBuildingStream, kTubeStream };
 
-// ----- fractal value noise --------------------------------------------------------------------------------
+// ----- fractal value noise ---------------------------------------------------------------------------------
 
 // Value noise on the integer lattice, quintic-smoothed trilinear interpolation: in [0, 1).
 double valueNoise(std::uint64_t seed, glm::dvec3 p) {
@@ -107,7 +107,7 @@ int octavesFor(double baseFrequency, double meshCells) {
   return std::clamp(int(std::floor(std::log2(std::max(1.0, meshCells / baseFrequency)))) + 1, 1, kMaxOctaves);
 }
 
-// ----- small helpers --------------------------------------------------------------------------------------
+// ----- small helpers ---------------------------------------------------------------------------------------
 
 // What a float PLY stores: positions are rounded to float once, here, so the mesh equals its file. Through
 // volatile floats: g++ 12's SLP vectorizer at -O2 and above drops a plain double -> float -> double round
@@ -154,7 +154,7 @@ void parallelItems(std::uint64_t count, Progress& progress, F&& item) {
                     });
 }
 
-// ----- terrain: an fBm heightfield over a square grid -----------------------------------------------------
+// ----- terrain: an fBm heightfield over a square grid ------------------------------------------------------
 
 // Lattice cells across the terrain at the first octave: a few hills and valleys.
 constexpr double kTerrainBaseFrequency = 4.0;
@@ -210,7 +210,7 @@ Mesh terrain(const GenOptions& o) {
   return mesh;
 }
 
-// ----- city: boxes of random heights on a ground plane ----------------------------------------------------
+// ----- city: boxes of random heights on a ground plane -----------------------------------------------------
 
 // Triangles per building: four walls and a roof, two triangles each (the floor is the ground plane).
 constexpr std::uint64_t kBuildingTriangles = 10;
@@ -267,7 +267,7 @@ Mesh city(const GenOptions& o) {
   return mesh;
 }
 
-// ----- hairball: thin tubes along random smooth curves ----------------------------------------------------
+// ----- hairball: thin tubes along random smooth curves -----------------------------------------------------
 
 // Sides of a tube's cross-section: a hexagon is the fewest that still reads as round.
 constexpr std::uint64_t kTubeSides = 6;
@@ -383,7 +383,7 @@ Mesh hairball(const GenOptions& o) {
   return mesh;
 }
 
-// ----- sphere: a UV sphere with fBm bumps -----------------------------------------------------------------
+// ----- sphere: a UV sphere with fBm bumps ------------------------------------------------------------------
 
 // Lattice cells across the sphere's diameter at the first octave: a few large bumps.
 constexpr double kSphereBaseFrequency = 3.0;
@@ -442,7 +442,7 @@ Mesh sphere(const GenOptions& o) {
   return mesh;
 }
 
-// ----- PLY output -----------------------------------------------------------------------------------------
+// ----- PLY and GLB output ----------------------------------------------------------------------------------
 
 // Linear [0, 1] to 8-bit sRGB (IEC 61966-2-1), the inverse of what loadMesh applies to PLY colors.
 std::uint8_t toSrgb8(float linear) {
@@ -509,7 +509,7 @@ class AtomicOutput {
   std::vector<char> buffer_;
 };
 
-// ----- the kinds ------------------------------------------------------------------------------------------
+// ----- the kinds -------------------------------------------------------------------------------------------
 
 struct KindEntry {
   SceneKind kind;

@@ -107,7 +107,7 @@ bool isStore(const std::filesystem::path& path) {
   return in.read(magic, sizeof magic) && std::memcmp(magic, kFileMagic, sizeof magic) == 0;
 }
 
-// ----- peak resident memory -------------------------------------------------------------------------------
+// ----- peak resident memory --------------------------------------------------------------------------------
 
 // Resets the kernel's peak-RSS mark (Linux >= 4.0: "5" to /proc/self/clear_refs). False when refused: the
 // peaks measured afterwards are then the process's peak so far.
@@ -121,8 +121,7 @@ std::uint64_t peakRssBytes() {
   return std::uint64_t(usage.ru_maxrss) * 1024;  // kilobytes on Linux
 }
 
-// ----- the page cache of one file
-// ---------------------------------------------------------------------------
+// ----- the page cache of one file --------------------------------------------------------------------------
 
 class CachedFile {
  public:
@@ -212,8 +211,7 @@ std::optional<DdResult> runDd(const std::filesystem::path& file) {
   return r.seconds > 0.0 ? std::optional(r) : std::nullopt;
 }
 
-// ----- the build comparison
-// ---------------------------------------------------------------------------------
+// ----- the build comparison --------------------------------------------------------------------------------
 
 struct BuildRow {
   std::string method;
@@ -297,7 +295,7 @@ void benchBuild(const StoreArgs& args, const std::filesystem::path& storePath) {
       std::adjacent_find(hashes.begin(), hashes.end(), std::not_equal_to<>()) == hashes.end() ? "yes" : "NO");
 }
 
-// ----- the store measurements -----------------------------------------------------------------------------
+// ----- the store measurements ------------------------------------------------------------------------------
 
 void benchStore(const std::filesystem::path& path, int runs) {
   const StoreReader reader(path);
