@@ -218,6 +218,9 @@ constexpr std::uint64_t kBuildingTriangles = 10;
 constexpr double kMinFootprint = 0.5, kMaxFootprint = 0.85;
 // Heights in cell widths: low houses to towers, skewed towards low (cubed uniform) as in real skylines.
 constexpr double kMinStoreys = 0.5, kMaxStoreys = 12.0;
+// Downtown: heights up to (1 + kDowntownBoost) times taller at the centre, within about kDowntownRadius of it
+// (a third of the city's half-width: a visible skyline, suburbs around it).
+constexpr double kDowntownBoost = 3.0, kDowntownRadius = 0.35;
 
 Mesh city(const GenOptions& o) {
   const std::uint64_t buildings =
@@ -243,7 +246,12 @@ Mesh city(const GenOptions& o) {
     const double d = cell * r.uniform(kMinFootprint, kMaxFootprint);
     const double left = x0 + r.uniform(0.0, cell - w), front = z0 + r.uniform(0.0, cell - d);
     const double u = r.uniform();
-    const double h = std::min(kCityMaxHeight, cell * (kMinStoreys + (kMaxStoreys - kMinStoreys) * u * u * u));
+    // Downtown: towers grow towards the centre, falling off with a Gaussian of kDowntownRadius.
+    const double cx = left + 0.5 * w, cz = front + 0.5 * d;
+    const double downtown =
+        1.0 + kDowntownBoost * std::exp(-(cx * cx + cz * cz) / (kDowntownRadius * kDowntownRadius));
+    const double storeys = (kMinStoreys + (kMaxStoreys - kMinStoreys) * u * u * u) * downtown;
+    const double h = std::min(kCityMaxHeight, cell * storeys);
     // Concrete greys to glass blues, roofs darker than the street level.
     const double shade = r.uniform(0.25, 0.75), blue = r.uniform(0.0, 0.25);
     const glm::vec4 wall = rgb(shade, shade, std::min(1.0, shade + blue));
