@@ -25,9 +25,13 @@ bool axisSeparates(const dvec3& axis, const dvec3& a, const dvec3& b, const dvec
 }  // namespace
 
 bool triangleOverlapsCube(const dvec3& a0, const dvec3& b0, const dvec3& c0, const Cube& cube) {
-  const dvec3 centre = cube.centre(), half(0.5 * cube.size);
+  return triangleOverlapsBox(a0, b0, c0, cube.centre(), dvec3(0.5 * cube.size));
+}
+
+bool triangleOverlapsBox(const dvec3& a0, const dvec3& b0, const dvec3& c0, const dvec3& centre,
+                         const dvec3& half) {
   const dvec3 a = a0 - centre, b = b0 - centre, c = c0 - centre;
-  // The cube's face normals: the triangle's bounding box against the cube.
+  // The box's face normals: the triangle's bounding box against the box.
   for (int i = 0; i < 3; ++i)
     if (std::min({a[i], b[i], c[i]}) > half[i] || std::max({a[i], b[i], c[i]}) < -half[i]) return false;
   const dvec3 e0 = b - a, e1 = c - b, e2 = a - c;

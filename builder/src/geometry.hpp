@@ -18,6 +18,9 @@ struct Cube {
 
 // Separating-axis test (Akenine-Moller 2001) for a closed cube and a triangle: 13 axes, done in double.
 bool triangleOverlapsCube(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c, const Cube& cube);
+// The same test for a closed box given by its centre and half extents (the cube test calls it).
+bool triangleOverlapsBox(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c,
+                         const glm::dvec3& centre, const glm::dvec3& half);
 
 // A convex polygon clipped to a cube has at most 3 + 6 vertices.
 inline constexpr int kMaxClippedVertices = 9;

@@ -12,8 +12,10 @@ namespace svo {
 namespace {
 
 constexpr int kScaleMax = kMaxLevels;  // s_max: 23 mantissa bits
-// Direction components below 2^-23 are clamped to +-2^-23 (released code): no division by zero and no
-// infinities, while still far steeper than any voxel the float positions can address.
+// Direction components below 2^-23 of the largest one (rounded down to a power of two) are clamped to +-that
+// (released code: 2^-23 for its unit-scale rays; relative here, since a ray's direction carries the scene's
+// scale): no division by zero and no infinities, while still far steeper than any voxel the float positions
+// can address.
 constexpr float kMinDirection = 1.0f / float(1 << kScaleMax);
 // Below this |n.d| a ray runs parallel to a contour slab: inside it or outside, never through it.
 constexpr float kParallelContour = 1e-20f;
@@ -38,8 +40,12 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   if (!std::isfinite(d.x) || !std::isfinite(d.y) || !std::isfinite(d.z) || !std::isfinite(o.x) ||
       !std::isfinite(o.y) || !std::isfinite(o.z) || d == glm::vec3(0.0f))
     return hit;
+  // A power of two, so that the clamped axis' t = position * coef - bias stays exact on the voxel grid (a
+  // ray exactly in a voxel face keeps t = 0 there, not a rounding residue).
+  const float minComponent =
+      std::ldexp(kMinDirection, std::ilogb(std::max({std::abs(d.x), std::abs(d.y), std::abs(d.z)})));
   for (int i = 0; i < 3; ++i)
-    if (std::abs(d[i]) < kMinDirection) d[i] = std::copysign(kMinDirection, d[i]);
+    if (std::abs(d[i]) < minComponent) d[i] = std::copysign(minComponent, d[i]);
 
   // t_x(x) = x * tx_coef - tx_bias, in the mirrored system where every direction component is negative.
   float tx_coef = 1.0f / -std::abs(d.x), ty_coef = 1.0f / -std::abs(d.y), tz_coef = 1.0f / -std::abs(d.z);
@@ -52,7 +58,6 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   // Active t-span: the root cube, clipped to [0, tMax].
   float t_min = std::max({2.0f * tx_coef - tx_bias, 2.0f * ty_coef - ty_bias, 2.0f * tz_coef - tz_bias});
   float t_max = std::min({tx_coef - tx_bias, ty_coef - ty_bias, tz_coef - tz_bias});
-  float h = t_max;
   t_min = std::max(t_min, std::max(ray.tMin, 0.0f));
   t_max = std::min(t_max, ray.tMax);
   if (!(t_min <= t_max)) return hit;
@@ -128,8 +133,10 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
           break;
         }
         // PUSH
-        if (tc_max < h) stack[scale] = {parent, t_max};
-        h = tc_max;
+        // Fig. 15 stores the parent only when the child ends before it (tc_max < h). At the deepest scales
+        // the two exits can round to the same float while the position bits still say the ray left the
+        // child first, and POP would then read a stale or unwritten entry: store on every PUSH.
+        stack[scale] = {parent, t_max};
         hit.pathParent[scale] = parent;
         hit.pathSlot[scale] = std::uint8_t(slot);
         const ChildDescriptor* run = parent + descriptor.childPointer();
@@ -171,7 +178,6 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
                           shz = asBits(pos.z) >> scale;
       pos = glm::vec3(asFloat(shx << scale), asFloat(shy << scale), asFloat(shz << scale));
       idx = int((shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2));
-      h = 0.0f;  // the parent just restored must not be stored again
       cached = false;
     }
   }

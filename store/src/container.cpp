@@ -313,6 +313,15 @@ class StoreWriter {
 
 }  // namespace
 
+SliceParts slicePartsOf(const SliceInfo& s, bool hasColors, bool hasNormals) {
+  SliceParts p;
+  p.contours = bitBytes(s.voxelCount) + 4ull * s.contourCount;
+  p.colors = hasColors ? bitBytes(s.voxelCount) + 4ull * s.colorCount : 0;
+  p.normals = hasNormals ? bitBytes(s.voxelCount) + 4ull * s.normalCount : 0;
+  p.hierarchy = s.rawBytes - p.contours - p.colors - p.normals;
+  return p;
+}
+
 SliceError::SliceError(std::uint32_t s, const std::string& message) : std::runtime_error(message), slice(s) {}
 
 SliceError StoreReader::sliceError(std::uint32_t id, const std::string& what) const {
@@ -344,6 +353,7 @@ std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const Voxel
     put(&h, sizeof h);  // placeholder until the directory's place is known
     std::uint64_t offset = sizeof h;
     std::vector<char> compressed;
+    std::uint64_t voxelsWritten = 1;  // the root is in the header
     writer.run([&](const std::vector<std::byte>& raw, SliceInfo info) {
       compressed.resize(ZSTD_compressBound(raw.size()));
       const std::size_t packed =
@@ -356,6 +366,8 @@ std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const Voxel
       put(compressed.data(), packed);
       offset += packed;
       slices.push_back(info);
+      voxelsWritten += info.voxelCount;
+      if (options.progress) options.progress(double(voxelsWritten) / double(tree.voxels.size()));
       return std::uint32_t(slices.size() - 1);
     });
     std::vector<DirectoryEntry> directory(slices.size());

@@ -83,6 +83,15 @@ TEST_F(Cli, BuildAndRenderRoundTrip) {
   ASSERT_EQ(b.exitCode, 0) << b.err;
   const svo::Octree octree = svo::readOctree(svoFile);
   EXPECT_EQ(octree.parameters.levels, 6);
+  // The build report: phases, and voxel counts per level that add up and match the store.
+  const nlohmann::json report = nlohmann::json::parse(slurp(dir_ / "tet.svo.build.json"));
+  for (const char* phase : {"load", "voxelize", "write"})
+    EXPECT_GE(report.at("phaseSeconds").at(phase).get<double>(), 0.0);
+  std::uint64_t voxels = 0;
+  for (const auto& v : report.at("voxelsPerLevel")) voxels += v.get<std::uint64_t>();
+  EXPECT_EQ(voxels, report.at("voxels").get<std::uint64_t>());
+  EXPECT_EQ(voxels, svo::StoreReader(svoFile).loadTree().voxels.size());
+  EXPECT_GT(report.at("peakResidentBytes").get<std::uint64_t>(), 0u);
   // No colors in an OBJ without materials: no color attachment (leave out what the scene does not need).
   EXPECT_EQ(octree.block.view().attachment(svo::AttachmentType::Color), nullptr);
   EXPECT_NE(octree.block.view().attachment(svo::AttachmentType::Normal), nullptr);
@@ -227,6 +236,25 @@ TEST_F(Cli, BeamTileDoesNotChangeTheImage) {
                 .exitCode,
             0);
   EXPECT_EQ(slurp(dir_ / "off.png"), slurp(dir_ / "on.png"));
+}
+
+TEST_F(Cli, BenchAccelWritesTablesMarkdownAndPlot) {
+  const fs::path md = dir_ / "accel.md", png = dir_ / "accel.png";
+  CommandResult r =
+      svo("bench accel --mesh " + tetrahedron().string() +
+          " --sizes 500 --scenes field,sphere --structures kd-binned,org,oavm --size 24 --threads 1"
+          " --markdown " +
+          md.string() + " --plot " + png.string());
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  for (const char* word :
+       {"tet.obj", "field", "sphere", "kd-binned", "org", "oavm", "Mrays/s", "Paper claims"})
+    EXPECT_NE(r.out.find(word), std::string::npos) << word << "\n" << r.out;
+  EXPECT_NE(slurp(md).find("| org |"), std::string::npos);
+  EXPECT_GT(fs::file_size(png), 0u);
+  expectCleanFailure(svo("bench accel --structures bvh --markdown " + md.string() + "x"), "bvh",
+                     md.string() + "x");
+  expectCleanFailure(svo("bench accel --scenes nowhere --markdown " + md.string() + "x"), "nowhere",
+                     md.string() + "x");
 }
 
 TEST_F(Cli, GenWritesALoadableSceneAndRejectsBadParameters) {

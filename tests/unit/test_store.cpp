@@ -100,6 +100,24 @@ TEST(Store, RoundTripGivesTheInCoreBlockByteForByte) {
   }
 }
 
+TEST(Store, WritingTheBuilderTreeDirectlyGivesTheSameOctree) {
+  // svo build writes the voxelizer's tree (raw attribute values) without laying it out first: inheritance is
+  // decided by the same rule, so the loaded store lays out to the in-core block.
+  svo::Mesh m = svotest::makeSphere({0.0, 0.0, 0.0}, 1.0, 16, 16);
+  for (const glm::dvec3& p : m.positions)
+    m.colors.emplace_back(float(0.5 + 0.4 * p.z), 0.2f, float(0.5 + 0.4 * p.x), 1.0f);
+  svo::BuildOptions options;
+  options.levels = 6;
+  const svo::Octree inCore = svo::buildOctree(m, options);
+  const svo::VoxelTree tree = svo::voxelize(m, inCore.transform, options);
+  const fs::path path = tempPath("direct.svo");
+  svo::StoreWriteOptions store;
+  store.sliceBytes = 1024;
+  svo::writeStore(path, tree, inCore.transform, inCore.parameters, store);
+  EXPECT_TRUE(sameBlock(inCore, svo::readOctree(path)));
+  fs::remove(path);
+}
+
 TEST(Store, SlicesTileEachLevelWithinTheSliceSize) {
   const svo::Octree octree = coloredSphere(8);
   const svo::VoxelTree tree = svo::readBlock(octree.block.view());

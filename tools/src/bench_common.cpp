@@ -18,6 +18,8 @@ namespace svo::tools {
 void addBenchCommands(CLI::App& bench) {
   bench::addRaycastBench(bench);
   bench::addBuildBench(bench);
+  bench::addAccelBench(bench);
+  bench::addStabilityBench(bench);
   bench::addStoreBench(bench);
 }
 

@@ -25,9 +25,11 @@ namespace svo::tools::bench {
 inline constexpr std::string_view kPeerNotBuilt = "peer not built";
 
 // Registered by addBenchCommands (bench_common.cpp).
-void addRaycastBench(CLI::App& bench);  // bench_raycast.cpp
-void addBuildBench(CLI::App& bench);    // bench_build.cpp
-void addStoreBench(CLI::App& bench);    // bench_store.cpp
+void addRaycastBench(CLI::App& bench);    // bench_raycast.cpp
+void addBuildBench(CLI::App& bench);      // bench_build.cpp
+void addAccelBench(CLI::App& bench);      // bench_accel.cpp
+void addStabilityBench(CLI::App& bench);  // bench_stability.cpp
+void addStoreBench(CLI::App& bench);      // bench_store.cpp
 
 // Median, smallest and largest of a set of samples (seconds, or any other unit).
 struct Summary {

@@ -1,7 +1,13 @@
 // `svo build MESH -o out.svo --levels N`: mesh -> octree -> .svo, with progress and a size summary.
+#include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <chrono>
 #include <filesystem>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
 
 #include <spdlog/spdlog.h>
 #include <tbb/global_control.h>
@@ -23,15 +29,135 @@ void checkWritableOutput(const std::filesystem::path& out) {
   if (std::filesystem::is_directory(out)) throw UsageError(out.string() + ": is a folder");
 }
 
+namespace {
+
+struct BuildArgs {
+  std::string mesh, out, report;
+  BuildOptions options;
+  bool noContours = false;
+  int threads = 0;
+  std::uint64_t sliceBytes = kDefaultSliceBytes;
+};
+
+double secondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Peak resident set of this process so far (getrusage reports KiB on Linux).
+std::uint64_t peakResidentBytes() {
+  rusage usage{};
+  ::getrusage(RUSAGE_SELF, &usage);
+  return std::uint64_t(usage.ru_maxrss) * 1024;
+}
+
+// Writes `text` to `path` through a temporary name, like every other output.
+void writeTextAtomically(const std::filesystem::path& path, const std::string& text) {
+  const std::filesystem::path temp = path.string() + ".tmp." + std::to_string(::getpid());
+  {
+    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    out << text;
+    if (!out.flush()) {
+      std::filesystem::remove(temp);
+      throw std::runtime_error(path.string() + ": cannot write the report");
+    }
+  }
+  std::filesystem::rename(temp, path);
+}
+
+void runBuild(const BuildArgs& args) {
+  checkWritableOutput(args.out);
+  const std::filesystem::path reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
+  checkWritableOutput(reportPath);
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                              args.threads > 0 ? args.threads : tbb::info::default_concurrency());
+  const auto start = std::chrono::steady_clock::now();
+  nlohmann::json phases = nlohmann::json::object();
+
+  auto phaseStart = std::chrono::steady_clock::now();
+  MeshLoadReport loadReport;
+  const Mesh mesh = loadMesh(args.mesh, &loadReport);
+  phases["load"] = secondsSince(phaseStart);
+  spdlog::info("{}: {} triangles, {} vertices ({}){}", args.mesh, mesh.triangles.size(),
+               mesh.positions.size(), loadReport.format,
+               loadReport.droppedDegenerate
+                   ? fmt::format(", dropped {} degenerate", loadReport.droppedDegenerate)
+                   : "");
+
+  BuildOptions options = args.options;
+  options.contours = !args.noContours;
+  BuildStats stats;
+  phaseStart = std::chrono::steady_clock::now();
+  const SceneTransform transform = fitSceneCube(mesh);
+  VoxelTree tree;
+  {
+    ProgressBar bar("voxelize");
+    options.progress = [&bar](double f) { bar.update(f); };
+    tree = voxelize(mesh, transform, options, &stats);
+  }
+  phases["voxelize"] = secondsSince(phaseStart);
+
+  phaseStart = std::chrono::steady_clock::now();
+  const BuildParameters parameters{options.levels, options.geometryError, options.colorError,
+                                   options.normalError, std::uint32_t(options.contours)};
+  StoreWriteOptions storeOptions;
+  storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
+  storeOptions.inheritance = options.layout;
+  std::vector<SliceInfo> slices;
+  {
+    ProgressBar bar("write");
+    storeOptions.progress = [&bar](double f) { bar.update(f); };
+    slices = writeStore(args.out, tree, transform, parameters, storeOptions);
+  }
+  phases["write"] = secondsSince(phaseStart);
+
+  // The report: phases, voxels and slices per level, bytes per leaf voxel on disk and decoded by part.
+  const std::uint64_t fileBytes = std::filesystem::file_size(args.out);
+  const double leaves = double(std::max<std::uint64_t>(stats.leafVoxels, 1));
+  std::vector<std::uint64_t> slicesPerLevel(stats.voxelsPerLevel.size(), 0);
+  SliceParts parts;
+  for (const SliceInfo& s : slices) {
+    if (std::size_t(s.voxelLevel) < slicesPerLevel.size()) ++slicesPerLevel[s.voxelLevel];
+    const SliceParts p = slicePartsOf(s, tree.hasColors, tree.hasNormals);
+    parts.hierarchy += p.hierarchy, parts.contours += p.contours, parts.colors += p.colors,
+        parts.normals += p.normals;
+  }
+  std::uint64_t voxels = 0;
+  for (const std::uint64_t v : stats.voxelsPerLevel) voxels += v;
+  nlohmann::json report;
+  report["input"] = args.mesh;
+  report["output"] = args.out;
+  report["triangles"] = mesh.triangles.size();
+  report["levels"] = options.levels;
+  report["seconds"] = secondsSince(start);
+  report["phaseSeconds"] = phases;
+  report["peakResidentBytes"] = peakResidentBytes();
+  report["voxels"] = voxels;
+  report["leafVoxels"] = stats.leafVoxels;
+  report["contours"] = stats.contours;
+  report["voxelsPerLevel"] = stats.voxelsPerLevel;
+  report["slices"] = slices.size();
+  report["slicesPerLevel"] = slicesPerLevel;
+  report["fileBytes"] = fileBytes;
+  report["bytesPerLeafVoxel"] = {{"file", double(fileBytes) / leaves},
+                                 {"decodedHierarchy", double(parts.hierarchy) / leaves},
+                                 {"decodedContours", double(parts.contours) / leaves},
+                                 {"decodedColors", double(parts.colors) / leaves},
+                                 {"decodedNormals", double(parts.normals) / leaves}};
+  writeTextAtomically(reportPath, report.dump(2) + "\n");
+
+  spdlog::info("{} levels, {} voxels ({} leaves), {} contours; {} slices", options.levels, voxels,
+               stats.leafVoxels, stats.contours, slices.size());
+  spdlog::info("load {:.2f} s, voxelize {:.2f} s, write {:.2f} s; peak resident {:.0f} MiB",
+               phases["load"].get<double>(), phases["voxelize"].get<double>(), phases["write"].get<double>(),
+               double(peakResidentBytes()) / (1 << 20));
+  std::printf("wrote %s (%.1f MiB, %.2f B per leaf voxel) and %s\n", args.out.c_str(),
+              double(fileBytes) / (1 << 20), double(fileBytes) / leaves, reportPath.c_str());
+}
+
+}  // namespace
+
 void addBuildCommand(CLI::App& app) {
-  struct Args {
-    std::string mesh, out;
-    BuildOptions options;
-    bool noContours = false;
-    int threads = 0;
-    std::uint64_t sliceBytes = kDefaultSliceBytes;
-  };
-  auto args = std::make_shared<Args>();
+  auto args = std::make_shared<BuildArgs>();
   auto* cmd = app.add_subcommand(
       "build", "voxelize a mesh (OBJ, PLY, STL, glTF/GLB, DAE, FBX, DRC) into a .svo octree");
   cmd->add_option("mesh", args->mesh, "input mesh")->required();
@@ -60,46 +186,8 @@ void addBuildCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "worker threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
-  cmd->callback([args] {
-    checkWritableOutput(args->out);
-    tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
-                                args->threads > 0 ? args->threads : tbb::info::default_concurrency());
-    MeshLoadReport report;
-    const Mesh mesh = loadMesh(args->mesh, &report);
-    spdlog::info(
-        "{}: {} triangles, {} vertices ({}){}", args->mesh, mesh.triangles.size(), mesh.positions.size(),
-        report.format,
-        report.droppedDegenerate ? fmt::format(", dropped {} degenerate", report.droppedDegenerate) : "");
-    BuildOptions options = args->options;
-    options.contours = !args->noContours;
-    ProgressBar bar("build");
-    options.progress = [&bar](double f) { bar.update(f); };
-    BuildStats stats;
-    const Octree octree = buildOctree(mesh, options, &stats);
-    bar.finish();
-    StoreWriteOptions storeOptions;
-    storeOptions.sliceBytes = std::uint32_t(args->sliceBytes);
-    writeOctree(args->out, octree, storeOptions);
-    const LayoutStats& l = stats.layout;
-    const double leaves = double(stats.leafVoxels);
-    spdlog::info(
-        "{} levels, {} voxels ({} leaves), {} contours, {:.2f} s", options.levels,
-        [&] {
-          std::uint64_t n = 0;
-          for (auto v : stats.voxelsPerLevel) n += v;
-          return n;
-        }(),
-        stats.leafVoxels, stats.contours, stats.seconds);
-    spdlog::info("bytes per leaf voxel: hierarchy {:.2f}, contours {:.2f}, attributes {:.2f}, total {:.2f}",
-                 l.hierarchyBytes / leaves, l.contourBytes / leaves, l.attributeBytes / leaves,
-                 l.totalBytes / leaves);
-    std::printf(
-        "wrote %s (%.1f MiB in memory, %s)\n", args->out.c_str(), double(l.totalBytes) / (1 << 20),
-        std::filesystem::exists(args->out)
-            ? fmt::format("{:.1f} MiB on disk", double(std::filesystem::file_size(args->out)) / (1 << 20))
-                  .c_str()
-            : "");
-  });
+  cmd->add_option("--report", args->report, "JSON build report (default: OUTPUT.build.json)");
+  cmd->callback([args] { runBuild(*args); });
 }
 
 }  // namespace svo::tools

@@ -3,13 +3,6 @@
 #include <algorithm>
 
 namespace svo::tools {
-namespace {
-
-std::size_t bitBytes(std::size_t bits) {
-  return (bits + 7) / 8;
-}
-
-}  // namespace
 
 LevelSummary summarizeSlice(const SliceInfo& s, const StoreHeader& h) {
   LevelSummary l;
@@ -21,10 +14,11 @@ LevelSummary summarizeSlice(const SliceInfo& s, const StoreHeader& h) {
   l.normals = s.normalCount;
   l.rawBytes = s.rawBytes;
   l.diskBytes = s.compressedBytes;
-  l.contourBytes = bitBytes(s.voxelCount) + 4ull * s.contourCount;
-  l.colorBytes = h.hasColors ? bitBytes(s.voxelCount) + 4ull * s.colorCount : 0;
-  l.normalBytes = h.hasNormals ? bitBytes(s.voxelCount) + 4ull * s.normalCount : 0;
-  l.hierarchyBytes = s.rawBytes - l.contourBytes - l.colorBytes - l.normalBytes;
+  const SliceParts parts = slicePartsOf(s, h.hasColors, h.hasNormals);
+  l.hierarchyBytes = parts.hierarchy;
+  l.contourBytes = parts.contours;
+  l.colorBytes = parts.colors;
+  l.normalBytes = parts.normals;
   l.smallestSlice = l.largestSlice = s.rawBytes;
   return l;
 }

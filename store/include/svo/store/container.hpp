@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -67,6 +68,13 @@ struct SliceInfo {
   static constexpr std::uint32_t kNoSlice = 0xFFFFFFFFu;
 };
 
+// A slice's decoded bytes by part: presence bits go with their part; the head, split bits and valid masks
+// are hierarchy.
+struct SliceParts {
+  std::uint64_t hierarchy = 0, contours = 0, colors = 0, normals = 0;
+};
+SliceParts slicePartsOf(const SliceInfo& slice, bool hasColors, bool hasNormals);
+
 // What a store's header says.
 struct StoreHeader {
   SceneTransform transform;
@@ -87,6 +95,7 @@ struct SliceError : std::runtime_error {
 struct StoreWriteOptions {
   std::uint32_t sliceBytes = kDefaultSliceBytes;  // raw bytes a slice may hold before its cube splits
   LayoutOptions inheritance;                      // when a child inherits its parent's attribute (sec. 5.4)
+  std::function<void(double)> progress;           // fraction of the voxels written, from the writing thread
 };
 
 // Writes the voxel tree as a slice store, atomically: `path` either keeps its old content or gets the

@@ -1,0 +1,130 @@
+// Shared pieces of the acceleration structures: the triangle store (double positions, validity), the one
+// ray/triangle kernel and triangle/box test every structure and the brute force run, ray/box slab clipping,
+// and the "fat" tolerance that makes traversal robust to rounding.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include <glm/geometric.hpp>
+#include <glm/vec3.hpp>
+
+#include "svo/builder/accel/accel.hpp"
+
+namespace svo::accel::detail {
+
+using glm::dvec3;
+
+// Robustness margin, relative to the scene's largest extent: triangles closer than this to a cell or node
+// are stored in it too, and traversal never culls a child that a ray passes within this distance of.
+constexpr double kFatRelative = 1e-9;
+// ... plus this many units in the last place of the largest coordinate (coordinates offset by 1e6).
+constexpr double kFatUlps = 64.0;
+
+struct Tri {
+  dvec3 a, b, c;
+};
+
+// Triangles by id; invalid ones (non-finite or zero-area) are kept as slots but never indexed or hit.
+class TriangleStore {
+ public:
+  TriangleStore() = default;
+  explicit TriangleStore(const Triangles& triangles);
+  // Appends or replaces the slot of `id` from `triangles`; returns whether it is valid.
+  bool set(const Triangles& triangles, std::uint32_t id);
+
+  std::vector<Tri> tris;
+  std::vector<Box> boxes;               // per id; empty for invalid ones
+  std::vector<std::uint8_t> validFlag;  // per id
+  std::vector<std::uint32_t> valid;     // ids of valid triangles, ascending
+  Box bounds;                           // of the valid triangles
+  double fat = 0.0;                     // robustness margin in world units (see kFatRelative)
+
+  std::size_t size() const { return tris.size(); }
+  bool isValid(std::uint32_t id) const { return id < validFlag.size() && validFlag[id]; }
+  double computeFat(const Box& box) const;
+};
+
+bool validTriangle(const dvec3& a, const dvec3& b, const dvec3& c);
+
+// Ray with precomputed reciprocals.
+struct RayCtx {
+  dvec3 o, d, inv;
+  double tMin, tMax;
+  explicit RayCtx(const Ray& ray);
+  bool usable() const;  // finite origin and direction, non-zero direction, tMin <= tMax
+};
+
+// Möller-Trumbore in double, edges inclusive. True when t in [tMin, tMax]; writes t, u, v.
+inline bool intersect(const RayCtx& r, const Tri& tri, double tMin, double tMax, double& t, double& u,
+                      double& v) {
+  const dvec3 e1 = tri.b - tri.a, e2 = tri.c - tri.a;
+  const dvec3 p = glm::cross(r.d, e2);
+  const double det = glm::dot(e1, p);
+  if (det == 0.0) return false;
+  const double inv = 1.0 / det;
+  const dvec3 s = r.o - tri.a;
+  u = glm::dot(s, p) * inv;
+  if (!(u >= 0.0 && u <= 1.0)) return false;
+  const dvec3 q = glm::cross(s, e1);
+  v = glm::dot(r.d, q) * inv;
+  if (!(v >= 0.0 && u + v <= 1.0)) return false;
+  t = glm::dot(e2, q) * inv;
+  return t >= tMin && t <= tMax;
+}
+
+// Tests triangle `id` and keeps the better of it and `best`: smaller t, then smaller id.
+inline void consider(const RayCtx& r, const TriangleStore& store, std::uint32_t id, Hit& best) {
+  double t, u, v;
+  if (!intersect(r, store.tris[id], r.tMin, std::min(r.tMax, best.t), t, u, v)) return;
+  if (t < best.t || id < best.triangle) best = Hit{id, t, u, v};
+}
+inline bool hits(const RayCtx& r, const TriangleStore& store, std::uint32_t id) {
+  double t, u, v;
+  return intersect(r, store.tris[id], r.tMin, r.tMax, t, u, v);
+}
+
+// closestHit and anyHit of a structure from its one walk over candidate triangles: `walk(r, best, visit)`
+// offers triangle ids to `visit` (true: stop), may stop once nothing nearer than `best` can follow, and
+// returns whether `visit` stopped it.
+template <class Walk>
+Hit closestHitBy(const TriangleStore& store, const Ray& ray, Walk&& walk) {
+  Hit best;
+  const RayCtx r(ray);
+  if (!r.usable() || store.valid.empty()) return best;
+  walk(r, best, [&](std::uint32_t id) {
+    consider(r, store, id, best);
+    return false;
+  });
+  return best;
+}
+template <class Walk>
+bool anyHitBy(const TriangleStore& store, const Ray& ray, Walk&& walk) {
+  const Hit none;
+  const RayCtx r(ray);
+  if (!r.usable() || store.valid.empty()) return false;
+  return walk(r, none, [&](std::uint32_t id) { return hits(r, store, id); });
+}
+
+// Separating-axis test of a triangle against a closed box (exact up to double rounding).
+bool triangleOverlapsBox(const Tri& tri, const Box& box);
+inline Box grow(const Box& b, double margin) {
+  return Box{b.lo - margin, b.hi + margin};
+}
+bool boxesOverlap(const Box& a, const Box& b);
+
+// Clips the ray against the box grown by `margin`: [t0, t1] ∩ [tMin, tMax]. Axis-parallel rays are handled
+// without dividing by zero. False when the span is empty.
+bool clipRay(const RayCtx& r, const Box& box, double margin, double& t0, double& t1);
+
+// The final box-query filter shared by every structure: candidates (any order, duplicates allowed) to the
+// sorted ids that pass triangleOverlapsBox.
+std::vector<std::uint32_t> filterBoxQuery(const TriangleStore& store, std::vector<std::uint32_t> candidates,
+                                          const Box& box);
+
+// Throws std::invalid_argument with "accel: <what>" when `ok` is false.
+void require(bool ok, const char* what);
+
+}  // namespace svo::accel::detail
