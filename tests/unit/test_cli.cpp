@@ -274,4 +274,46 @@ TEST_F(Cli, BenchAccelWritesTablesMarkdownAndPlot) {
                      md.string() + "x");
 }
 
+TEST_F(Cli, GenWritesALoadableSceneAndRejectsBadParameters) {
+  const fs::path ply = dir_ / "city.ply";
+  const CommandResult ok = svo("gen city --triangles 2k --seed 4 -o " + ply.string());
+  ASSERT_EQ(ok.exitCode, 0) << ok.err;
+  EXPECT_NE(ok.out.find("wrote"), std::string::npos) << ok.out;
+  ASSERT_EQ(svo("build " + ply.string() + " -o " + (dir_ / "city.svo").string() + " --levels 6").exitCode, 0);
+
+  const fs::path target = dir_ / "bad.ply";
+  expectCleanFailure(svo("gen castle -o " + target.string()), "unknown scene kind", target);
+  expectCleanFailure(svo("gen terrain --triangles 0 -o " + target.string()), "--triangles", target);
+  expectCleanFailure(svo("gen terrain --triangles 1e15 -o " + target.string()), "--triangles", target);
+  expectCleanFailure(svo("gen terrain --triangles lots -o " + target.string()), "--triangles", target);
+  expectCleanFailure(svo("gen sphere -o " + (dir_ / "scene.obj").string()), ".ply", dir_ / "scene.obj");
+  const fs::path missing = dir_ / "no" / "such" / "folder" / "scene.ply";
+  expectCleanFailure(svo("gen sphere -o " + missing.string()), "does not exist", missing);
+  EXPECT_EQ(svo("gen castle -o " + target.string()).exitCode, 2);
+}
+
+TEST_F(Cli, BenchStoreOnAStoreAndOnAMesh) {
+  const fs::path store = dir_ / "tet.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + store.string() + " --levels 6").exitCode, 0);
+  const CommandResult r = svo("bench store " + store.string() + " --runs 1");
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  for (const char* row : {"StoreReader::readSlice", "ZSTD_decompress", "random slice order", "dd if=FILE",
+                          "contours", "whole file"})
+    EXPECT_NE(r.out.find(row), std::string::npos) << row << "\n" << r.out;
+  // A mesh: built on 1 and 2 threads (and OpenVDB when the peers are built), the store kept where asked.
+  const fs::path kept = dir_ / "kept.svo";
+  const CommandResult m =
+      svo("bench store " + tetrahedron().string() + " --levels 4 --runs 1 --store " + kept.string());
+  ASSERT_EQ(m.exitCode, 0) << m.err;
+  EXPECT_NE(m.out.find("ESVO buildOctree"), std::string::npos) << m.out;
+  EXPECT_NE(m.out.find("byte-identical: yes"), std::string::npos) << m.out;
+  EXPECT_EQ(svo("verify " + kept.string()).exitCode, 0);
+  // Bad input: one line, exit 1 for a damaged store, 2 for a bad command line.
+  const fs::path bad = write("bad.svo", "not a store");
+  const CommandResult b = svo("bench store " + bad.string());
+  EXPECT_EQ(b.exitCode, 1);
+  EXPECT_EQ(std::count(b.err.begin(), b.err.end(), '\n'), 1) << b.err;
+  EXPECT_EQ(svo("bench store " + store.string() + " --runs 0").exitCode, 2);
+}
+
 }  // namespace

@@ -24,19 +24,10 @@ namespace svo::tools::bench {
 
 namespace {
 
-// OpenVDB's default narrow-band half width, in voxels (LEVEL_SET_HALF_WIDTH).
-constexpr float kLevelSetHalfWidth = 3.0f;
-
 struct BuildArgs {
   std::string mesh;
   std::string resolutions = "256,512,1024";
   int runs = 3;
-};
-
-struct PeerResult {
-  Summary seconds;
-  std::uint64_t activeVoxels = 0;
-  std::uint64_t memoryBytes = 0;
 };
 
 #ifdef SVO_BENCH_PEERS
@@ -59,9 +50,9 @@ VdbMesh toVdbMesh(const Mesh& mesh, glm::dvec3 corner) {
   return out;
 }
 
-PeerResult runOpenVdb(const VdbMesh& mesh, double voxelSize, int runs) {
+LevelSetResult runOpenVdb(const VdbMesh& mesh, double voxelSize, int runs) {
   const openvdb::math::Transform::Ptr transform = openvdb::math::Transform::createLinearTransform(voxelSize);
-  PeerResult result;
+  LevelSetResult result;
   std::vector<double> samples;
   for (int i = 0; i < runs; ++i) {
     openvdb::FloatGrid::Ptr grid;
@@ -88,11 +79,6 @@ void runBuildBench(const BuildArgs& args) {
   const SceneTransform scene = fitSceneCube(mesh);
   const int threads = tbb::info::default_concurrency();
 
-#ifdef SVO_BENCH_PEERS
-  openvdb::initialize();
-  const VdbMesh vdbMesh = toVdbMesh(mesh, scene.origin);
-#endif
-
   Table table({"resolution", "ESVO time", "ESVO leaves", "ESVO voxels", "ESVO MB", "VDB time", "VDB active",
                "VDB MB", "ESVO/VDB"});
   for (const std::int64_t resolution : resolutions) {
@@ -114,11 +100,9 @@ void runBuildBench(const BuildArgs& args) {
     const std::uint64_t totalVoxels =
         std::accumulate(stats.voxelsPerLevel.begin(), stats.voxelsPerLevel.end(), std::uint64_t(0));
 
-    std::optional<PeerResult> peer;
-#ifdef SVO_BENCH_PEERS
     spdlog::info("{}^3: OpenVDB meshToLevelSet, {} runs ...", resolution, args.runs);
-    peer = runOpenVdb(vdbMesh, scene.size / double(resolution), args.runs);
-#endif
+    const std::optional<LevelSetResult> peer =
+        openVdbLevelSet(mesh, scene.origin, scene.size / double(resolution), args.runs);
     // Without the peer its columns show a dash and the ratio says why.
     const std::string none = "-";
     table.addRow(
@@ -143,6 +127,16 @@ void runBuildBench(const BuildArgs& args) {
 }
 
 }  // namespace
+
+std::optional<LevelSetResult> openVdbLevelSet(const Mesh& mesh, glm::dvec3 corner, double voxelSize,
+                                              int runs) {
+#ifdef SVO_BENCH_PEERS
+  openvdb::initialize();
+  return runOpenVdb(toVdbMesh(mesh, corner), voxelSize, runs);
+#else
+  return std::nullopt;
+#endif
+}
 
 void addBuildBench(CLI::App& bench) {
   auto args = std::make_shared<BuildArgs>();

@@ -21,6 +21,7 @@ void addBenchCommands(CLI::App& bench) {
   bench::addAccelBench(bench);
   bench::addStabilityBench(bench);
   bench::addQualityBench(bench);
+  bench::addStoreBench(bench);
 }
 
 }  // namespace svo::tools

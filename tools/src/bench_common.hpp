@@ -1,12 +1,14 @@
 // Shared pieces of `svo bench`: argument validation, repeated timing with median / min / max, and plain
-// terminal tables. The benches themselves live in bench_raycast.cpp (Embree peer) and bench_build.cpp
-// (OpenVDB peer); heavy peer headers stay inside those .cpp files.
+// terminal tables. The benches themselves live in bench_raycast.cpp (Embree peer), bench_build.cpp (OpenVDB
+// peer) and bench_store.cpp (slice store I/O, builds on 1 and 2 threads); heavy peer headers stay inside
+// those .cpp files.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -28,11 +30,26 @@ void addBuildBench(CLI::App& bench);      // bench_build.cpp
 void addAccelBench(CLI::App& bench);      // bench_accel.cpp
 void addStabilityBench(CLI::App& bench);  // bench_stability.cpp
 void addQualityBench(CLI::App& bench);    // bench_quality.cpp
+void addStoreBench(CLI::App& bench);      // bench_store.cpp
 
 // Median, smallest and largest of a set of samples (seconds, or any other unit).
 struct Summary {
   double median = 0.0, min = 0.0, max = 0.0;
 };
+
+// ----- the OpenVDB peer of a build (bench_build.cpp; shared by `bench build` and `bench store`) ----------
+// OpenVDB's default narrow-band half width, in voxels (LEVEL_SET_HALF_WIDTH).
+inline constexpr float kLevelSetHalfWidth = 3.0f;
+struct LevelSetResult {
+  Summary seconds;
+  std::uint64_t activeVoxels = 0;  // of the last run's narrow band
+  std::uint64_t memoryBytes = 0;   // Grid::memUsage of the last run
+};
+// `runs` timed calls of OpenVDB tools::meshToLevelSet<FloatGrid> over the mesh with voxels of `voxelSize`,
+// points taken relative to `corner` (the scene cube's) so that the voxel grid lines up with the octree's.
+// Threads: what the calling context allows TBB. nullopt when built without SVO_BENCH_PEERS.
+std::optional<LevelSetResult> openVdbLevelSet(const Mesh& mesh, glm::dvec3 corner, double voxelSize,
+                                              int runs);
 // Throws std::invalid_argument when `samples` is empty. The median of an even count is the mean of the two
 // middle samples.
 Summary summarize(std::vector<double> samples);

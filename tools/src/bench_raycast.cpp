@@ -73,7 +73,6 @@ struct Timed {
   TraceResult last;  // the result of the last run
 };
 
-
 std::string mrays(double rays, double seconds) {
   return fmt::format("{:.2f}", rays / seconds * 1e-6);
 }

@@ -9,8 +9,6 @@
 
 namespace svo::tools {
 
-void checkWritableOutput(const std::filesystem::path& out);  // cmd_build.cpp
-
 namespace {
 glm::dvec3 vec3Of(const std::vector<double>& v) {
   return {v[0], v[1], v[2]};

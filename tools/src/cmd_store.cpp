@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
+#include "store_stats.hpp"
 #include "svo/store/container.hpp"
 
 namespace svo::tools {
@@ -16,43 +17,6 @@ namespace {
 
 // Slice size histogram buckets: powers of two of raw bytes, from 2^kFirstBucket up.
 constexpr int kFirstBucket = 6;
-
-struct LevelSummary {
-  std::uint64_t slices = 0, voxels = 0, parents = 0, contours = 0, colors = 0, normals = 0;
-  std::uint64_t rawBytes = 0, diskBytes = 0;
-  std::uint64_t hierarchyBytes = 0, contourBytes = 0, colorBytes = 0, normalBytes = 0;
-  std::uint32_t smallestSlice = 0xFFFFFFFFu, largestSlice = 0;
-};
-
-// Per slice, its raw bytes by part: presence bits belong to their part; split bits, valid masks and the
-// slice head are hierarchy.
-LevelSummary summarize(const SliceInfo& s, const StoreHeader& h) {
-  LevelSummary l;
-  l.slices = 1;
-  l.voxels = s.voxelCount;
-  l.parents = s.parentCount;
-  l.contours = s.contourCount;
-  l.colors = s.colorCount;
-  l.normals = s.normalCount;
-  l.rawBytes = s.rawBytes;
-  l.diskBytes = s.compressedBytes;
-  const SliceParts parts = slicePartsOf(s, h.hasColors, h.hasNormals);
-  l.hierarchyBytes = parts.hierarchy;
-  l.contourBytes = parts.contours;
-  l.colorBytes = parts.colors;
-  l.normalBytes = parts.normals;
-  l.smallestSlice = l.largestSlice = s.rawBytes;
-  return l;
-}
-
-void add(LevelSummary& to, const LevelSummary& l) {
-  to.slices += l.slices, to.voxels += l.voxels, to.parents += l.parents, to.contours += l.contours;
-  to.colors += l.colors, to.normals += l.normals, to.rawBytes += l.rawBytes, to.diskBytes += l.diskBytes;
-  to.hierarchyBytes += l.hierarchyBytes, to.contourBytes += l.contourBytes, to.colorBytes += l.colorBytes;
-  to.normalBytes += l.normalBytes;
-  to.smallestSlice = std::min(to.smallestSlice, l.smallestSlice);
-  to.largestSlice = std::max(to.largestSlice, l.largestSlice);
-}
 
 double per(std::uint64_t bytes, std::uint64_t voxels) {
   return voxels ? double(bytes) / double(voxels) : 0.0;
@@ -65,7 +29,7 @@ void inspect(const std::string& path, bool json) {
   LevelSummary total;
   std::map<int, std::uint64_t> histogram;  // log2 bucket -> slices
   for (const SliceInfo& s : reader.slices()) {
-    const LevelSummary l = summarize(s, h);
+    const LevelSummary l = summarizeSlice(s, h);
     add(levels[s.voxelLevel], l);
     add(total, l);
     ++histogram[std::max(kFirstBucket, int(std::bit_width(s.rawBytes)) - 1)];

@@ -13,6 +13,7 @@ int main(int argc, char** argv) {
   svo::tools::addBuildCommand(app);
   svo::tools::addRenderCommand(app);
   svo::tools::addStoreCommands(app);
+  svo::tools::addGenCommand(app);
   auto* bench = app.add_subcommand("bench", "benchmarks against peers measured in the same run");
   bench->require_subcommand(1);
   svo::tools::addBenchCommands(*bench);
