@@ -11,6 +11,7 @@
 #include <system_error>
 #include <vector>
 
+#include <fcntl.h>
 #include <unistd.h>
 #include <xxhash.h>
 #include <zstd.h>
@@ -431,9 +432,15 @@ std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const Voxel
 }
 
 // ---------------------------------------------------------------------------------------------------------
-StoreReader::StoreReader(const std::filesystem::path& path) : path_(path) {
+StoreReader::File::~File() {
+  if (fd >= 0) ::close(fd);
+}
+
+StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_(std::make_shared<File>()) {
   std::ifstream in(path, std::ios::binary);
   if (!in) fail(path, std::filesystem::exists(path) ? "cannot open" : "no such file");
+  file_->fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (file_->fd < 0) fail(path, std::string("cannot open (") + std::strerror(errno) + ")");
   std::error_code ec;
   const std::uint64_t fileBytes = std::filesystem::file_size(path, ec);
   if (ec) fail(path, "cannot read its size (" + ec.message() + ")");
@@ -520,12 +527,18 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path) {
 std::vector<std::byte> StoreReader::readSlice(std::uint32_t id) const {
   if (id >= slices_.size()) throw sliceError(id, "no such slice");
   const SliceInfo& s = slices_[id];
-  std::ifstream in(path_, std::ios::binary);
-  if (!in) fail(path_, "cannot open");
+  // pread on the descriptor kept open since construction: no reopening per slice, and safe to call from
+  // several threads at once.
   std::vector<char> compressed(s.compressedBytes);
-  in.seekg(std::streamoff(s.offset));
-  in.read(compressed.data(), std::streamsize(compressed.size()));
-  if (std::uint64_t(in.gcount()) != s.compressedBytes) throw sliceError(id, "truncated");
+  std::size_t done = 0;
+  while (done < compressed.size()) {
+    const ssize_t got =
+        ::pread(file_->fd, compressed.data() + done, compressed.size() - done, off_t(s.offset + done));
+    if (got < 0 && errno == EINTR) continue;
+    if (got <= 0)
+      throw sliceError(id, got < 0 ? std::string("cannot read (") + std::strerror(errno) + ")" : "truncated");
+    done += std::size_t(got);
+  }
   if (kCheckChecksums && XXH3_64bits(compressed.data(), compressed.size()) != s.checksum)
     throw sliceError(id, "checksum mismatch");
   if (ZSTD_getFrameContentSize(compressed.data(), compressed.size()) != s.rawBytes)

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -122,7 +123,12 @@ class StoreReader {
  private:
   SliceError sliceError(std::uint32_t slice, const std::string& what) const;
 
+  struct File {  // the open descriptor, shared by copies of the reader
+    int fd = -1;
+    ~File();
+  };
   std::filesystem::path path_;
+  std::shared_ptr<File> file_;
   StoreHeader header_;
   std::vector<SliceInfo> slices_;
 };
