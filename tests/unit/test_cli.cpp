@@ -241,6 +241,21 @@ TEST_F(Cli, BenchQualityWritesReportPlotAndImages) {
                      "--levels", dir_ / "nothing");
 }
 
+TEST_F(Cli, GenStiffWritesEveryCaseAndTheyBuild) {
+  const fs::path dir = dir_ / "stiff";
+  const CommandResult r = svo("gen stiff -o " + dir.string());
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  std::size_t files = 0;
+  for (const auto& e : fs::directory_iterator(dir)) files += e.path().extension() == ".ply";
+  EXPECT_EQ(files, std::size_t(std::count(r.out.begin(), r.out.end(), '\n')));
+  EXPECT_GE(files, 10u);
+  // A stiff case loads back and builds like any mesh.
+  EXPECT_EQ(
+      svo("build " + (dir / "needle.ply").string() + " -o " + (dir_ / "needle.svo").string() + " --levels 9")
+          .exitCode,
+      0);
+}
+
 TEST_F(Cli, BeamTileDoesNotChangeTheImage) {
   // The beam pass (sec. 6.2) only skips space no ray can hit: the written PNGs are byte-identical.
   const fs::path store = dir_ / "tet.svo";

@@ -15,6 +15,7 @@
 
 #include "commands.hpp"
 #include "progress.hpp"
+#include "stability.hpp"
 #include "svo/builder/gen.hpp"
 
 namespace svo::tools {
@@ -98,7 +99,27 @@ GenOptions validate(const GenArgs& args) {
   return options;
 }
 
+// `svo gen stiff -o DIR`: every stiff case of `svo bench stability` (stability.hpp) as DIR/NAME.ply, so
+// other tools can be pointed at them.
+void runGenStiff(const GenArgs& args) {
+  const std::filesystem::path dir(args.out);
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec || !std::filesystem::is_directory(dir))
+    throw UsageError(fmt::format("{}: cannot create the output folder ({})", args.out, ec.message()));
+  for (const StiffCase& c : stiffCases(1)) {
+    std::string slug = c.name;
+    for (char& ch : slug)
+      if (!std::isalnum(static_cast<unsigned char>(ch))) ch = '-';
+    const std::filesystem::path file = dir / (slug + ".ply");
+    writePly(file, c.mesh, fmt::format("svo gen stiff: {} ({} levels): {}", c.name, c.levels, c.what));
+    std::printf("wrote %s: %zu triangles, %d levels: %s\n", file.c_str(), c.mesh.triangles.size(), c.levels,
+                c.what.c_str());
+  }
+}
+
 void runGen(const GenArgs& args) {
+  if (args.kind == "stiff") return runGenStiff(args);
   GenOptions options = validate(args);
   const bool bars = options.triangles >= kProgressTriangles;
   const auto start = std::chrono::steady_clock::now();
@@ -141,16 +162,18 @@ void runGen(const GenArgs& args) {
 
 void addGenCommand(CLI::App& app) {
   auto args = std::make_shared<GenArgs>();
-  auto* cmd =
-      app.add_subcommand("gen", "generate a procedural test scene (" + sceneKindList() + ") as PLY or GLB");
-  cmd->add_option("kind", args->kind, sceneKindList())->required();
+  auto* cmd = app.add_subcommand("gen", "generate a procedural test scene (" + sceneKindList() +
+                                            ") as PLY or GLB; `stiff -o DIR`: the stiff cases as PLY files");
+  cmd->add_option("kind", args->kind, sceneKindList() + ", or stiff")->required();
   cmd->add_option("--triangles", args->triangles,
                   fmt::format("target triangle count, suffixes k M G (the result is within {:.0f}%)",
                               kGenTolerance * 100.0))
       ->capture_default_str();
   cmd->add_option("--seed", args->seed, "random seed: the same seed gives the same file")
       ->capture_default_str();
-  cmd->add_option("-o,--output", args->out, "output file: .ply (binary) or .glb (binary glTF)")->required();
+  cmd->add_option("-o,--output", args->out,
+                  "output file: .ply (binary) or .glb (binary glTF); a folder for stiff")
+      ->required();
   cmd->callback([args] { runGen(*args); });
 }
 

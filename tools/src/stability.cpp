@@ -163,8 +163,8 @@ std::vector<StiffCase> stiffCases(int detail) {
     addTriangle(m, dvec3(1.0), dvec3(1.0 - 1e-6, 1.0, 1.0), dvec3(1.0, 1.0 - 0.7e-6, 1.0 - 1e-6));
     StiffCase c =
         makeCase("23 levels",
-                 "the full 23 levels: voxels of 2^-23, the float mantissa's last bit; aimed rays from 1e-4 "
-                 "away (a float t resolves 2^-23 voxels only where t << 1)",
+                 "the full 23 levels: voxels of 2^-23, the float mantissa's last bit; cube voxels (a "
+                 "float ray is itself only known to half a finest voxel there)",
                  m, 23, 2);
     // Aim at the tiny triangles from several sides, from ~500 finest voxels away: the caster's t is a float,
     // so a voxel of 2^-23 is only resolved where t itself is small (t's ulp is t x 2^-24).
