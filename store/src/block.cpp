@@ -370,7 +370,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   if (cursor > std::size_t(INT32_MAX) * 4 ||
       slotCount + std::max(colors.size(), normals.size()) > kMaxWordPointer)
     throw std::runtime_error("octree too large for one block (" + std::to_string(cursor >> 20) +
-                             " MiB); build with fewer --levels until the slice store lands");
+                             " MiB); the whole octree must fit one block until the paging client (block "
+                             "pool) lands: use fewer --levels");
 
   AlignedBytes bytes(cursor);
   std::byte* base = bytes.data();
@@ -424,8 +425,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
           (contourOffset + std::size_t(e.contourFirst) * 4 - std::size_t(slot) * kSlotBytes) / 4;
       if (words > kMaxWordPointer)
         throw std::runtime_error(
-            "octree too large for one block: contour pointer out of 24-bit reach; build with "
-            "fewer --levels until the slice store lands");
+            "octree too large for one block: contour pointer out of 24-bit reach; the whole octree must "
+            "fit one block until the paging client (block pool) lands: use fewer --levels");
       contourPointer = std::uint32_t(words);
     }
     slots[slot] = ChildDescriptor::make(pointer, far, r.childMask, leaf, contourPointer, e.contourMask);
