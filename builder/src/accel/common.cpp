@@ -93,6 +93,23 @@ bool RayCtx::usable() const {
   return d != dvec3(0.0) && !std::isnan(tMin) && !std::isnan(tMax) && tMin <= tMax;
 }
 
+void LocalTriangles::assign(const TriangleStore& store, std::vector<std::uint32_t>& refs) {
+  std::vector<std::uint32_t> localOf(store.size(), kNoTriangle);
+  edges.clear();
+  ids.clear();
+  for (std::uint32_t& ref : refs) {
+    std::uint32_t& l = localOf[ref];
+    if (l == kNoTriangle) {
+      l = std::uint32_t(ids.size());
+      ids.push_back(ref);
+      edges.push_back(store.edges[ref]);
+    }
+    ref = l;
+  }
+  edges.shrink_to_fit();
+  ids.shrink_to_fit();
+}
+
 bool triangleOverlapsBox(const Tri& tri, const Box& box) {
   for (int i = 0; i < 3; ++i)  // the cheap part first: bounding boxes
     if (std::min({tri.a[i], tri.b[i], tri.c[i]}) > box.hi[i] ||

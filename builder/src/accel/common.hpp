@@ -146,6 +146,45 @@ bool anyHitBy(const TriangleStore& store, const Ray& ray, Walk&& walk) {
   return walk(r, none, [&](std::uint32_t id) { return mail.fresh(id) && hits(r, store, id); });
 }
 
+// Kernel data in the order a static structure's references first name the triangles (leaf / cell order),
+// so neighbouring leaves and cells read neighbouring memory instead of the mesh order (random for soups:
+// one cache miss per test). `assign` renumbers the references to these local indices; `ids` maps back.
+struct LocalTriangles {
+  std::vector<TriEdges> edges;
+  std::vector<std::uint32_t> ids;  // local index -> triangle id
+  void assign(const TriangleStore& store, std::vector<std::uint32_t>& refs);
+  std::size_t bytes() const { return edges.size() * sizeof(TriEdges) + ids.size() * sizeof(std::uint32_t); }
+};
+
+// closestHitBy / anyHitBy for walks that offer local indices of `local`.
+template <class Walk>
+Hit closestHitLocal(const TriangleStore& store, const LocalTriangles& local, const Ray& ray, Walk&& walk) {
+  Hit best;
+  const RayCtx r(ray);
+  if (!r.usable() || store.valid.empty()) return best;
+  Mailbox mail;
+  walk(r, best, [&](std::uint32_t k) {
+    double t, u, v;
+    if (!mail.fresh(k) || !intersect(r, local.edges[k], r.tMin, std::min(r.tMax, best.t), t, u, v))
+      return false;
+    const std::uint32_t id = local.ids[k];
+    if (t < best.t || id < best.triangle) best = Hit{id, t, u, v};
+    return false;
+  });
+  return best;
+}
+template <class Walk>
+bool anyHitLocal(const TriangleStore& store, const LocalTriangles& local, const Ray& ray, Walk&& walk) {
+  const Hit none;
+  const RayCtx r(ray);
+  if (!r.usable() || store.valid.empty()) return false;
+  Mailbox mail;
+  return walk(r, none, [&](std::uint32_t k) {
+    double t, u, v;
+    return mail.fresh(k) && intersect(r, local.edges[k], r.tMin, r.tMax, t, u, v);
+  });
+}
+
 // Separating-axis test of a triangle against a closed box (exact up to double rounding).
 bool triangleOverlapsBox(const Tri& tri, const Box& box);
 inline Box grow(const Box& b, double margin) {
