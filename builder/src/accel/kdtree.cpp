@@ -54,6 +54,13 @@ Box clipped(const Box& b, const Box& node) {
 }
 
 // ----- binned analytic SAH (Algorithms 1 and 2) --------------------------------------------------------
+// Why it traverses slower than the exact SAH on our scenes (measured, svo bench accel, 2e5 triangles:
+// sphere 7.7 vs 3.4 references per triangle, flat field 38 vs 1.0): Eq. 5 models the START/END events of
+// a bin as spread evenly over it, so its minimum usually falls strictly inside a bin, between triangle box
+// walls, and the plane cuts every triangle it crosses; meshes whose triangles share vertex coordinates
+// (tessellated sphere, regular field) have all events of a bin on a few coordinates, where the exact SAH
+// puts its planes without cutting anything. Searching the longest axis only (Sec. 2.2) adds to it. Leaf
+// size, C_I (0.8 ... 3) and the bin coefficient (0.4, 1.0) do not close the gap.
 class BinnedSplitter {
  public:
   BinnedSplitter(const KdParams& p) : p_(p) {}
