@@ -95,19 +95,16 @@ bool RayCtx::usable() const {
 
 void LocalTriangles::assign(const TriangleStore& store, std::vector<std::uint32_t>& refs) {
   std::vector<std::uint32_t> localOf(store.size(), kNoTriangle);
-  edges.clear();
-  ids.clear();
+  tris.clear();
   for (std::uint32_t& ref : refs) {
     std::uint32_t& l = localOf[ref];
     if (l == kNoTriangle) {
-      l = std::uint32_t(ids.size());
-      ids.push_back(ref);
-      edges.push_back(store.edges[ref]);
+      l = std::uint32_t(tris.size());
+      tris.push_back(Entry{store.edges[ref], ref});
     }
     ref = l;
   }
-  edges.shrink_to_fit();
-  ids.shrink_to_fit();
+  tris.shrink_to_fit();
 }
 
 bool triangleOverlapsBox(const Tri& tri, const Box& box) {

@@ -149,11 +149,16 @@ bool anyHitBy(const TriangleStore& store, const Ray& ray, Walk&& walk) {
 // Kernel data in the order a static structure's references first name the triangles (leaf / cell order),
 // so neighbouring leaves and cells read neighbouring memory instead of the mesh order (random for soups:
 // one cache miss per test). `assign` renumbers the references to these local indices; `ids` maps back.
+// The id sits next to the kernel data: a hit reads no second array (a second cache miss per hit).
 struct LocalTriangles {
-  std::vector<TriEdges> edges;
-  std::vector<std::uint32_t> ids;  // local index -> triangle id
+  struct Entry {
+    TriEdges edges;
+    std::uint32_t id;  // triangle id
+  };
+  std::vector<Entry> tris;  // by local index
   void assign(const TriangleStore& store, std::vector<std::uint32_t>& refs);
-  std::size_t bytes() const { return edges.size() * sizeof(TriEdges) + ids.size() * sizeof(std::uint32_t); }
+  std::uint32_t id(std::uint32_t k) const { return tris[k].id; }
+  std::size_t bytes() const { return tris.size() * sizeof(Entry); }
 };
 
 // closestHitBy / anyHitBy for walks that offer local indices of `local`.
@@ -165,9 +170,10 @@ Hit closestHitLocal(const TriangleStore& store, const LocalTriangles& local, con
   Mailbox mail;
   walk(r, best, [&](std::uint32_t k) {
     double t, u, v;
-    if (!mail.fresh(k) || !intersect(r, local.edges[k], r.tMin, std::min(r.tMax, best.t), t, u, v))
-      return false;
-    const std::uint32_t id = local.ids[k];
+    if (!mail.fresh(k)) return false;
+    const LocalTriangles::Entry& e = local.tris[k];
+    if (!intersect(r, e.edges, r.tMin, std::min(r.tMax, best.t), t, u, v)) return false;
+    const std::uint32_t id = e.id;
     if (t < best.t || id < best.triangle) best = Hit{id, t, u, v};
     return false;
   });
@@ -181,7 +187,7 @@ bool anyHitLocal(const TriangleStore& store, const LocalTriangles& local, const 
   Mailbox mail;
   return walk(r, none, [&](std::uint32_t k) {
     double t, u, v;
-    return mail.fresh(k) && intersect(r, local.edges[k], r.tMin, r.tMax, t, u, v);
+    return mail.fresh(k) && intersect(r, local.tris[k].edges, r.tMin, r.tMax, t, u, v);
   });
 }
 

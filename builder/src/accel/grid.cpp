@@ -365,7 +365,7 @@ class GridAccel final : public Accel {
           if (c.count == kSubGrid)
             collect(c.first, q, out);
           else
-            for (std::uint32_t k = 0; k < c.count; ++k) out.push_back(local_.ids[refs_[c.first + k]]);
+            for (std::uint32_t k = 0; k < c.count; ++k) out.push_back(local_.id(refs_[c.first + k]));
         }
   }
 

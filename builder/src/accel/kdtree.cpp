@@ -259,7 +259,7 @@ class KdTree final : public Accel {
       stack.pop_back();
       if (node.leaf()) {
         for (std::uint32_t k = 0; k < node.count; ++k)
-          candidates.push_back(local_.ids[refs_[node.payload() + k]]);
+          candidates.push_back(local_.id(refs_[node.payload() + k]));
         continue;
       }
       if (query.lo[node.axis()] <= node.split) stack.push_back(index + 1);
