@@ -20,9 +20,10 @@ namespace {
 using namespace svo::accel;
 using glm::dvec3;
 
-// Random rays per scene and structure. The issue asks for 1e5; 2e4 keeps the whole file well under a
-// minute on one core in a RelWithDebInfo build (raise it locally to run the full count).
-constexpr int kRandomRays = 20000;
+// Random rays per scene and structure: the issue's 1e5. One brute-force reference per scene is shared by
+// all structures, and ray descriptions are formatted only on failure, so the whole Accel set stays well
+// under a minute on one core in a RelWithDebInfo build.
+constexpr int kRandomRays = 100000;
 // Triangles per generated test scene: large enough for deep trees and sub-grids, small for brute force.
 constexpr std::size_t kSceneTriangles = 1500;
 constexpr double kRelTolerance = 1e-6;
@@ -99,17 +100,19 @@ std::vector<Ray> latticeRays(const Box& box, int steps) {
   return rays;
 }
 
-void expectSameHit(const Hit& want, const Hit& got, const std::string& what) {
-  ASSERT_EQ(want.triangle, got.triangle) << what << " (t want " << want.t << " got " << got.t << ")";
-  if (want.hit())
-    ASSERT_LE(std::abs(want.t - got.t), kRelTolerance * std::max(1.0, std::abs(want.t))) << what;
-}
-
 std::string describe(const Ray& r) {
   char buf[256];
   std::snprintf(buf, sizeof buf, "ray o=(%.17g,%.17g,%.17g) d=(%.17g,%.17g,%.17g) t=[%g,%g]", r.origin.x,
                 r.origin.y, r.origin.z, r.direction.x, r.direction.y, r.direction.z, r.tMin, r.tMax);
   return buf;
+}
+
+// `ray` is described (printf of 6 doubles) only when the check fails: formatting it for every ray cost
+// more than some structures' traversal.
+void expectSameHit(const Hit& want, const Hit& got, const Ray& ray) {
+  ASSERT_EQ(want.triangle, got.triangle) << describe(ray) << " (t want " << want.t << " got " << got.t << ")";
+  if (want.hit())
+    ASSERT_LE(std::abs(want.t - got.t), kRelTolerance * std::max(1.0, std::abs(want.t))) << describe(ray);
 }
 
 // Every structure against brute force on the given rays: closest hit, any hit.
@@ -120,13 +123,16 @@ void checkRays(const svo::Mesh& mesh, const std::vector<Ray>& rays, const std::s
   std::vector<char> wantAny(rays.size());
   for (std::size_t i = 0; i < rays.size(); ++i) {
     want[i] = brute->closestHit(rays[i]);
-    if (i % 4 == 0) wantAny[i] = brute->anyHit(rays[i]);
+    // Brute force hits something in [tMin, tMax] exactly when it has a closest hit; its own anyHit is
+    // checked against that on a sample, the rest reuse the closest hit.
+    if (i % 4 == 0) wantAny[i] = want[i].hit();
+    if (i % 64 == 0) ASSERT_EQ(brute->anyHit(rays[i]), want[i].hit()) << describe(rays[i]);
   }
   for (const std::string& name : structureNames()) {
     SCOPED_TRACE(scene + " / " + name);
     const auto accel = buildByName(name, tris);
     for (std::size_t i = 0; i < rays.size(); ++i) {
-      expectSameHit(want[i], accel->closestHit(rays[i]), describe(rays[i]));
+      expectSameHit(want[i], accel->closestHit(rays[i]), rays[i]);
       if (i % 4 == 0) ASSERT_EQ(bool(wantAny[i]), accel->anyHit(rays[i])) << describe(rays[i]);
     }
   }
@@ -177,7 +183,7 @@ void checkPlaneRays(const svo::Mesh& mesh, std::size_t planesPerStructure, const
       const dvec3 d = randomUnit(rng);
       rays.push_back(Ray{p - d, d});
     }
-    for (const Ray& r : rays) expectSameHit(brute->closestHit(r), accel->closestHit(r), describe(r));
+    for (const Ray& r : rays) expectSameHit(brute->closestHit(r), accel->closestHit(r), r);
   }
 }
 
@@ -464,7 +470,7 @@ TEST(AccelKd, BinPoliciesAndDepthRule) {
       const Stats s = kd->stats();
       EXPECT_LE(double(s.maxDepth), 8.0 + 1.3 * std::log2(4000.0) + 0.5);
       EXPECT_GT(s.leaves, 100u);
-      for (const Ray& r : rays) expectSameHit(brute->closestHit(r), kd->closestHit(r), describe(r));
+      for (const Ray& r : rays) expectSameHit(brute->closestHit(r), kd->closestHit(r), r);
     }
 }
 
@@ -501,8 +507,8 @@ TEST(AccelOavm, LocalUpdatesMatchFullRebuild) {
     const auto brute = buildBruteForce(now);
     for (const Ray& r : rays) {
       const Hit want = brute->closestHit(r);
-      expectSameHit(want, rebuilt->closestHit(r), describe(r));
-      expectSameHit(want, oavm->closestHit(r), describe(r));
+      expectSameHit(want, rebuilt->closestHit(r), r);
+      expectSameHit(want, oavm->closestHit(r), r);
       ASSERT_EQ(want.hit(), oavm->anyHit(r));
     }
     for (int i = 0; i < 20; ++i) {

@@ -38,6 +38,7 @@ bool validTriangle(const dvec3& a, const dvec3& b, const dvec3& c) {
 TriangleStore::TriangleStore(const Triangles& triangles) {
   const std::size_t n = triangles.indices.size();
   tris.resize(n);
+  edges.resize(n);
   boxes.resize(n);
   validFlag.assign(n, 0);
   for (std::uint32_t id = 0; id < n; ++id) set(triangles, id);
@@ -54,6 +55,7 @@ bool TriangleStore::set(const Triangles& triangles, std::uint32_t id) {
   require(id < triangles.indices.size(), "triangle id out of range");
   if (id >= tris.size()) {
     tris.resize(id + 1);
+    edges.resize(id + 1);
     boxes.resize(id + 1);
     validFlag.resize(id + 1, 0);
   }
@@ -66,6 +68,7 @@ bool TriangleStore::set(const Triangles& triangles, std::uint32_t id) {
   t = Tri{triangles.positions[idx.x], triangles.positions[idx.y], triangles.positions[idx.z]};
   if (!validTriangle(t.a, t.b, t.c)) return false;
   validFlag[id] = 1;
+  edges[id] = TriEdges{t.a, t.b - t.a, t.c - t.a};
   boxes[id].extend(t.a);
   boxes[id].extend(t.b);
   boxes[id].extend(t.c);
@@ -88,6 +91,20 @@ bool RayCtx::usable() const {
   for (int i = 0; i < 3; ++i)
     if (!std::isfinite(o[i]) || !std::isfinite(d[i])) return false;
   return d != dvec3(0.0) && !std::isnan(tMin) && !std::isnan(tMax) && tMin <= tMax;
+}
+
+void LocalTriangles::assign(const TriangleStore& store, std::vector<std::uint32_t>& refs) {
+  std::vector<std::uint32_t> localOf(store.size(), kNoTriangle);
+  tris.clear();
+  for (std::uint32_t& ref : refs) {
+    std::uint32_t& l = localOf[ref];
+    if (l == kNoTriangle) {
+      l = std::uint32_t(tris.size());
+      tris.push_back(Entry{store.edges[ref], ref});
+    }
+    ref = l;
+  }
+  tris.shrink_to_fit();
 }
 
 bool triangleOverlapsBox(const Tri& tri, const Box& box) {

@@ -148,6 +148,7 @@ class GridAccel final : public Accel {
         break;
     }
     build(store_.valid, box, res, 1);
+    local_.assign(store_, refs_);
   }
 
   std::string name() const override {
@@ -165,12 +166,13 @@ class GridAccel final : public Accel {
   }
 
   Hit closestHit(const Ray& ray) const override {
-    return closestHitBy(store_, ray,
-                        [&](const RayCtx& r, const Hit& best, auto&& v) { return traverse(r, 0, best, v); });
+    return closestHitLocal(store_, local_, ray, [&](const RayCtx& r, const Hit& best, auto&& v) {
+      return traverse(r, 0, best, v);
+    });
   }
   bool anyHit(const Ray& ray) const override {
-    return anyHitBy(store_, ray,
-                    [&](const RayCtx& r, const Hit& best, auto&& v) { return traverse(r, 0, best, v); });
+    return anyHitLocal(store_, local_, ray,
+                       [&](const RayCtx& r, const Hit& best, auto&& v) { return traverse(r, 0, best, v); });
   }
 
   std::vector<std::uint32_t> boxQuery(const Box& box) const override {
@@ -198,8 +200,8 @@ class GridAccel final : public Accel {
     s.pointers = cells_.size();
     s.volumes = grids_.size();
     for (const Grid& g : grids_) s.maxDepth = std::max<std::size_t>(s.maxDepth, g.depth - 1);
-    s.bytes =
-        cells_.size() * sizeof(Cell) + refs_.size() * sizeof(std::uint32_t) + grids_.size() * sizeof(Grid);
+    s.bytes = cells_.size() * sizeof(Cell) + refs_.size() * sizeof(std::uint32_t) +
+              grids_.size() * sizeof(Grid) + local_.bytes();
     return s;
   }
 
@@ -363,7 +365,7 @@ class GridAccel final : public Accel {
           if (c.count == kSubGrid)
             collect(c.first, q, out);
           else
-            out.insert(out.end(), refs_.begin() + c.first, refs_.begin() + c.first + c.count);
+            for (std::uint32_t k = 0; k < c.count; ++k) out.push_back(local_.id(refs_[c.first + k]));
         }
   }
 
@@ -371,7 +373,8 @@ class GridAccel final : public Accel {
   GridParams p_;
   std::vector<Grid> grids_;
   std::vector<Cell> cells_;
-  std::vector<std::uint32_t> refs_;
+  std::vector<std::uint32_t> refs_;  // after the build: local indices into local_
+  LocalTriangles local_;
 };
 
 }  // namespace
