@@ -21,6 +21,8 @@ namespace fs = std::filesystem;
 namespace {
 
 struct StoreFixture {
+  StoreFixture() = default;
+  StoreFixture(StoreFixture&&) = default;
   ~StoreFixture() {
     std::error_code ignored;
     if (!path.empty()) fs::remove(path, ignored);
