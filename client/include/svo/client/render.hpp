@@ -72,7 +72,8 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
 // Albedo of a scene without colors.
 inline constexpr float kNeutralGreyAlbedo = 0.8f;
 // The renderer's Phong model (one white directional light, `lightDirection` unit and pointing into the scene,
-// `viewDirection` unit from the eye); the normal is flipped to face the viewer. Shared with reference renders.
+// `viewDirection` unit from the eye); the normal is flipped to face the viewer. Shared with reference
+// renders.
 glm::vec3 shadePhong(glm::vec3 albedo, glm::vec3 normal, glm::vec3 viewDirection, glm::vec3 lightDirection);
 
 // The world-space ray of a pixel mapped into octree space with its level-of-detail footprint.
