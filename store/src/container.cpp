@@ -5,7 +5,6 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
 #include <stdexcept>
 #include <string>
 #include <system_error>
@@ -76,6 +75,54 @@ struct SliceHead {
   std::uint32_t attachments;  // bit 0 colors, bit 1 normals
 };
 static_assert(sizeof(SliceHead) == 32);
+
+// Reads up to `bytes` at `offset` (fewer only at the end of the file); -1 on a read error (errno set).
+std::int64_t readAt(int fd, std::uint64_t offset, void* out, std::size_t bytes) {
+  std::size_t done = 0;
+  while (done < bytes) {
+    const ssize_t got = ::pread(fd, static_cast<char*>(out) + done, bytes - done, off_t(offset + done));
+    if (got < 0 && errno == EINTR) continue;
+    if (got < 0) return -1;
+    if (got == 0) break;
+    done += std::size_t(got);
+  }
+  return std::int64_t(done);
+}
+
+// The directory record of a slice and back: the one place that maps SliceInfo to its on-disk form.
+DirectoryEntry entryOf(const SliceInfo& s) {
+  return {s.offset,
+          s.checksum,
+          s.compressedBytes,
+          s.rawBytes,
+          {s.cubeCoord.x, s.cubeCoord.y, s.cubeCoord.z},
+          std::uint8_t(s.cubeLevel),
+          std::uint8_t(s.voxelLevel),
+          0,
+          s.parentCount,
+          s.voxelCount,
+          s.contourCount,
+          s.colorCount,
+          s.normalCount,
+          s.parentSlice};
+}
+SliceInfo sliceOf(const DirectoryEntry& e) {
+  SliceInfo s;
+  s.offset = e.offset;
+  s.compressedBytes = e.compressedBytes;
+  s.rawBytes = e.rawBytes;
+  s.checksum = e.checksum;
+  s.cubeCoord = {e.cubeCoord[0], e.cubeCoord[1], e.cubeCoord[2]};
+  s.cubeLevel = e.cubeLevel;
+  s.voxelLevel = e.voxelLevel;
+  s.parentCount = e.parentCount;
+  s.voxelCount = e.voxelCount;
+  s.contourCount = e.contourCount;
+  s.colorCount = e.colorCount;
+  s.normalCount = e.normalCount;
+  s.parentSlice = e.parentSlice;
+  return s;
+}
 
 std::uint64_t headerChecksum(const FileHeader& h) {
   return XXH3_64bits(&h, offsetof(FileHeader, headerChecksum));
@@ -372,23 +419,7 @@ std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const Voxel
       return std::uint32_t(slices.size() - 1);
     });
     std::vector<DirectoryEntry> directory(slices.size());
-    for (std::size_t i = 0; i < slices.size(); ++i) {
-      const SliceInfo& s = slices[i];
-      directory[i] = DirectoryEntry{s.offset,
-                                    s.checksum,
-                                    s.compressedBytes,
-                                    s.rawBytes,
-                                    {s.cubeCoord.x, s.cubeCoord.y, s.cubeCoord.z},
-                                    std::uint8_t(s.cubeLevel),
-                                    std::uint8_t(s.voxelLevel),
-                                    0,
-                                    s.parentCount,
-                                    s.voxelCount,
-                                    s.contourCount,
-                                    s.colorCount,
-                                    s.normalCount,
-                                    s.parentSlice};
-    }
+    for (std::size_t i = 0; i < slices.size(); ++i) directory[i] = entryOf(slices[i]);
     const std::size_t directoryBytes = directory.size() * sizeof(DirectoryEntry);
     put(directory.data(), directoryBytes);
 
@@ -437,23 +468,22 @@ StoreReader::File::~File() {
 }
 
 StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_(std::make_shared<File>()) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail(path, std::filesystem::exists(path) ? "cannot open" : "no such file");
   file_->fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (file_->fd < 0) fail(path, std::string("cannot open (") + std::strerror(errno) + ")");
+  if (file_->fd < 0)
+    fail(path, errno == ENOENT ? "no such file" : std::string("cannot open (") + std::strerror(errno) + ")");
   std::error_code ec;
   const std::uint64_t fileBytes = std::filesystem::file_size(path, ec);
   if (ec) fail(path, "cannot read its size (" + ec.message() + ")");
   if (fileBytes == 0) fail(path, "empty file (0 bytes), not an svostream file");
   FileHeader h{};
-  in.read(reinterpret_cast<char*>(&h), sizeof h);
-  if (in.gcount() < std::streamsize(sizeof h.magic) || std::memcmp(h.magic, kFileMagic, sizeof h.magic) != 0)
+  const std::int64_t headerRead = readAt(file_->fd, 0, &h, sizeof h);
+  if (headerRead < std::int64_t(sizeof h.magic) || std::memcmp(h.magic, kFileMagic, sizeof h.magic) != 0)
     fail(path, "not an svostream file (bad magic)");
-  if (in.gcount() < std::streamsize(offsetof(FileHeader, headerBytes))) fail(path, "truncated header");
+  if (headerRead < std::int64_t(offsetof(FileHeader, headerBytes))) fail(path, "truncated header");
   if (h.version != kFileVersion)
     fail(path, "unsupported file version " + std::to_string(h.version) + " (this build reads " +
                    std::to_string(kFileVersion) + ")");
-  if (in.gcount() != std::streamsize(sizeof h)) fail(path, "truncated header");
+  if (headerRead != std::int64_t(sizeof h)) fail(path, "truncated header");
   if (h.headerBytes != sizeof h || (kCheckChecksums && headerChecksum(h) != h.headerChecksum))
     fail(path, "header checksum mismatch");
   if (h.levels < 1 || h.levels > kMaxLevels || !(h.size > 0.0) || h.sliceBytes < kMinSliceBytes)
@@ -482,9 +512,9 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_
   header_.fileBytes = fileBytes;
 
   std::vector<DirectoryEntry> directory(h.sliceCount);
-  in.seekg(std::streamoff(h.directoryOffset));
-  in.read(reinterpret_cast<char*>(directory.data()), std::streamsize(h.directoryBytes));
-  if (std::uint64_t(in.gcount()) != h.directoryBytes) fail(path, "truncated: cannot read the directory");
+  if (readAt(file_->fd, h.directoryOffset, directory.data(), h.directoryBytes) !=
+      std::int64_t(h.directoryBytes))
+    fail(path, "truncated: cannot read the directory");
   if (kCheckChecksums && XXH3_64bits(directory.data(), h.directoryBytes) != h.directoryChecksum)
     fail(path, "directory checksum mismatch");
 
@@ -505,21 +535,7 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_
     for (const std::int32_t c : e.cubeCoord)
       if (c < 0 || std::int64_t(c) >= (std::int64_t(1) << e.cubeLevel)) bad("cube outside the octree");
     if (e.parentSlice != SliceInfo::kNoSlice && e.parentSlice >= i) bad("parent slice does not come first");
-    SliceInfo s;
-    s.offset = e.offset;
-    s.compressedBytes = e.compressedBytes;
-    s.rawBytes = e.rawBytes;
-    s.checksum = e.checksum;
-    s.cubeCoord = {e.cubeCoord[0], e.cubeCoord[1], e.cubeCoord[2]};
-    s.cubeLevel = e.cubeLevel;
-    s.voxelLevel = e.voxelLevel;
-    s.parentCount = e.parentCount;
-    s.voxelCount = e.voxelCount;
-    s.contourCount = e.contourCount;
-    s.colorCount = e.colorCount;
-    s.normalCount = e.normalCount;
-    s.parentSlice = e.parentSlice;
-    slices_.push_back(s);
+    slices_.push_back(sliceOf(e));
   }
   if (expectedOffset != h.directoryOffset) fail(path, "the slices do not end where the directory starts");
 }
@@ -530,15 +546,9 @@ std::vector<std::byte> StoreReader::readSlice(std::uint32_t id) const {
   // pread on the descriptor kept open since construction: no reopening per slice, and safe to call from
   // several threads at once.
   std::vector<char> compressed(s.compressedBytes);
-  std::size_t done = 0;
-  while (done < compressed.size()) {
-    const ssize_t got =
-        ::pread(file_->fd, compressed.data() + done, compressed.size() - done, off_t(s.offset + done));
-    if (got < 0 && errno == EINTR) continue;
-    if (got <= 0)
-      throw sliceError(id, got < 0 ? std::string("cannot read (") + std::strerror(errno) + ")" : "truncated");
-    done += std::size_t(got);
-  }
+  const std::int64_t read = readAt(file_->fd, s.offset, compressed.data(), compressed.size());
+  if (read < 0) throw sliceError(id, std::string("cannot read (") + std::strerror(errno) + ")");
+  if (std::uint64_t(read) != s.compressedBytes) throw sliceError(id, "truncated");
   if (kCheckChecksums && XXH3_64bits(compressed.data(), compressed.size()) != s.checksum)
     throw sliceError(id, "checksum mismatch");
   if (ZSTD_getFrameContentSize(compressed.data(), compressed.size()) != s.rawBytes)
