@@ -115,6 +115,7 @@ BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTi
     struct Child {
       int slot;
       double nearest;
+      const ChildDescriptor* descriptor;
     };
     std::array<Child, 8> children;
     int count = 0;
@@ -128,13 +129,15 @@ BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTi
       double nearest, furthest;
       cubeDistances(beam.eye, grownLo, grownSize, nearest, furthest);
       if (nearest >= best) continue;
-      // A leaf, or a voxel as small as the beam (and the fine rays' footprint) at its far side: some fine
-      // ray may stop in it, no earlier than its nearest point.
-      if (!(nonLeaf >> slot & 1u) || half <= beam.stopSlope * furthest) {
+      // A leaf (or a stub: a block pool's voxel whose children are not resident), or a voxel as small as
+      // the beam (and the fine rays' footprint) at its far side: some fine ray may stop in it, no earlier
+      // than its nearest point.
+      const ChildDescriptor* child = (nonLeaf >> slot & 1u) ? BlockView::child(e.descriptor, slot) : nullptr;
+      if (!child || child->isStub() || half <= beam.stopSlope * furthest) {
         best = nearest;
         continue;
       }
-      children[count++] = {slot, nearest};
+      children[count++] = {slot, nearest, child};
     }
     // Push the furthest first so the nearest child is walked next; pruning by `best` then cuts the rest.
     // (Insertion sort: at most 8 entries.)
@@ -145,7 +148,7 @@ BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTi
       const Child& c = children[i];
       if (c.nearest >= best) continue;
       const dvec3 lo = e.lo + half * dvec3(c.slot & 1, c.slot >> 1 & 1, c.slot >> 2 & 1);
-      stack[top++] = {BlockView::child(e.descriptor, c.slot), lo, half, c.nearest};
+      stack[top++] = {c.descriptor, lo, half, c.nearest};
     }
   }
   // Octree distance to ray t: the fine rays' direction is the unit world direction / scene size.

@@ -127,7 +127,14 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
         }
       }
       if (t_min <= tv_max) {
-        if (!(nonLeafMask >> slot & 1)) {  // a leaf: this is the hit
+        const ChildDescriptor* child = nullptr;
+        if (nonLeafMask >> slot & 1) {
+          const ChildDescriptor* run = parent + descriptor.childPointer();
+          if (descriptor.far()) run += *reinterpret_cast<const std::int32_t*>(run);
+          child = followLink(run + childRank(nonLeafMask, slot));
+        }
+        // A leaf, or (in a block pool) a voxel whose children are not resident: this is the hit.
+        if (!child || child->isStub()) {
           found = true;
           hit.leaf = true;
           break;
@@ -139,9 +146,7 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
         stack[scale] = {parent, t_max};
         hit.pathParent[scale] = parent;
         hit.pathSlot[scale] = std::uint8_t(slot);
-        const ChildDescriptor* run = parent + descriptor.childPointer();
-        if (descriptor.far()) run += *reinterpret_cast<const std::int32_t*>(run);
-        parent = run + childRank(nonLeafMask, slot);
+        parent = child;
         idx = 0;
         --scale;
         scale_exp2 = half;

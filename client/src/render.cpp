@@ -137,6 +137,11 @@ void forEachTile(int width, int height, int tileSize, int threads,
 }
 
 Frame render(const Octree& octree, const Camera& camera, const RenderOptions& options) {
+  return render(octree.block.view(), octree.transform, camera, options);
+}
+
+Frame render(const BlockView& block, const SceneTransform& scene, const Camera& camera,
+             const RenderOptions& options) {
   camera.validate();
   if (!std::isfinite(options.lodPixels) || options.lodPixels < 0.0f)
     throw std::runtime_error("render: lodPixels must be a finite number >= 0 (got " +
@@ -151,8 +156,6 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
   if (!finite(options.lightDirection) || !(glm::length(options.lightDirection) > 0.0f))
     throw std::runtime_error("render: the light direction must be finite and non-zero");
 
-  const BlockView block = octree.block.view();
-  const SceneTransform& scene = octree.transform;
   const Shading shading{glm::normalize(options.lightDirection),
                         block.attachment(AttachmentType::Color) != nullptr,
                         block.attachment(AttachmentType::Normal) != nullptr, options.cast.contours};

@@ -57,7 +57,7 @@ const ChildDescriptor* BlockView::child(const ChildDescriptor* parent, int slot)
   const std::uint32_t pointer = parent->childPointer();
   const ChildDescriptor* run = parent + pointer;
   if (parent->far()) run += *reinterpret_cast<const std::int32_t*>(run);
-  return run + childRank(parent->nonLeafMask(), slot);
+  return followLink(run + childRank(parent->nonLeafMask(), slot));
 }
 
 std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, int slot) {
@@ -113,6 +113,7 @@ void validatePointers(const BlockView& view) {
     stack.pop_back();
     const ChildDescriptor& d = view.slots()[item.slot];
     const std::uint8_t valid = d.validMask(), leaf = d.leafMask(), nonLeaf = d.nonLeafMask();
+    if (d.isStub() && d.topology == 0 && d.contour == 0) continue;  // children not resident (paging)
     if (valid == 0) corrupt("descriptor at slot " + std::to_string(item.slot) + " has no children");
     if ((leaf & ~valid) != 0) corrupt("leaf mask outside valid mask at slot " + std::to_string(item.slot));
     if ((d.contourMask() & ~valid) != 0)
@@ -194,6 +195,14 @@ BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), siz
   validatePointers(*this);
 }
 
+BlockView BlockView::unchecked(const std::byte* data, std::size_t size) {
+  BlockView view;
+  view.base_ = data;
+  view.size_ = size;
+  view.info_ = at<BlockInfo>(data, std::ptrdiff_t(*reinterpret_cast<const std::int32_t*>(data)) * 4);
+  return view;
+}
+
 Block::Block(AlignedBytes bytes) : bytes_(std::move(bytes)), view_(bytes_.data(), bytes_.size()) {}
 
 // ---------------------------------------------------------------------------------------------------------
@@ -238,7 +247,7 @@ class SlotPlanner {
   }
 
  private:
-  bool isNonLeaf(std::uint32_t v) const { return tree_.voxels[v].childMask != 0; }
+  bool isNonLeaf(std::uint32_t v) const { return tree_.voxels[v].childMask != 0 || tree_.voxels[v].stub; }
 
   // Reserves `count` consecutive slots inside one page (a run must not straddle a page header).
   std::uint32_t reserve(std::uint32_t count) {
@@ -284,7 +293,8 @@ class SlotPlanner {
 
 }  // namespace
 
-Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutStats* statsOut) {
+Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutStats* statsOut,
+                  std::vector<std::uint32_t>* descriptorSlot) {
   if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
     throw std::invalid_argument("layoutBlock: the tree has no voxels below the root");
   // A run of 8 descriptors followed by up to 8 far slots must stay in reach of its own descriptors.
@@ -400,11 +410,17 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
 
   for (std::size_t v = 0; v < n; ++v) {
     const VoxelRecord& r = tree.voxels[v];
-    if (r.childMask == 0) continue;
+    if (r.childMask == 0) {
+      if (r.stub) ++stats.descriptorSlots;  // all-zero stub descriptor and lookup entries (format.hpp)
+      continue;
+    }
     const std::uint32_t slot = plan.slotOf[v];
     std::uint8_t leaf = 0;
-    for (std::uint32_t c = r.firstChild, s = 0; s < 8; ++s)
-      if (r.childMask >> s & 1u) leaf |= std::uint8_t(tree.voxels[c++].childMask == 0 ? 1u << s : 0u);
+    for (std::uint32_t c = r.firstChild, s = 0; s < 8; ++s) {
+      if (!(r.childMask >> s & 1u)) continue;
+      const VoxelRecord& child = tree.voxels[c++];
+      if (child.childMask == 0 && !child.stub) leaf |= std::uint8_t(1u << s);
+    }
     std::uint32_t pointer = 0;
     bool far = false;
     if (plan.runOf[v] != 0) {
@@ -450,6 +466,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
                          (tree.hasNormals ? (std::uint64_t(slotCount) + normals.size()) * 4 : 0);
   stats.totalBytes = bytes.size();
   if (statsOut) *statsOut = stats;
+  if (descriptorSlot) *descriptorSlot = std::move(plan.slotOf);
   return Block(std::move(bytes));
 }
 
@@ -468,6 +485,7 @@ VoxelTree readBlock(const BlockView& block) {
     if (!d) continue;
     const VoxelRecord parent = tree.voxels[i];
     tree.voxels[i].childMask = d->validMask();
+    tree.voxels[i].stub = d->isStub();
     tree.voxels[i].firstChild = std::uint32_t(tree.voxels.size());
     for (int slot = 0; slot < 8; ++slot) {
       if (!(d->validMask() >> slot & 1u)) continue;

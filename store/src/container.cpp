@@ -144,23 +144,6 @@ std::size_t sliceRawBytes(const SliceHead& h) {
   return bytes;
 }
 
-// Morton order of cube coordinates at one level (slot bits: x = bit 0, y = 1, z = 2): compare on the axis
-// with the highest differing bit, z winning ties, then y.
-bool mortonLess(const glm::ivec3& a, const glm::ivec3& b) {
-  const auto msbBelow = [](std::uint32_t x, std::uint32_t y) { return x < y && x < (x ^ y); };
-  int axis = 2;
-  std::uint32_t highest = std::uint32_t(a.z ^ b.z);
-  for (const int k : {1, 0}) {
-    const std::uint32_t d = std::uint32_t(a[k] ^ b[k]);
-    if (msbBelow(highest, d)) axis = k, highest = d;
-  }
-  return a[axis] < b[axis];
-}
-
-glm::ivec3 childCoord(const glm::ivec3& parent, int slot) {
-  return parent * 2 + glm::ivec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1);
-}
-
 // Appends bits LSB-first into bytes.
 class BitWriter {
  public:
@@ -361,6 +344,17 @@ class StoreWriter {
 
 }  // namespace
 
+bool mortonLess(const glm::ivec3& a, const glm::ivec3& b) {
+  const auto msbBelow = [](std::uint32_t x, std::uint32_t y) { return x < y && x < (x ^ y); };
+  int axis = 2;
+  std::uint32_t highest = std::uint32_t(a.z ^ b.z);
+  for (const int k : {1, 0}) {
+    const std::uint32_t d = std::uint32_t(a[k] ^ b[k]);
+    if (msbBelow(highest, d)) axis = k, highest = d;
+  }
+  return a[axis] < b[axis];
+}
+
 SliceParts slicePartsOf(const SliceInfo& s, bool hasColors, bool hasNormals) {
   SliceParts p;
   p.contours = bitBytes(s.voxelCount) + 4ull * s.contourCount;
@@ -559,23 +553,72 @@ std::vector<std::byte> StoreReader::readSlice(std::uint32_t id) const {
   return raw;
 }
 
-VoxelTree StoreReader::loadTree() const {
-  struct Node {
-    glm::ivec3 coord{0};
-    std::uint8_t childMask = 0;
-    bool covered = false;  // a slice has given this node's split bit
-    bool hasContour = false;
-    std::uint32_t contour = 0, color = 0, normal = 0;
+void StoreReader::decodeSlice(std::uint32_t id, const std::vector<std::byte>& raw,
+                              std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children) const {
+  const SliceInfo& s = slices_.at(id);
+  if (parents.size() != s.parentCount)
+    throw sliceError(id, "expects " + std::to_string(s.parentCount) + " parent voxels, its cube has " +
+                             std::to_string(parents.size()));
+  SliceHead head;
+  if (raw.size() < sizeof head) throw sliceError(id, "shorter than its head");
+  std::memcpy(&head, raw.data(), sizeof head);
+  const std::uint32_t attachments = (header_.hasColors ? 1u : 0u) | (header_.hasNormals ? 2u : 0u);
+  if (head.magic != kSliceMagic || head.parentCount != s.parentCount || head.voxelCount != s.voxelCount ||
+      head.contourCount != s.contourCount || head.colorCount != s.colorCount ||
+      head.normalCount != s.normalCount || head.attachments != attachments ||
+      head.splitCount > head.parentCount)
+    throw sliceError(id, "its head does not match the directory");
+  if (sliceRawBytes(head) != raw.size()) throw sliceError(id, "section sizes do not add up to its size");
+
+  const std::byte* cursor = raw.data() + sizeof head;
+  const std::byte* splitBits = cursor;
+  cursor += bitBytes(head.parentCount);
+  const std::byte* masks = cursor;
+  cursor += head.splitCount;
+  std::uint32_t split = 0;
+  const std::size_t firstAdded = children.size();
+  for (std::size_t i = 0; i < parents.size(); ++i) {
+    SliceVoxel& p = parents[i];
+    if (!bitAt(splitBits, i)) continue;
+    if (split == head.splitCount) throw sliceError(id, "more split bits than valid masks");
+    const std::uint8_t mask = std::to_integer<std::uint8_t>(masks[split++]);
+    if (mask == 0) throw sliceError(id, "a split voxel with no children");
+    p.childMask = mask;
+    for (int slot = 0; slot < 8; ++slot)
+      if (mask >> slot & 1u) children.push_back({childCoord(p.coord, slot), 0, false, 0, p.color, p.normal});
+  }
+  if (split != head.splitCount || children.size() - firstAdded != head.voxelCount)
+    throw sliceError(id, "valid masks do not match the voxel count");
+  SliceVoxel* added = children.data() + firstAdded;
+  // Per-voxel sections: a presence bit each, then the present values in order.
+  const auto section = [&](std::uint32_t count, auto store) {
+    const std::byte* bits = cursor;
+    const std::byte* words = cursor + bitBytes(head.voxelCount);
+    std::uint32_t k = 0;
+    for (std::uint32_t i = 0; i < head.voxelCount; ++i) {
+      if (!bitAt(bits, i)) continue;
+      if (k == count) throw sliceError(id, "more presence bits than values");
+      store(added[i], wordAt(words, k++));
+    }
+    if (k != count) throw sliceError(id, "fewer presence bits than values");
+    cursor = words + 4 * std::size_t(count);
   };
+  section(head.contourCount, [](SliceVoxel& n, std::uint32_t w) { n.hasContour = true, n.contour = w; });
+  if (header_.hasColors) section(head.colorCount, [](SliceVoxel& n, std::uint32_t w) { n.color = w; });
+  if (header_.hasNormals) section(head.normalCount, [](SliceVoxel& n, std::uint32_t w) { n.normal = w; });
+}
+
+VoxelTree StoreReader::loadTree() const {
   const int levelCount = header_.parameters.levels;
-  std::vector<std::vector<Node>> levels(1);
-  levels[0].push_back({glm::ivec3(0), 0, false, false, 0, header_.rootColor, header_.rootNormal});
+  VoxelLevels levels(1);
+  levels[0].push_back({glm::ivec3(0), 0, false, 0, header_.rootColor, header_.rootNormal});
   std::vector<std::vector<std::uint32_t>> slicesOf(levelCount + 1);
   for (std::uint32_t i = 0; i < slices_.size(); ++i) slicesOf[slices_[i].voxelLevel].push_back(i);
 
   for (int level = 1; level <= levelCount && !slicesOf[level].empty(); ++level) {
-    std::vector<Node>& parents = levels[level - 1];
-    std::vector<Node> voxels;
+    std::vector<SliceVoxel>& parents = levels[level - 1];
+    std::vector<std::uint8_t> covered(parents.size(), 0);  // a slice has given this voxel's split bit
+    std::vector<SliceVoxel> voxels;
     for (const std::uint32_t id : slicesOf[level]) {
       const SliceInfo& s = slices_[id];
       // The cube's parents: a contiguous Morton range of the level above.
@@ -583,84 +626,39 @@ VoxelTree StoreReader::loadTree() const {
       const glm::ivec3 first = s.cubeCoord << shift, last = first + ((1 << shift) - 1);
       const auto lo =
           std::lower_bound(parents.begin(), parents.end(), first,
-                           [](const Node& n, const glm::ivec3& c) { return mortonLess(n.coord, c); });
+                           [](const SliceVoxel& n, const glm::ivec3& c) { return mortonLess(n.coord, c); });
       const auto hi =
           std::upper_bound(parents.begin(), parents.end(), last,
-                           [](const glm::ivec3& c, const Node& n) { return mortonLess(c, n.coord); });
-      if (std::uint64_t(hi - lo) != s.parentCount)
-        throw sliceError(id, "expects " + std::to_string(s.parentCount) + " parent voxels, its cube has " +
-                                 std::to_string(hi - lo));
-      const std::vector<std::byte> raw = readSlice(id);
-      SliceHead head;
-      std::memcpy(&head, raw.data(), sizeof head);
-      const std::uint32_t attachments = (header_.hasColors ? 1u : 0u) | (header_.hasNormals ? 2u : 0u);
-      if (head.magic != kSliceMagic || head.parentCount != s.parentCount || head.voxelCount != s.voxelCount ||
-          head.contourCount != s.contourCount || head.colorCount != s.colorCount ||
-          head.normalCount != s.normalCount || head.attachments != attachments ||
-          head.splitCount > head.parentCount)
-        throw sliceError(id, "its head does not match the directory");
-      if (sliceRawBytes(head) != raw.size()) throw sliceError(id, "section sizes do not add up to its size");
-
-      const std::byte* cursor = raw.data() + sizeof head;
-      const std::byte* splitBits = cursor;
-      cursor += bitBytes(head.parentCount);
-      const std::byte* masks = cursor;
-      cursor += head.splitCount;
-      std::uint32_t split = 0;
-      std::vector<std::uint32_t> parentOf;  // parent index of each new voxel
+                           [](const glm::ivec3& c, const SliceVoxel& n) { return mortonLess(c, n.coord); });
       for (auto p = lo; p != hi; ++p) {
-        if (p->covered) throw sliceError(id, "overlaps another slice's cube");
-        p->covered = true;
-        if (!bitAt(splitBits, std::size_t(p - lo))) continue;
-        if (split == head.splitCount) throw sliceError(id, "more split bits than valid masks");
-        const std::uint8_t mask = std::to_integer<std::uint8_t>(masks[split++]);
-        if (mask == 0) throw sliceError(id, "a split voxel with no children");
-        p->childMask = mask;
-        for (int slot = 0; slot < 8; ++slot)
-          if (mask >> slot & 1u) {
-            parentOf.push_back(std::uint32_t(p - parents.begin()));
-            voxels.push_back({childCoord(p->coord, slot), 0, false, false, 0, p->color, p->normal});
-          }
+        std::uint8_t& c = covered[std::size_t(p - parents.begin())];
+        if (c) throw sliceError(id, "overlaps another slice's cube");
+        c = 1;
       }
-      if (split != head.splitCount || parentOf.size() != head.voxelCount)
-        throw sliceError(id, "valid masks do not match the voxel count");
-      Node* added = voxels.data() + (voxels.size() - parentOf.size());
-      // Per-voxel sections: a presence bit each, then the present values in order.
-      const auto section = [&](std::uint32_t count, auto store) {
-        const std::byte* bits = cursor;
-        const std::byte* words = cursor + bitBytes(head.voxelCount);
-        std::uint32_t k = 0;
-        for (std::uint32_t i = 0; i < head.voxelCount; ++i) {
-          if (!bitAt(bits, i)) continue;
-          if (k == count) throw sliceError(id, "more presence bits than values");
-          store(added[i], wordAt(words, k++));
-        }
-        if (k != count) throw sliceError(id, "fewer presence bits than values");
-        cursor = words + 4 * std::size_t(count);
-      };
-      section(head.contourCount, [](Node& n, std::uint32_t w) { n.hasContour = true, n.contour = w; });
-      if (header_.hasColors) section(head.colorCount, [](Node& n, std::uint32_t w) { n.color = w; });
-      if (header_.hasNormals) section(head.normalCount, [](Node& n, std::uint32_t w) { n.normal = w; });
+      decodeSlice(id, readSlice(id), std::span<SliceVoxel>(lo, hi), voxels);
     }
     // Slices of one level cover disjoint cubes: sorting restores the level's Morton order, in which every
     // parent's children are contiguous and follow their parents' order.
     std::sort(voxels.begin(), voxels.end(),
-              [](const Node& a, const Node& b) { return mortonLess(a.coord, b.coord); });
+              [](const SliceVoxel& a, const SliceVoxel& b) { return mortonLess(a.coord, b.coord); });
     levels.push_back(std::move(voxels));
   }
   for (std::size_t l = levels.size(); l <= std::size_t(levelCount); ++l)
     if (!slicesOf[l].empty()) fail(path_, "slices of level " + std::to_string(l) + " have no parents");
   if (levels.size() < 2) fail(path_, "the store holds no voxels");
+  return treeOfLevels(levels, header_.hasColors, header_.hasNormals);
+}
 
+VoxelTree treeOfLevels(const VoxelLevels& levels, bool hasColors, bool hasNormals) {
   VoxelTree tree;
-  tree.hasColors = header_.hasColors;
-  tree.hasNormals = header_.hasNormals;
+  tree.hasColors = hasColors;
+  tree.hasNormals = hasNormals;
   std::size_t total = 0;
   for (const auto& l : levels) total += l.size();
   tree.voxels.reserve(total);
-  std::size_t nextChild = levels[0].size();
-  for (std::size_t l = 0; l < levels.size(); ++l) {
-    for (const Node& n : levels[l]) {
+  std::size_t nextChild = levels.empty() ? 0 : levels[0].size();
+  for (const auto& level : levels) {
+    for (const SliceVoxel& n : level) {
       VoxelRecord r;
       r.childMask = n.childMask;
       r.firstChild = n.childMask ? std::uint32_t(nextChild) : 0;

@@ -68,6 +68,9 @@ struct Frame {
 };
 
 Frame render(const Octree& octree, const Camera& camera, const RenderOptions& options = {});
+// The same over any block (a block pool's trunk: the octree as far as it is resident).
+Frame render(const BlockView& block, const SceneTransform& scene, const Camera& camera,
+             const RenderOptions& options = {});
 
 // Albedo of a scene without colors.
 inline constexpr float kNeutralGreyAlbedo = 0.8f;

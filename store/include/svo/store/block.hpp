@@ -62,6 +62,9 @@ class BlockView {
   BlockView() = default;
   // Validates the structure (magic, bounds of every section); throws std::runtime_error with what is wrong.
   BlockView(const std::byte* data, std::size_t size);
+  // A view without the checks, for a block that was checked when it was made and has since been linked into
+  // a block pool (its links lead outside it, which the checks would reject).
+  static BlockView unchecked(const std::byte* data, std::size_t size);
 
   const std::byte* base() const { return base_; }
   std::size_t size() const { return size_; }
@@ -70,7 +73,7 @@ class BlockView {
   const ChildDescriptor* root() const { return slots() + info_->rootSlot; }
   const AttachmentEntry* attachment(AttachmentType type) const;
 
-  // Descriptor of the non-leaf child `slot` of `parent` (follows the near or far pointer).
+  // Descriptor of the non-leaf child `slot` of `parent` (follows the near or far pointer, and a link).
   static const ChildDescriptor* child(const ChildDescriptor* parent, int slot);
   // The contour of child `slot` of `parent`, if its contour-mask bit is set.
   static std::optional<std::uint32_t> contour(const ChildDescriptor* parent, int slot);
@@ -91,6 +94,10 @@ struct VoxelRecord {
   std::uint32_t firstChild = 0;
   std::uint8_t childMask = 0;
   bool hasContour = false;
+  // Paging: the voxel has children that are not in this tree; it is laid out as a stub descriptor
+  // (format.hpp) that the block pool can turn into a link to the block holding them. Only for voxels without
+  // children.
+  bool stub = false;
   std::uint32_t contour = 0;
   std::uint32_t color = 0;   // ABGR
   std::uint32_t normal = 0;  // cube-point encoding
@@ -143,7 +150,9 @@ class Block {
 };
 
 // Lays a voxel tree out as one block (depth-first child runs, far pointers where a run is out of reach).
-Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, LayoutStats* stats = nullptr);
+// `descriptorSlot`, when given, receives each voxel's descriptor slot (0 for leaves).
+Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, LayoutStats* stats = nullptr,
+                  std::vector<std::uint32_t>* descriptorSlot = nullptr);
 
 // Inverse of layoutBlock up to inheritance: walks the block and rebuilds the voxel records with every
 // attribute resolved (inherited values filled in). Used by tests and tools.

@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <functional>
 #include <memory>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -76,6 +77,28 @@ struct SliceParts {
 };
 SliceParts slicePartsOf(const SliceInfo& slice, bool hasColors, bool hasNormals);
 
+// Morton order of cube coordinates at one level (slot bits: x = bit 0, y = 1, z = 2): depth-first order of
+// the octree, in which a cube's voxels at any finer level form one contiguous run.
+bool mortonLess(const glm::ivec3& a, const glm::ivec3& b);
+// Coordinate of child `slot` of the cube at `parent`, one level finer.
+constexpr glm::ivec3 childCoord(const glm::ivec3& parent, int slot) {
+  return parent * 2 + glm::ivec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1);
+}
+
+// A voxel as the slices describe it: where it is, which children it has, its contour and its effective
+// (inherited or stored) attributes.
+struct SliceVoxel {
+  glm::ivec3 coord{0};  // cube coordinate at its level
+  std::uint8_t childMask = 0;
+  bool hasContour = false;
+  std::uint32_t contour = 0, color = 0, normal = 0;
+};
+// Voxels level by level from one cube's voxel down, each level in Morton order (so a voxel's children are
+// contiguous and follow their parents' order).
+using VoxelLevels = std::vector<std::vector<SliceVoxel>>;
+// The voxel tree of `levels` (levels[0] holds the root alone); record indices run level by level.
+VoxelTree treeOfLevels(const VoxelLevels& levels, bool hasColors, bool hasNormals);
+
 // What a store's header says.
 struct StoreHeader {
   SceneTransform transform;
@@ -119,6 +142,11 @@ class StoreReader {
   // Every slice decoded into one voxel tree (attributes resolved), with every structural invariant checked:
   // slices cover disjoint parents, parent counts and masks agree, sizes match.
   VoxelTree loadTree() const;
+  // Decodes slice `slice` (its bytes from readSlice) onto its parents: the voxels of the level above in its
+  // cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
+  // Throws SliceError when the bytes disagree with the directory or the parents.
+  void decodeSlice(std::uint32_t slice, const std::vector<std::byte>& raw, std::span<SliceVoxel> parents,
+                   std::vector<SliceVoxel>& children) const;
 
  private:
   SliceError sliceError(std::uint32_t slice, const std::string& what) const;

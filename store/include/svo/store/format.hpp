@@ -38,6 +38,15 @@ struct ChildDescriptor {
   constexpr std::uint32_t contourPointer() const { return contour >> 8; }
   constexpr std::uint8_t contourMask() const { return std::uint8_t(contour); }
 
+  // Paging (the client's block pool, DESIGN.md): a descriptor with an empty valid mask never describes real
+  // children. Without the far bit it is a *stub*: the voxel has children that are not resident, and it
+  // renders as a leaf. With the far bit it is a *link*: the voxel's descriptor lives in another block,
+  // `contour` slots away (signed), which keeps contour and attribute lookups inside that block.
+  constexpr bool isStub() const { return validMask() == 0 && !far(); }
+  constexpr bool isLink() const { return validMask() == 0 && far(); }
+  constexpr std::int32_t linkOffset() const { return std::int32_t(contour); }
+  static constexpr ChildDescriptor link(std::int32_t slots) { return {1u << 16, std::uint32_t(slots)}; }
+
   static constexpr ChildDescriptor make(std::uint32_t childPointer, bool far, std::uint8_t valid,
                                         std::uint8_t leaf, std::uint32_t contourPointer,
                                         std::uint8_t contourMask) {
@@ -46,6 +55,11 @@ struct ChildDescriptor {
   }
 };
 static_assert(sizeof(ChildDescriptor) == kSlotBytes);
+
+// The descriptor a link leads to (itself when it is not a link). Links never chain.
+inline const ChildDescriptor* followLink(const ChildDescriptor* d) {
+  return d->isLink() ? d + d->linkOffset() : d;
+}
 
 // Index of a child among the set bits of `mask` below it: the k-th stored child (paper sec. 5.1).
 constexpr int childRank(std::uint8_t mask, int slot) {

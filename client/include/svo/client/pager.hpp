@@ -1,0 +1,163 @@
+// The paging client (paper sec. 7, DESIGN.md): streams a store's slices into a block pool of a fixed budget
+// while frames are ray cast from what is resident.
+//
+// A *region* is one cube of the slice hierarchy with its chain of slices (one per level until the cube
+// splits). Each resident region is one block in the pool holding the cube's voxel and its subtree down to the
+// deepest resident slice; loading the region's next slice rebuilds only that block. The region of the root
+// cube is the trunk, the block a frame starts from. A region's block is reached from its parent region's
+// block through a link descriptor at the region's cube voxel (format.hpp), so the ray caster sees one octree;
+// relocating a block is a memcpy plus patching the links at its two ends. Where a child region's cube is a
+// voxel of the parent's deepest level, the parent's block holds a stub there, rendered as a leaf until
+// linked.
+//
+// Threads: update() and every frame run on one render thread; background workers read and decode slices and
+// lay out the new blocks, reading the pool under a shared lock. update() commits finished blocks (memcpy and
+// patch, under the exclusive lock) within a time slice, so the render thread never waits for disk.
+#pragma once
+
+#include <condition_variable>
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <shared_mutex>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include "svo/client/pool.hpp"
+#include "svo/client/render.hpp"
+#include "svo/store/container.hpp"
+#include "svo/store/schedule.hpp"
+
+namespace svo {
+
+struct PagerOptions {
+  std::size_t budgetBytes = std::size_t(256) << 20;  // the pool: a hard limit
+  int ioThreads = 2;                                 // read + decode + layout workers
+  int maxInFlight = 8;                               // requests queued or being worked on at once
+  // Wall time update() may spend committing finished blocks (memcpy + pointer patches); the rest wait for
+  // the next frame. Keeps streaming frames close to resident ones (issue 5: p99 <= 1.5x).
+  double commitMillis = 2.0;
+};
+
+// What one update() did. Counts are slices.
+struct PagerStats {
+  std::uint32_t loaded = 0, evicted = 0, requested = 0, cancelled = 0, failed = 0;
+  std::uint32_t wanted = 0;    // slices the view wants that are not resident
+  std::uint32_t inFlight = 0;  // queued or being worked on after the update
+  std::size_t residentBytes = 0;
+};
+
+// The view query of a camera: eye, pixel angle, LOD target and the frustum, in octree space.
+ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPixels);
+
+class Pager {
+ public:
+  // Opens the store and loads the root region's first slice synchronously (the first coarse image). Throws
+  // std::runtime_error when the store cannot be read or its first slice does not fit the budget.
+  Pager(const std::filesystem::path& store, const PagerOptions& options = {});
+  ~Pager();
+  Pager(const Pager&) = delete;
+  Pager& operator=(const Pager&) = delete;
+
+  const StoreReader& store() const { return store_; }
+  const SceneTransform& transform() const { return store_.header().transform; }
+  // The resident octree for the next frame (valid until the next update()).
+  BlockView trunk() const;
+
+  // Between frames, on the render thread: commits finished loads (evicting the least wanted leaf regions to
+  // make room), then re-prioritizes and cancels requests for `view`.
+  PagerStats update(const ViewQuery& view);
+  // Ray feedback from a rendered frame: pixels that stopped at a voxel wider than the view's target, on a
+  // grid of every kFeedbackStride-th pixel, raise the priority of the slice that refines that voxel.
+  void feedback(const Frame& frame, const Camera& camera, double lodPixels);
+  // Blocks until a worker finishes something or `seconds` pass (loops that converge a view; never a frame).
+  void waitForWork(double seconds);
+  // Nothing the last view wanted is missing (or everything missing failed or does not fit) and no request
+  // is in flight.
+  bool converged() const;
+
+  std::size_t residentBytes() const { return pool_.usedBytes(); }
+  std::size_t budgetBytes() const { return pool_.capacityBytes(); }
+  std::vector<std::uint32_t> residentSlices() const;
+  std::vector<std::uint32_t> failedSlices() const;
+  // Messages of slices that failed (checksum, decode) since the last call; each slice fails once and is never
+  // requested again.
+  std::vector<std::string> takeErrors() { return std::exchange(errors_, {}); }
+  // Pool invariants, every link leads to its region's root descriptor, every resident non-root region is
+  // linked from its parent, page headers lead to each block's info section. Throws std::logic_error.
+  void checkInvariants() const;
+
+ private:
+  struct Region {
+    std::int32_t cubeLevel = 0;
+    glm::ivec3 cubeCoord{0};
+    std::vector<std::uint32_t> slices;  // by voxel level
+    std::int32_t parent = -1;
+    std::vector<std::uint32_t> children;
+    std::uint32_t resident = 0;  // slices resident: a prefix of `slices`
+    BlockPool::BlockId block = 0;
+    std::uint32_t rootSlot = 0;
+    std::map<std::uint32_t, std::uint32_t> childSlot;   // child region -> its cube voxel's slot in this block
+    std::map<std::uint32_t, ChildDescriptor> unlinked;  // slot -> descriptor before a link replaced it
+    std::uint64_t version = 0;                          // bumped by every commit or eviction
+    double priority = 0.0;                              // highest wanted priority of its resident slices
+  };
+  struct Request {
+    std::uint32_t slice = 0;
+    double priority = 0.0;
+  };
+  struct Prepared {  // a worker's new block for a region, or the error that stopped it
+    std::uint32_t slice = 0, region = 0;
+    std::uint64_t version = 0;  // of the region when read
+    double priority = 0.0;
+    Block block;
+    std::uint32_t rootSlot = 0;
+    std::map<std::uint32_t, std::uint32_t> childSlot;
+    std::string error;
+  };
+
+  void work(std::stop_token stop);
+  Prepared prepare(const Request& request);
+  bool commit(Prepared& prepared, PagerStats& stats);
+  void evict(std::uint32_t region, PagerStats& stats);
+  void link(std::uint32_t region);
+  void relinkAll();
+  bool requestable(std::uint32_t slice) const;
+  const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
+  ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
+
+  StoreReader store_;
+  PagerOptions options_;
+  BlockPool pool_;
+  std::vector<Region> regions_;
+  std::vector<std::uint32_t> regionOf_, indexInRegion_;
+  std::vector<std::uint8_t> failed_;
+  // Feedback lookup: (voxel level, cube level, cube) -> slice; the cube levels each voxel level's slices use.
+  std::unordered_map<std::uint64_t, std::uint32_t> sliceAt_;
+  std::vector<std::vector<std::int32_t>> cubeLevelsOf_;
+  std::unordered_map<std::uint32_t, std::uint32_t> feedbackHits_;
+  std::vector<double> wantedPriority_;  // per slice, from the last update (0 = not wanted)
+  std::vector<std::uint8_t> denied_;    // updates until a slice dropped for lack of room is requested again
+  std::vector<std::string> errors_;
+  std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0;
+
+  mutable std::shared_mutex
+      poolMutex_;  // workers read blocks shared; commits and evictions write exclusively
+  mutable std::mutex queueMutex_;
+  std::condition_variable_any queueReady_;
+  std::condition_variable doneReady_;
+  std::deque<Request> queue_;  // highest priority first
+  std::vector<std::uint8_t> inFlight_;
+  std::vector<Prepared> done_;
+  std::uint32_t working_ = 0;
+  std::vector<std::jthread> workers_;
+};
+
+}  // namespace svo

@@ -1,0 +1,601 @@
+#include "svo/client/pager.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include <glm/common.hpp>
+#include <glm/geometric.hpp>
+
+namespace svo {
+namespace {
+
+// Ray feedback (issue 5): a slice that rays saw stopping at too coarse a voxel ranks this many times higher
+// than its distance-only priority; the distance rule cannot tell a visible cube from an occluded one.
+constexpr double kFeedbackBoost = 4.0;
+// Feedback samples every kFeedbackStride-th pixel in x and y (1/64 of the rays: plenty to find the visible
+// slices, cheap next to the frame).
+constexpr int kFeedbackStride = 8;
+// A slice dropped for lack of room is requested again after this many updates (the view may have changed
+// what is evictable); bounds the work spent on a budget that is simply full.
+constexpr int kDeniedRetryUpdates = 16;
+// Cube levels the feedback lookup key packs (16 bits per coordinate); stores never split that deep in
+// practice (8^16 slices).
+constexpr int kMaxKeyedCubeLevel = 16;
+
+std::uint64_t sliceKey(int voxelLevel, int cubeLevel, glm::ivec3 c) {
+  return std::uint64_t(voxelLevel) << 58 | std::uint64_t(cubeLevel) << 53 | std::uint64_t(c.x) << 32 |
+         std::uint64_t(c.y) << 16 | std::uint64_t(c.z);
+}
+
+int slotToward(const glm::ivec3& coord, int shift) {
+  const glm::ivec3 b = (coord >> shift) & 1;
+  return b.x | b.y << 1 | b.z << 2;
+}
+
+std::uint32_t rootValue(const BlockView& block, AttachmentType type) {
+  const AttachmentEntry* e = block.attachment(type);
+  return e ? e->rootValue : 0;
+}
+
+// The subtree below `start` as far as the blocks hold it, level by level in Morton order. `descriptor` is the
+// start voxel's (nullptr when it has no children here). Stubs read as voxels without children.
+VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& start) {
+  VoxelLevels levels{{start}};
+  std::vector<const ChildDescriptor*> descriptors{descriptor};
+  while (true) {
+    std::vector<SliceVoxel> next;
+    std::vector<const ChildDescriptor*> nextDescriptors;
+    std::vector<SliceVoxel>& level = levels.back();
+    for (std::size_t i = 0; i < level.size(); ++i) {
+      const ChildDescriptor* d = descriptors[i];
+      if (!d || d->isStub()) continue;
+      SliceVoxel& parent = level[i];
+      parent.childMask = d->validMask();
+      for (int slot = 0; slot < 8; ++slot) {
+        if (!(d->validMask() >> slot & 1u)) continue;
+        SliceVoxel c{childCoord(parent.coord, slot), 0, false, 0, parent.color, parent.normal};
+        if (auto contour = BlockView::contour(d, slot)) c.hasContour = true, c.contour = *contour;
+        if (auto v = BlockView::attribute(d, slot, AttachmentType::Color)) c.color = *v;
+        if (auto v = BlockView::attribute(d, slot, AttachmentType::Normal)) c.normal = *v;
+        next.push_back(c);
+        nextDescriptors.push_back((d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr);
+      }
+    }
+    if (next.empty()) return levels;
+    levels.push_back(std::move(next));
+    descriptors = std::move(nextDescriptors);
+  }
+}
+
+}  // namespace
+
+ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPixels) {
+  ViewQuery view;
+  view.eye = scene.toOctree(camera.eye);
+  view.pixelAngle = camera.pixelAngle();
+  view.lodPixels = lodPixels;
+  // Four side planes through the eye (inward normals); octree space is world space shifted and scaled
+  // uniformly, so normals carry over and only the offsets change.
+  const Camera::Basis b = camera.basis();
+  const double tanY = b.tanHalf, tanX = b.tanHalf * b.aspect;
+  const glm::dvec3 normals[4] = {
+      glm::normalize(b.forward * tanX + b.right), glm::normalize(b.forward * tanX - b.right),
+      glm::normalize(b.forward * tanY + b.up), glm::normalize(b.forward * tanY - b.up)};
+  for (const glm::dvec3& n : normals) view.frustum.push_back({n.x, n.y, n.z, glm::dot(n, view.eye)});
+  return view;
+}
+
+Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
+    : store_(path), options_(options), pool_([&] {
+        // A link's slot offset is an int32: the arena may span at most 2^31 slots (16 GiB).
+        if (options.budgetBytes > (std::size_t(1) << 34))
+          throw std::runtime_error("budget: at most 16 GiB (got " +
+                                   std::to_string(options.budgetBytes >> 20) + " MiB)");
+        if (options.budgetBytes < kPageBytes)
+          throw std::runtime_error("budget: " + std::to_string(options.budgetBytes) +
+                                   " bytes hold no 8 KB page");
+        return options.budgetBytes;
+      }()) {
+  if (options.ioThreads < 1 || options.maxInFlight < 1 || !(options.commitMillis > 0.0))
+    throw std::runtime_error("pager: ioThreads, maxInFlight and commitMillis must be positive");
+  const std::vector<SliceInfo>& slices = store_.slices();
+  const std::size_t n = slices.size();
+  regionOf_.assign(n, 0), indexInRegion_.assign(n, 0), failed_.assign(n, 0), inFlight_.assign(n, 0);
+  wantedPriority_.assign(n, 0.0), denied_.assign(n, 0);
+  cubeLevelsOf_.resize(std::size_t(kMaxLevels) + 2);
+  std::map<std::uint64_t, std::uint32_t> regionAt;  // (cube level, cube) -> region
+  const auto fail = [&](std::uint32_t s, const std::string& what) {
+    throw std::runtime_error(path.string() + ": slice " + std::to_string(s) + " " + what);
+  };
+  for (std::uint32_t s = 0; s < n; ++s) {
+    const SliceInfo& info = slices[s];
+    const std::uint64_t key = sliceKey(0, info.cubeLevel, info.cubeCoord);
+    auto [it, fresh] = regionAt.try_emplace(key, std::uint32_t(regions_.size()));
+    if (fresh) {
+      Region r;
+      r.cubeLevel = info.cubeLevel;
+      r.cubeCoord = info.cubeCoord;
+      if (info.parentSlice == SliceInfo::kNoSlice) {
+        if (!regions_.empty()) fail(s, "starts a second root region");
+      } else {
+        if (info.parentSlice >= s) fail(s, "comes before its parent slice");
+        r.parent = std::int32_t(regionOf_[info.parentSlice]);
+        const Region& p = regions_[std::size_t(r.parent)];
+        if (p.slices.back() != info.parentSlice || p.cubeLevel >= r.cubeLevel)
+          fail(s, "does not continue its parent cube's last slice");
+        regions_[std::size_t(r.parent)].children.push_back(std::uint32_t(regions_.size()));
+      }
+      if (regions_.empty() && info.parentSlice != SliceInfo::kNoSlice) fail(s, "has no root region");
+      regions_.push_back(std::move(r));
+    }
+    Region& r = regions_[it->second];
+    if (!r.slices.empty() &&
+        (info.parentSlice != r.slices.back() || info.voxelLevel != slices[r.slices.back()].voxelLevel + 1))
+      fail(s, "does not follow the previous slice of its cube");
+    regionOf_[s] = it->second;
+    indexInRegion_[s] = std::uint32_t(r.slices.size());
+    r.slices.push_back(s);
+    if (info.cubeLevel <= kMaxKeyedCubeLevel && info.voxelLevel <= kMaxLevels) {
+      sliceAt_[sliceKey(info.voxelLevel, info.cubeLevel, info.cubeCoord)] = s;
+      auto& levels = cubeLevelsOf_[std::size_t(info.voxelLevel)];
+      if (std::find(levels.begin(), levels.end(), info.cubeLevel) == levels.end())
+        levels.push_back(info.cubeLevel);
+    }
+  }
+  if (regions_.empty()) throw std::runtime_error(path.string() + ": the store has no slices");
+
+  // The trunk: the root cube's levels, synchronously. It is the first coarse image and never leaves the pool.
+  for (const std::uint32_t slice : regions_[0].slices) {
+    Prepared prepared = prepare({slice, 1.0});
+    if (!prepared.error.empty()) throw std::runtime_error(prepared.error);
+    const std::size_t needed = prepared.block.bytes().size();
+    if (needed > pool_.capacityBytes())
+      throw std::runtime_error("budget: " + std::to_string(pool_.capacityBytes()) +
+                               " bytes cannot hold the trunk (levels 1-" +
+                               std::to_string(store_.slices()[slice].voxelLevel) + ") of " + path.string() +
+                               ", which needs " + std::to_string(needed) + " bytes");
+    PagerStats ignored;
+    wantedPriority_[slice] = 1.0;
+    if (!commit(prepared, ignored)) throw std::logic_error("pager: the trunk did not commit");
+  }
+  for (int i = 0; i < options.ioThreads; ++i) workers_.emplace_back([this](std::stop_token t) { work(t); });
+}
+
+Pager::~Pager() {
+  for (auto& w : workers_) w.request_stop();
+  queueReady_.notify_all();
+  workers_.clear();  // joins
+}
+
+BlockView Pager::trunk() const {
+  return BlockView::unchecked(pool_.data(regions_[0].block), pool_.size(regions_[0].block));
+}
+
+const ChildDescriptor* Pager::descriptorAt(const Region& region, std::uint32_t slot) const {
+  return reinterpret_cast<const ChildDescriptor*>(pool_.data(region.block)) + slot;
+}
+ChildDescriptor* Pager::descriptorAt(Region& region, std::uint32_t slot) {
+  return reinterpret_cast<ChildDescriptor*>(pool_.data(region.block)) + slot;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Workers.
+
+void Pager::work(std::stop_token stop) {
+  while (true) {
+    Request request;
+    {
+      std::unique_lock lock(queueMutex_);
+      if (!queueReady_.wait(lock, stop, [&] { return !queue_.empty(); })) return;
+      request = queue_.front();
+      queue_.pop_front();
+      ++working_;
+    }
+    Prepared prepared = prepare(request);
+    {
+      std::lock_guard lock(queueMutex_);
+      --working_;
+      done_.push_back(std::move(prepared));
+    }
+    doneReady_.notify_all();
+  }
+}
+
+Pager::Prepared Pager::prepare(const Request& request) {
+  Prepared out;
+  out.slice = request.slice;
+  out.region = regionOf_[request.slice];
+  out.priority = request.priority;
+  std::vector<std::byte> raw;
+  try {
+    raw = store_.readSlice(request.slice);  // disk, checksum and zstd: no lock held
+  } catch (const std::exception& e) {
+    out.error = e.what();
+    return out;
+  }
+  std::shared_lock lock(poolMutex_);
+  const Region& region = regions_[out.region];
+  out.version = region.version;
+  if (region.resident != indexInRegion_[request.slice]) return out;  // stale: commit drops it
+  const StoreHeader& header = store_.header();
+  try {
+    VoxelLevels levels;
+    if (region.resident > 0) {
+      // Deepen: the region's own block, one level more.
+      const BlockView view = BlockView::unchecked(pool_.data(region.block), pool_.size(region.block));
+      levels = readSubtree(descriptorAt(region, region.rootSlot),
+                           {region.cubeCoord, 0, false, 0, rootValue(view, AttachmentType::Color),
+                            rootValue(view, AttachmentType::Normal)});
+    } else if (region.parent < 0) {
+      levels = {{{glm::ivec3(0), 0, false, 0, header.rootColor, header.rootNormal}}};
+    } else {
+      // A new region: its cube's voxel and subtree from the parent region's block.
+      const Region& parent = regions_[std::size_t(region.parent)];
+      if (parent.resident != parent.slices.size()) return out;  // stale
+      const BlockView view = BlockView::unchecked(pool_.data(parent.block), pool_.size(parent.block));
+      SliceVoxel voxel{parent.cubeCoord,
+                       0,
+                       false,
+                       0,
+                       rootValue(view, AttachmentType::Color),
+                       rootValue(view, AttachmentType::Normal)};
+      const ChildDescriptor* d = descriptorAt(parent, parent.rootSlot);
+      for (int level = parent.cubeLevel + 1; level <= region.cubeLevel; ++level) {
+        const int slot = slotToward(region.cubeCoord, region.cubeLevel - level);
+        if (!d || d->isStub() || !(d->validMask() >> slot & 1u))
+          throw std::runtime_error("its cube's voxel is not in the parent region");
+        voxel.coord = childCoord(voxel.coord, slot);
+        if (auto v = BlockView::attribute(d, slot, AttachmentType::Color)) voxel.color = *v;
+        if (auto v = BlockView::attribute(d, slot, AttachmentType::Normal)) voxel.normal = *v;
+        d = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
+      }
+      levels = readSubtree(d, voxel);
+    }
+    const SliceInfo& info = store_.slices()[request.slice];
+    if (region.cubeLevel + int(levels.size()) != info.voxelLevel)
+      throw std::runtime_error("the resident levels do not end above it");
+    std::vector<SliceVoxel> added;
+    store_.decodeSlice(request.slice, raw, levels.back(), added);
+    levels.push_back(std::move(added));
+
+    VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
+    // Completing the region: its child regions' cube voxels get descriptors to link them by (stubs where the
+    // voxel has no children here).
+    std::map<std::uint32_t, std::size_t> recordOf;
+    if (region.resident + 1 == region.slices.size()) {
+      std::vector<std::size_t> levelStart{0};
+      for (const auto& l : levels) levelStart.push_back(levelStart.back() + l.size());
+      for (const std::uint32_t child : region.children) {
+        const Region& c = regions_[child];
+        const std::size_t depth = std::size_t(c.cubeLevel - region.cubeLevel);
+        if (depth >= levels.size()) throw std::runtime_error("a child region's cube lies below its levels");
+        const auto& level = levels[depth];
+        const auto it =
+            std::lower_bound(level.begin(), level.end(), c.cubeCoord,
+                             [](const SliceVoxel& v, const glm::ivec3& k) { return mortonLess(v.coord, k); });
+        if (it == level.end() || it->coord != c.cubeCoord)
+          throw std::runtime_error("a child region's cube voxel is missing");
+        const std::size_t record = levelStart[depth] + std::size_t(it - level.begin());
+        if (tree.voxels[record].childMask == 0) tree.voxels[record].stub = true;
+        recordOf[child] = record;
+      }
+    }
+    std::vector<std::uint32_t> slotOf;
+    out.block = layoutBlock(tree, LayoutOptions{}, nullptr, &slotOf);
+    out.rootSlot = out.block.view().info().rootSlot;
+    for (const auto& [child, record] : recordOf) out.childSlot[child] = slotOf[record];
+  } catch (const std::exception& e) {
+    out.error = store_.path().string() + ": slice " + std::to_string(request.slice) + ": " + e.what();
+    out.block = Block();
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Commits, links and eviction (render thread, exclusive lock).
+
+void Pager::link(std::uint32_t index) {
+  const Region& region = regions_[index];
+  Region& parent = regions_[std::size_t(region.parent)];
+  const auto it = parent.childSlot.find(index);
+  if (it == parent.childSlot.end()) throw std::logic_error("pager: a region has no slot in its parent");
+  ChildDescriptor* at = descriptorAt(parent, it->second);
+  parent.unlinked.try_emplace(it->second, *at);
+  const ChildDescriptor* target = descriptorAt(region, region.rootSlot);
+  *at = ChildDescriptor::link(std::int32_t(target - at));
+}
+
+void Pager::relinkAll() {
+  for (std::uint32_t r = 1; r < regions_.size(); ++r)
+    if (regions_[r].resident) link(r);
+}
+
+void Pager::evict(std::uint32_t index, PagerStats& stats) {
+  Region& region = regions_[index];
+  Region& parent = regions_[std::size_t(region.parent)];
+  const std::uint32_t slot = parent.childSlot.at(index);
+  *descriptorAt(parent, slot) = parent.unlinked.at(slot);
+  parent.unlinked.erase(slot);
+  pool_.erase(region.block);
+  stats.evicted += region.resident;
+  region.resident = 0;
+  ++region.version;
+}
+
+bool Pager::commit(Prepared& prepared, PagerStats& stats) {
+  inFlight_[prepared.slice] = 0;
+  Region& region = regions_[prepared.region];
+  if (!prepared.error.empty()) {
+    failed_[prepared.slice] = 1;
+    ++stats.failed;
+    errors_.push_back(prepared.error);
+    return false;
+  }
+  if (prepared.block.bytes().size() == 0 || region.version != prepared.version ||
+      region.resident != indexInRegion_[prepared.slice])
+    return false;  // stale: the region changed while the worker read it
+  if (region.parent >= 0 &&
+      regions_[std::size_t(region.parent)].resident != regions_[std::size_t(region.parent)].slices.size())
+    return false;
+  const double priority = wantedPriority_[prepared.slice];
+  if (priority <= 0.0) {
+    ++stats.cancelled;  // the view moved on while it was read
+    return false;
+  }
+  const std::size_t needed = std::size_t(BlockPool::pagesFor(prepared.block.bytes().size())) * kPageBytes;
+  const std::size_t freed = region.resident ? pool_.size(region.block) : 0;
+  if (needed > pool_.freeBytes() + freed) {
+    // Make room: leaf regions less wanted than this slice, least wanted first. Never the region itself or
+    // its ancestors (the new block is built on them), never the trunk.
+    std::vector<std::uint8_t> keep(regions_.size(), 0);
+    for (std::int32_t r = std::int32_t(prepared.region); r >= 0; r = regions_[std::size_t(r)].parent)
+      keep[std::size_t(r)] = 1;
+    std::vector<std::uint32_t> candidates;
+    for (std::uint32_t r = 1; r < regions_.size(); ++r) {
+      const Region& c = regions_[r];
+      if (!c.resident || keep[r] || c.priority >= priority) continue;
+      const bool leaf = std::none_of(c.children.begin(), c.children.end(),
+                                     [&](std::uint32_t k) { return regions_[k].resident != 0; });
+      if (leaf) candidates.push_back(r);
+    }
+    std::sort(candidates.begin(), candidates.end(),
+              [&](std::uint32_t a, std::uint32_t b) { return regions_[a].priority < regions_[b].priority; });
+    std::size_t reclaimable = 0;
+    std::size_t take = 0;
+    while (take < candidates.size() && needed > pool_.freeBytes() + freed + reclaimable)
+      reclaimable += pool_.size(regions_[candidates[take++]].block);
+    if (needed > pool_.freeBytes() + freed + reclaimable) {
+      denied_[prepared.slice] = kDeniedRetryUpdates;
+      return false;  // detail is dropped, never memory added
+    }
+    // Evicting a leaf can turn its parent into a leaf; this pass only evicts the ones found above, which
+    // together suffice.
+    for (std::size_t i = 0; i < take; ++i) evict(candidates[i], stats);
+  }
+  if (region.resident) pool_.erase(region.block);
+  bool moved = false;
+  const auto id =
+      pool_.insert(std::span<const std::byte>(prepared.block.bytes().data(), prepared.block.bytes().size()),
+                   [&](BlockPool::BlockId) { moved = true; });
+  if (!id) throw std::logic_error("pager: the pool refused a block that fits");
+  region.block = *id;
+  region.rootSlot = prepared.rootSlot;
+  region.childSlot = std::move(prepared.childSlot);
+  region.unlinked.clear();
+  ++region.resident;
+  ++region.version;
+  region.priority = std::max(region.priority, priority);
+  if (moved) {
+    relinkAll();
+  } else if (region.parent >= 0) {
+    link(prepared.region);
+  }
+  ++stats.loaded;
+  return true;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The render thread's side.
+
+bool Pager::requestable(std::uint32_t slice) const {
+  if (failed_[slice] || inFlight_[slice] || denied_[slice]) return false;
+  const Region& region = regions_[regionOf_[slice]];
+  if (region.resident != indexInRegion_[slice]) return false;
+  if (region.resident == 0 && region.parent >= 0) {
+    const Region& parent = regions_[std::size_t(region.parent)];
+    if (parent.resident != parent.slices.size()) return false;
+  }
+  return true;
+}
+
+PagerStats Pager::update(const ViewQuery& view) {
+  PagerStats stats;
+  const std::size_t n = store_.slices().size();
+  // 1. What the view wants, with ray feedback.
+  std::fill(wantedPriority_.begin(), wantedPriority_.end(), 0.0);
+  for (const SliceRequest& r : scheduleSlices(store_.slices(), view))
+    wantedPriority_[r.slice] = r.priority * (feedbackHits_.count(r.slice) ? kFeedbackBoost : 1.0);
+  feedbackHits_.clear();
+  for (Region& r : regions_) {
+    r.priority = 0.0;
+    for (std::uint32_t k = 0; k < r.resident; ++k)
+      r.priority = std::max(r.priority, wantedPriority_[r.slices[k]]);
+  }
+  for (auto& d : denied_)
+    if (d) --d;
+
+  // 2. Commit what the workers finished, most wanted first, within the time slice.
+  std::vector<Prepared> finished;
+  {
+    std::lock_guard lock(queueMutex_);
+    finished.swap(done_);
+  }
+  std::sort(finished.begin(), finished.end(), [&](const Prepared& a, const Prepared& b) {
+    return wantedPriority_[a.slice] > wantedPriority_[b.slice];
+  });
+  const auto start = std::chrono::steady_clock::now();
+  std::size_t committed = 0;
+  {
+    std::unique_lock lock(poolMutex_);
+    for (; committed < finished.size(); ++committed) {
+      const double ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+      if (committed > 0 && ms > options_.commitMillis) break;
+      commit(finished[committed], stats);
+    }
+  }
+  if (committed < finished.size()) {
+    std::lock_guard lock(queueMutex_);
+    for (std::size_t i = committed; i < finished.size(); ++i) done_.push_back(std::move(finished[i]));
+  }
+
+  // 3. Requests: the most wanted slices that can load now; queued ones the view no longer ranks are dropped.
+  std::vector<SliceRequest> candidates;
+  std::uint32_t missing = 0;
+  for (std::uint32_t s = 0; s < n; ++s) {
+    if (wantedPriority_[s] <= 0.0 || failed_[s]) continue;
+    const Region& region = regions_[regionOf_[s]];
+    if (region.resident > indexInRegion_[s]) continue;
+    ++missing;
+    if (requestable(s)) candidates.push_back({s, wantedPriority_[s], 0.0, true});
+  }
+  std::sort(candidates.begin(), candidates.end(),
+            [](const SliceRequest& a, const SliceRequest& b) { return a.priority > b.priority; });
+  {
+    std::lock_guard lock(queueMutex_);
+    // Re-rank what is queued with this view's priorities; what it no longer wants is cancelled.
+    std::vector<Request> keep;
+    for (const Request& q : queue_) {
+      if (wantedPriority_[q.slice] > 0.0) {
+        keep.push_back({q.slice, wantedPriority_[q.slice]});
+      } else {
+        inFlight_[q.slice] = 0;
+        ++stats.cancelled;
+      }
+    }
+    for (const SliceRequest& c : candidates) {
+      if (keep.size() + working_ + done_.size() >= std::size_t(options_.maxInFlight)) break;
+      keep.push_back({c.slice, c.priority});
+      inFlight_[c.slice] = 1;
+      ++stats.requested;
+    }
+    std::sort(keep.begin(), keep.end(),
+              [](const Request& a, const Request& b) { return a.priority > b.priority; });
+    // Over the limit after re-ranking: the least wanted wait for a later update.
+    while (keep.size() + working_ + done_.size() > std::size_t(options_.maxInFlight) && !keep.empty()) {
+      inFlight_[keep.back().slice] = 0;
+      ++stats.cancelled;
+      keep.pop_back();
+    }
+    queue_.assign(keep.begin(), keep.end());
+    stats.inFlight = std::uint32_t(queue_.size() + working_ + done_.size());
+  }
+  queueReady_.notify_all();
+  lastRequestable_ = std::uint32_t(candidates.size());
+  lastInFlight_ = stats.inFlight;
+  stats.wanted = missing;
+  stats.residentBytes = pool_.usedBytes();
+  return stats;
+}
+
+void Pager::feedback(const Frame& frame, const Camera& camera, double lodPixels) {
+  const SceneTransform& scene = transform();
+  const Camera::Basis basis = camera.basis();
+  for (int y = kFeedbackStride / 2; y < frame.height; y += kFeedbackStride) {
+    for (int x = kFeedbackStride / 2; x < frame.width; x += kFeedbackStride) {
+      const std::size_t i = std::size_t(y) * std::size_t(frame.width) + std::size_t(x);
+      const double depth = frame.depth[i];
+      if (!std::isfinite(depth) || !(frame.voxelPixels[i] > lodPixels)) continue;
+      glm::dvec3 direction;
+      Camera::pixelRay(camera, basis, x, y, direction);
+      const glm::dvec3 p = scene.toOctree(camera.eye + direction * depth);
+      const double voxelSize = frame.voxelPixels[i] * depth * camera.pixelAngle() / scene.size;
+      const int level = int(std::lround(-std::log2(voxelSize)));
+      if (level < 0 || level + 1 > kMaxLevels) continue;
+      for (const std::int32_t cubeLevel : cubeLevelsOf_[std::size_t(level + 1)]) {
+        const double cells = std::ldexp(1.0, cubeLevel);
+        const glm::ivec3 cube =
+            glm::clamp(glm::ivec3(glm::floor((p - 1.0) * cells)), glm::ivec3(0), glm::ivec3(int(cells) - 1));
+        const auto it = sliceAt_.find(sliceKey(level + 1, cubeLevel, cube));
+        if (it != sliceAt_.end()) {
+          ++feedbackHits_[it->second];
+          break;
+        }
+      }
+    }
+  }
+}
+
+void Pager::waitForWork(double seconds) {
+  std::unique_lock lock(queueMutex_);
+  doneReady_.wait_for(lock, std::chrono::duration<double>(seconds), [&] { return !done_.empty(); });
+}
+
+bool Pager::converged() const {
+  return lastRequestable_ == 0 && lastInFlight_ == 0;
+}
+
+std::vector<std::uint32_t> Pager::residentSlices() const {
+  std::vector<std::uint32_t> out;
+  for (const Region& r : regions_) out.insert(out.end(), r.slices.begin(), r.slices.begin() + r.resident);
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::vector<std::uint32_t> Pager::failedSlices() const {
+  std::vector<std::uint32_t> out;
+  for (std::uint32_t s = 0; s < failed_.size(); ++s)
+    if (failed_[s]) out.push_back(s);
+  return out;
+}
+
+void Pager::checkInvariants() const {
+  const auto fail = [](const std::string& what) { throw std::logic_error("pager invariant: " + what); };
+  pool_.check();
+  if (pool_.usedBytes() > pool_.capacityBytes()) fail("resident bytes exceed the budget");
+  if (!regions_[0].resident) fail("the trunk is not resident");
+  std::size_t held = 0;
+  for (std::uint32_t r = 0; r < regions_.size(); ++r) {
+    const Region& region = regions_[r];
+    if (!region.resident) continue;
+    const std::string name = "region " + std::to_string(r);
+    if (!pool_.contains(region.block)) fail(name + " has no block");
+    held += pool_.size(region.block);
+    // Every page header leads to the block's info section.
+    const std::byte* base = pool_.data(region.block);
+    const std::int64_t infoOffset = std::int64_t(*reinterpret_cast<const std::int32_t*>(base)) * 4;
+    if (infoOffset <= 0 || std::size_t(infoOffset) + sizeof(BlockInfo) > pool_.size(region.block))
+      fail(name + ": page header leads outside its block");
+    const auto* info = reinterpret_cast<const BlockInfo*>(base + infoOffset);
+    if (info->magic != kBlockInfoMagic) fail(name + ": no info section where the page header leads");
+    for (std::uint64_t page = 0; page * kSlotsPerPage < info->slotCount; ++page)
+      if (std::int64_t(page * kPageBytes) +
+              std::int64_t(*reinterpret_cast<const std::int32_t*>(base + page * kPageBytes)) * 4 !=
+          infoOffset)
+        fail(name + ": page header " + std::to_string(page) + " does not lead to the info section");
+    const ChildDescriptor* root = descriptorAt(region, region.rootSlot);
+    if (root->validMask() == 0) fail(name + ": its root descriptor is a stub or link");
+    if (region.parent >= 0) {
+      const Region& parent = regions_[std::size_t(region.parent)];
+      if (parent.resident != parent.slices.size()) fail(name + " is resident below an incomplete parent");
+      const ChildDescriptor* at = descriptorAt(parent, parent.childSlot.at(r));
+      if (!at->isLink() || at + at->linkOffset() != root) fail(name + " is not linked from its parent");
+    }
+    for (const std::uint32_t c : region.children) {
+      const auto slot = region.childSlot.find(c);
+      if (region.resident == region.slices.size() && slot == region.childSlot.end())
+        fail(name + " has no slot for child region " + std::to_string(c));
+      if (slot != region.childSlot.end() && !regions_[c].resident &&
+          descriptorAt(region, slot->second)->isLink())
+        fail(name + " links evicted region " + std::to_string(c));
+    }
+  }
+  if (held != pool_.usedBytes())
+    fail("regions hold " + std::to_string(held) + " bytes, the pool says " +
+         std::to_string(pool_.usedBytes()));
+}
+
+}  // namespace svo

@@ -1,0 +1,140 @@
+#include "svo/client/pool.hpp"
+
+#include <algorithm>
+#include <cstring>
+#include <stdexcept>
+#include <string>
+
+namespace svo {
+
+BlockPool::BlockPool(std::size_t budgetBytes) {
+  if (budgetBytes < kPageBytes)
+    throw std::invalid_argument("block pool: a budget of " + std::to_string(budgetBytes) +
+                                " bytes holds no 8 KB page");
+  pageCount_ = std::uint32_t(std::min<std::size_t>(budgetBytes / kPageBytes, UINT32_MAX));
+  // Exactly the budget, rounded down to whole pages; AlignedBytes zero-fills, so the pages are touched once
+  // here and the resident size is the budget from the start (no surprise growth later).
+  arena_ = AlignedBytes(std::size_t(pageCount_) * kPageBytes);
+  freeRuns_[0] = pageCount_;
+}
+
+std::optional<std::uint32_t> BlockPool::takeRun(std::uint32_t pages) {
+  // Best fit: the shortest run that holds the block keeps long runs for large blocks.
+  auto best = freeRuns_.end();
+  for (auto it = freeRuns_.begin(); it != freeRuns_.end(); ++it)
+    if (it->second >= pages && (best == freeRuns_.end() || it->second < best->second)) best = it;
+  if (best == freeRuns_.end()) return std::nullopt;
+  const std::uint32_t first = best->first, length = best->second;
+  freeRuns_.erase(best);
+  if (length > pages) freeRuns_[first + pages] = length - pages;
+  return first;
+}
+
+void BlockPool::release(std::uint32_t firstPage, std::uint32_t pages) {
+  auto next = freeRuns_.lower_bound(firstPage);
+  if (next != freeRuns_.end() && next->first == firstPage + pages) {
+    pages += next->second;
+    next = freeRuns_.erase(next);
+  }
+  if (next != freeRuns_.begin()) {
+    auto prev = std::prev(next);
+    if (prev->first + prev->second == firstPage) {
+      prev->second += pages;
+      return;
+    }
+  }
+  freeRuns_[firstPage] = pages;
+}
+
+void BlockPool::compact(const std::function<void(BlockId)>& moved) {
+  std::vector<BlockId> order;
+  for (BlockId id = 0; id < blocks_.size(); ++id)
+    if (blocks_[id].pages) order.push_back(id);
+  std::sort(order.begin(), order.end(),
+            [&](BlockId a, BlockId b) { return blocks_[a].firstPage < blocks_[b].firstPage; });
+  std::vector<BlockId> relocated;
+  std::uint32_t next = 0;
+  for (const BlockId id : order) {
+    Entry& e = blocks_[id];
+    if (e.firstPage != next) {
+      // Moving towards the start: source and destination may overlap, memmove copies front to back.
+      std::memmove(arena_.data() + std::size_t(next) * kPageBytes,
+                   arena_.data() + std::size_t(e.firstPage) * kPageBytes, std::size_t(e.pages) * kPageBytes);
+      movedBytes_ += std::uint64_t(e.pages) * kPageBytes;
+      e.firstPage = next;
+      relocated.push_back(id);
+    }
+    next += e.pages;
+  }
+  freeRuns_.clear();
+  if (next < pageCount_) freeRuns_[next] = pageCount_ - next;
+  ++compactions_;
+  if (moved)
+    for (const BlockId id : relocated) moved(id);
+}
+
+std::optional<BlockPool::BlockId> BlockPool::insert(std::span<const std::byte> bytes,
+                                                    const std::function<void(BlockId)>& moved) {
+  const std::uint32_t pages = pagesFor(bytes.size());
+  if (pages == 0 || pages > pageCount_ - usedPages_) return std::nullopt;
+  std::optional<std::uint32_t> first = takeRun(pages);
+  if (!first) {
+    compact(moved);
+    first = takeRun(pages);
+    if (!first) throw std::logic_error("block pool: no run after compaction although the pages are free");
+  }
+  BlockId id;
+  if (!freeIds_.empty()) {
+    id = freeIds_.back();
+    freeIds_.pop_back();
+  } else {
+    id = BlockId(blocks_.size());
+    blocks_.push_back({});
+  }
+  blocks_[id] = {*first, pages};
+  usedPages_ += pages;
+  std::byte* at = arena_.data() + std::size_t(*first) * kPageBytes;
+  std::memcpy(at, bytes.data(), bytes.size());
+  std::memset(at + bytes.size(), 0, std::size_t(pages) * kPageBytes - bytes.size());
+  return id;
+}
+
+void BlockPool::erase(BlockId id) {
+  if (!contains(id)) throw std::logic_error("block pool: erasing block " + std::to_string(id) + " twice");
+  Entry& e = blocks_[id];
+  release(e.firstPage, e.pages);
+  usedPages_ -= e.pages;
+  e = {};
+  freeIds_.push_back(id);
+}
+
+void BlockPool::check() const {
+  const auto fail = [](const std::string& what) { throw std::logic_error("block pool invariant: " + what); };
+  // Every page is owned by exactly one block or one free run.
+  std::vector<std::uint8_t> owner(pageCount_, 0);
+  std::uint64_t used = 0;
+  const auto claim = [&](std::uint32_t first, std::uint32_t pages, const std::string& who) {
+    if (pages == 0 || std::uint64_t(first) + pages > pageCount_) fail(who + " lies outside the arena");
+    for (std::uint32_t p = first; p < first + pages; ++p) {
+      if (owner[p]) fail(who + " overlaps something else at page " + std::to_string(p));
+      owner[p] = 1;
+    }
+  };
+  for (BlockId id = 0; id < blocks_.size(); ++id) {
+    if (!blocks_[id].pages) continue;
+    claim(blocks_[id].firstPage, blocks_[id].pages, "block " + std::to_string(id));
+    used += blocks_[id].pages;
+  }
+  std::uint32_t previousEnd = 0;
+  bool first = true;
+  for (const auto& [page, pages] : freeRuns_) {
+    if (!first && page == previousEnd) fail("free runs at page " + std::to_string(page) + " not coalesced");
+    claim(page, pages, "free run at page " + std::to_string(page));
+    previousEnd = page + pages, first = false;
+  }
+  if (used != usedPages_)
+    fail("used page count " + std::to_string(usedPages_) + " but blocks hold " + std::to_string(used));
+  if (std::count(owner.begin(), owner.end(), 0) != 0) fail("pages neither used nor free");
+}
+
+}  // namespace svo

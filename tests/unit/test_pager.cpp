@@ -1,0 +1,351 @@
+// The paging client (client/pager.hpp, client/pool.hpp). The reference for a paged frame is an independent
+// one: the store loaded whole (StoreReader::loadTree), cut down to the voxels of the resident slices, laid
+// out as one block and rendered. Paged and reference frames must be bit-identical, whatever was loaded,
+// evicted or relocated on the way.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+#include <set>
+
+#include <glm/geometric.hpp>
+
+#include "reference.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/client/pager.hpp"
+#include "svo/client/pool.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct TempStore {
+  TempStore() = default;
+  TempStore(TempStore&&) = default;
+  ~TempStore() {
+    std::error_code ignored;
+    if (!path.empty()) fs::remove(path, ignored);
+  }
+  fs::path path;
+};
+
+// A colored sphere and box at 8 levels with 4 KB slices: many regions, cubes that split at once, regions
+// whose cube voxel is the parent's deepest level (stubs) and attributes inherited across blocks.
+const TempStore& sphereStore() {
+  static const TempStore f = [] {
+    TempStore s;
+    s.path = fs::temp_directory_path() / ("svo_pager_" + std::to_string(::getpid()) + ".svo");
+    svo::Mesh mesh = svotest::makeSphere({0, 0, 0}, 1.0, 24, 24);
+    svotest::appendMesh(mesh, svotest::makeBox({-1.2, -1.2, -0.2}, {0.3, -0.9, 0.9}));
+    for (const glm::dvec3& p : mesh.positions)
+      mesh.colors.push_back(glm::vec4(0.5 + 0.4 * p.x, 0.5 + 0.4 * p.y, 0.5 - 0.4 * p.z, 1.0));
+    svo::BuildOptions options;
+    options.levels = 8;
+    svo::StoreWriteOptions write;
+    write.sliceBytes = 4096;
+    svo::writeOctree(s.path, svo::buildOctree(mesh, options), write);
+    return s;
+  }();
+  return f;
+}
+
+// The whole store's tree cut down to the voxels whose slice is in `resident`.
+svo::VoxelTree truncatedTree(const svo::StoreReader& reader, const std::vector<std::uint32_t>& resident) {
+  const svo::VoxelTree full = reader.loadTree();
+  std::map<std::tuple<int, int, int, int, int>, std::uint32_t> sliceAt;  // voxel level, cube level, cube
+  const auto& slices = reader.slices();
+  for (std::uint32_t s = 0; s < slices.size(); ++s)
+    sliceAt[{slices[s].voxelLevel, slices[s].cubeLevel, slices[s].cubeCoord.x, slices[s].cubeCoord.y,
+             slices[s].cubeCoord.z}] = s;
+  const std::set<std::uint32_t> have(resident.begin(), resident.end());
+  const auto kept = [&](int level, glm::ivec3 c) {
+    for (int cubeLevel = 0; cubeLevel < level; ++cubeLevel) {
+      const glm::ivec3 cube = c >> (level - cubeLevel);
+      const auto it = sliceAt.find({level, cubeLevel, cube.x, cube.y, cube.z});
+      if (it != sliceAt.end()) return have.count(it->second) != 0;
+    }
+    ADD_FAILURE() << "no slice holds a voxel of level " << level;
+    return false;
+  };
+  svo::VoxelTree out;
+  out.hasColors = full.hasColors, out.hasNormals = full.hasNormals;
+  out.voxels.push_back(full.voxels[0]);
+  struct Item {
+    std::uint32_t from, to;
+    int level;
+    glm::ivec3 coord;
+  };
+  std::vector<Item> queue{{0, 0, 0, glm::ivec3(0)}};
+  for (std::size_t q = 0; q < queue.size(); ++q) {
+    const Item item = queue[q];
+    const svo::VoxelRecord& r = full.voxels[item.from];
+    std::uint8_t mask = 0;
+    std::vector<Item> children;
+    for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
+      if (!(r.childMask >> slot & 1u)) continue;
+      const glm::ivec3 coord = svo::childCoord(item.coord, int(slot));
+      if (kept(item.level + 1, coord)) {
+        mask |= std::uint8_t(1u << slot);
+        children.push_back({c, 0, item.level + 1, coord});
+      }
+      ++c;
+    }
+    out.voxels[item.to].childMask = mask;
+    out.voxels[item.to].firstChild = mask ? std::uint32_t(out.voxels.size()) : 0;
+    for (Item& child : children) {
+      child.to = std::uint32_t(out.voxels.size());
+      svo::VoxelRecord record = full.voxels[child.from];
+      record.childMask = 0, record.firstChild = 0;
+      out.voxels.push_back(record);
+      queue.push_back(child);
+    }
+  }
+  return out;
+}
+
+svo::Camera cameraAt(glm::dvec3 eye, glm::dvec3 target, int size) {
+  svo::Camera c;
+  c.eye = eye, c.target = target, c.fovYDegrees = 50.0, c.width = c.height = size;
+  return c;
+}
+
+// The paged frame and the reference frame for what is resident are identical, pixel for pixel.
+// `reference` reads the same content as the pager's store (it differs only for the corrupt-store test).
+void expectSameAsReference(svo::Pager& pager, const svo::Camera& camera, float lodPixels,
+                           const svo::StoreReader* reference = nullptr) {
+  svo::RenderOptions options;
+  options.lodPixels = lodPixels;
+  options.threads = 1;
+  const svo::Frame paged = svo::render(pager.trunk(), pager.transform(), camera, options);
+  const svo::Block block =
+      svo::layoutBlock(truncatedTree(reference ? *reference : pager.store(), pager.residentSlices()));
+  const svo::Frame whole = svo::render(block.view(), pager.transform(), camera, options);
+  std::size_t differing = 0, hits = 0;
+  for (std::size_t i = 0; i < paged.color.size(); ++i) {
+    hits += whole.color[i].a > 0.0f;
+    const bool same = std::memcmp(&paged.color[i], &whole.color[i], sizeof(glm::vec4)) == 0 &&
+                      std::memcmp(&paged.depth[i], &whole.depth[i], sizeof(float)) == 0;
+    differing += !same;
+  }
+  EXPECT_EQ(differing, 0u) << "of " << paged.color.size() << " pixels (" << hits << " hit)";
+  EXPECT_GT(hits, 0u);
+}
+
+// Updates until the view's slices are resident (or nothing more can load); bounded.
+void converge(svo::Pager& pager, const svo::ViewQuery& view) {
+  for (int i = 0; i < 2000; ++i) {
+    pager.update(view);
+    if (pager.converged()) return;
+    pager.waitForWork(0.05);
+  }
+  ADD_FAILURE() << "the pager did not converge";
+}
+
+}  // namespace
+
+TEST(BlockPool, RandomInsertEraseKeepsContentsAndInvariants) {
+  svo::BlockPool pool(64 * svo::kPageBytes);
+  std::mt19937 rng(7);
+  std::map<svo::BlockPool::BlockId, std::pair<std::uint8_t, std::size_t>> live;  // id -> fill byte, size
+  std::set<svo::BlockPool::BlockId> moved;
+  int compactions = 0;
+  for (int step = 0; step < 3000; ++step) {
+    if (live.empty() || rng() % 3 != 0) {
+      const std::size_t size = 1 + rng() % (6 * svo::kPageBytes);
+      const std::uint8_t fill = std::uint8_t(rng());
+      std::vector<std::byte> bytes(size, std::byte(fill));
+      const std::size_t before = pool.compactions();
+      const auto id = pool.insert(bytes, [&](svo::BlockPool::BlockId m) { moved.insert(m); });
+      compactions += pool.compactions() != before;
+      if (id) {
+        live[*id] = {fill, size};
+      } else {
+        EXPECT_GT(svo::BlockPool::pagesFor(size) * svo::kPageBytes, pool.freeBytes());
+      }
+    } else {
+      auto it = live.begin();
+      std::advance(it, rng() % live.size());
+      pool.erase(it->first);
+      live.erase(it);
+    }
+    ASSERT_NO_THROW(pool.check());
+    ASSERT_LE(pool.usedBytes(), pool.capacityBytes());
+    for (const auto& [id, content] : live) {
+      const std::byte* p = pool.data(id);
+      ASSERT_EQ(reinterpret_cast<std::uintptr_t>(p) % svo::kPageBytes, 0u);
+      ASSERT_EQ(p[0], std::byte(content.first));
+      ASSERT_EQ(p[content.second - 1], std::byte(content.first));
+    }
+  }
+  EXPECT_GT(compactions, 0);  // the sequence exercised relocation
+  EXPECT_FALSE(moved.empty());
+  EXPECT_THROW(svo::BlockPool(100), std::invalid_argument);
+}
+
+TEST(Pager, StubsRoundTripThroughLayout) {
+  // A stub renders as a leaf and reads back as a voxel without children; layout and validation accept it.
+  svo::VoxelTree tree;
+  tree.voxels.resize(3);
+  tree.voxels[0].childMask = 0b11, tree.voxels[0].firstChild = 1;
+  tree.voxels[1].stub = true;
+  std::vector<std::uint32_t> slots;
+  const svo::Block block = svo::layoutBlock(tree, {}, nullptr, &slots);
+  ASSERT_NE(slots[1], 0u);
+  EXPECT_TRUE(block.view().slots()[slots[1]].isStub());
+  EXPECT_EQ(block.view().root()->leafMask(), 0b10);  // the stub is not a leaf of the layout
+  const svo::VoxelTree back = svo::readBlock(block.view());
+  EXPECT_TRUE(back.voxels[1].stub);
+  EXPECT_EQ(back.voxels[1].childMask, 0);
+}
+
+TEST(Pager, ConvergedFrameEqualsTheWholeOctree) {
+  const TempStore& store = sphereStore();
+  svo::Pager pager(store.path, {});
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  // Coarse first: only the trunk, and already no holes against its reference.
+  expectSameAsReference(pager, camera, 0.0f);
+  svo::ViewQuery everything = svo::viewOf(pager.transform(), camera, 1e-9);
+  everything.frustum.clear();
+  converge(pager, everything);
+  EXPECT_EQ(pager.residentSlices().size(), pager.store().slices().size());
+  pager.checkInvariants();
+  expectSameAsReference(pager, camera, 0.0f);
+  // And the reference at full depth is the store's own octree: the paged frame equals readOctree's.
+  svo::RenderOptions options;
+  options.lodPixels = 0.0f, options.threads = 1;
+  const svo::Frame paged = svo::render(pager.trunk(), pager.transform(), camera, options);
+  const svo::Frame whole = svo::render(svo::readOctree(store.path), camera, options);
+  EXPECT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)), 0);
+  EXPECT_EQ(std::memcmp(paged.depth.data(), whole.depth.data(), paged.depth.size() * sizeof(float)), 0);
+}
+
+TEST(Pager, RandomViewsUnderATightBudgetStayExactAndWithinBudget) {
+  const TempStore& store = sphereStore();
+  // What the whole store takes in the pool, to size a budget that forces evictions.
+  std::size_t wholeBytes = 0;
+  {
+    svo::Pager all(store.path, {});
+    svo::ViewQuery everything = svo::viewOf(all.transform(), cameraAt({0, 0, 4}, {0, 0, 0}, 64), 1e-9);
+    everything.frustum.clear();
+    converge(all, everything);
+    wholeBytes = all.residentBytes();
+  }
+  svo::PagerOptions options;
+  options.budgetBytes = wholeBytes / 6;
+  options.maxInFlight = 4;
+  svo::Pager pager(store.path, options);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::uint64_t evicted = 0, loaded = 0;
+  for (int step = 0; step < 60; ++step) {
+    // Teleports between close-ups and whole-scene views, at random levels of detail.
+    const glm::dvec3 target(0.8 * u(rng), 0.8 * u(rng), 0.8 * u(rng));
+    const glm::dvec3 offset = glm::normalize(glm::dvec3(u(rng), u(rng), u(rng)) + 1e-3);
+    const svo::Camera camera = cameraAt(target + offset * (step % 3 == 0 ? 4.0 : 1.2), target, 96);
+    const float lod = step % 2 ? 1.0f : 3.0f;
+    const svo::ViewQuery view = svo::viewOf(pager.transform(), camera, lod);
+    for (int k = 0; k < 5; ++k) {
+      const svo::PagerStats stats = pager.update(view);
+      evicted += stats.evicted, loaded += stats.loaded;
+      ASSERT_LE(stats.residentBytes, options.budgetBytes);
+      ASSERT_NO_THROW(pager.checkInvariants());
+      pager.waitForWork(0.01);
+    }
+    if (step % 6 == 0) expectSameAsReference(pager, camera, lod);
+  }
+  EXPECT_GT(loaded, 0u);
+  EXPECT_GT(evicted, 0u);  // the budget forced evictions, and the frames stayed exact
+}
+
+TEST(Pager, BudgetBelowTheTrunkIsAClearError) {
+  // One slice size of 1 MiB: the trunk (the root cube's levels) is the whole 8-level octree, many pages.
+  TempStore store;
+  store.path = fs::temp_directory_path() / ("svo_pager_trunk_" + std::to_string(::getpid()) + ".svo");
+  svo::BuildOptions build;
+  build.levels = 8;
+  svo::writeOctree(store.path, svo::buildOctree(svotest::makeSphere({0, 0, 0}, 1.0, 24, 24), build));
+  std::size_t pages = 1;
+  svo::PagerOptions options;
+  for (;; pages *= 2) {
+    options.budgetBytes = pages * svo::kPageBytes;
+    try {
+      svo::Pager pager(store.path, options);
+      break;
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("budget"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("trunk"), std::string::npos) << e.what();
+    }
+    ASSERT_LT(pages, 1u << 16);
+  }
+  EXPECT_GT(pages, 1u);
+  options.budgetBytes = 100;
+  EXPECT_THROW(svo::Pager(store.path, options), std::runtime_error);
+}
+
+TEST(Pager, CorruptSliceIsReportedOnceAndTheRestStillRenders) {
+  const TempStore& store = sphereStore();
+  TempStore copy;
+  copy.path = store.path.string() + ".corrupt.svo";
+  fs::copy_file(store.path, copy.path);
+  std::uint32_t victim = 0;
+  {
+    const svo::StoreReader reader(copy.path);
+    // A deep slice: everything above it still loads.
+    for (std::uint32_t s = 0; s < reader.slices().size(); ++s)
+      if (reader.slices()[s].voxelLevel == 7) victim = s;
+    ASSERT_NE(victim, 0u);
+    std::fstream f(copy.path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(std::streamoff(reader.slices()[victim].offset + reader.slices()[victim].compressedBytes / 2));
+    char byte = 0;
+    f.read(&byte, 1);
+    byte = char(byte ^ 0x5a);
+    f.seekp(std::streamoff(reader.slices()[victim].offset + reader.slices()[victim].compressedBytes / 2));
+    f.write(&byte, 1);
+  }
+  svo::Pager pager(copy.path, {});
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 64);
+  svo::ViewQuery everything = svo::viewOf(pager.transform(), camera, 1e-9);
+  everything.frustum.clear();
+  converge(pager, everything);
+  EXPECT_EQ(pager.failedSlices(), std::vector<std::uint32_t>{victim});
+  const std::vector<std::string> errors = pager.takeErrors();
+  ASSERT_EQ(errors.size(), 1u);
+  EXPECT_NE(errors[0].find("checksum"), std::string::npos) << errors[0];
+  // Everything loads but the victim and the slices below it.
+  const auto& slices = pager.store().slices();
+  std::size_t unreachable = 0;
+  for (std::uint32_t s = 0; s < slices.size(); ++s) {
+    std::uint32_t up = s;
+    while (up != victim && up != svo::SliceInfo::kNoSlice) up = slices[up].parentSlice;
+    unreachable += up == victim;
+  }
+  EXPECT_EQ(pager.residentSlices().size(), slices.size() - unreachable);
+  for (int i = 0; i < 5; ++i) EXPECT_EQ(pager.update(everything).requested, 0u);  // never retried
+  const svo::StoreReader original(store.path);
+  expectSameAsReference(pager, camera, 0.0f, &original);
+}
+
+TEST(Pager, RequestsTheViewDropsAreCancelled) {
+  const TempStore& store = sphereStore();
+  svo::PagerOptions options;
+  options.ioThreads = 1;
+  options.maxInFlight = 64;
+  svo::Pager pager(store.path, options);
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 64);
+  // Load the coarse levels, then ask for everything and at once for almost nothing.
+  converge(pager, svo::viewOf(pager.transform(), camera, 16.0));
+  svo::ViewQuery everything = svo::viewOf(pager.transform(), camera, 1e-9);
+  everything.frustum.clear();
+  const svo::PagerStats asked = pager.update(everything);
+  ASSERT_GT(asked.requested, 2u);
+  const svo::Camera far = cameraAt({0, 0, 400.0}, {0, 0, 0}, 8);
+  const svo::PagerStats dropped = pager.update(svo::viewOf(pager.transform(), far, 8.0));
+  EXPECT_GT(dropped.cancelled, 0u);
+  converge(pager, svo::viewOf(pager.transform(), far, 8.0));
+  pager.checkInvariants();
+}
