@@ -147,40 +147,60 @@ int readSide(const Json& object, const std::string& file, const char* key, int f
 
 }  // namespace
 
-Camera loadCamera(const std::filesystem::path& path) {
-  const std::string file = path.string();
+namespace {
+
+Json parseJsonFile(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(file + ": cannot open camera file");
-  Json json;
+  if (!in) throw std::runtime_error(path.string() + ": cannot open camera file");
   try {
-    json = Json::parse(in);
+    return Json::parse(in);
   } catch (const Json::exception& e) {
-    throw std::runtime_error(file + ": not valid JSON (" + e.what() + ")");
+    throw std::runtime_error(path.string() + ": not valid JSON (" + e.what() + ")");
   }
-  if (!json.is_object()) throw std::runtime_error(file + ": a camera must be a JSON object");
+}
+
+// `where` names the camera in messages: the file, or the file and the camera's index in a path.
+Camera cameraOf(const Json& json, const std::string& where) {
+  if (!json.is_object()) throw std::runtime_error(where + ": a camera must be a JSON object");
   // Unknown keys are most often typos ("fovy"); silently ignoring them would render the wrong view.
   for (const auto& item : json.items()) {
     const std::string& key = item.key();
     if (key != "eye" && key != "target" && key != "up" && key != "fov" && key != "width" && key != "height")
-      keyError(file, key, "is not known (expected eye, target, up, fov, width, height)");
+      keyError(where, key, "is not known (expected eye, target, up, fov, width, height)");
   }
   Camera camera;
   const glm::dvec3 defaultUp(0.0, 1.0, 0.0);
-  camera.eye = readVector(json, file, "eye", nullptr);
-  camera.target = readVector(json, file, "target", nullptr);
-  camera.up = readVector(json, file, "up", &defaultUp);
-  camera.fovYDegrees = readNumber(json, file, "fov", kDefaultFovDegrees);
-  camera.width = readSide(json, file, "width", kDefaultImageSide);
-  camera.height = readSide(json, file, "height", kDefaultImageSide);
+  camera.eye = readVector(json, where, "eye", nullptr);
+  camera.target = readVector(json, where, "target", nullptr);
+  camera.up = readVector(json, where, "up", &defaultUp);
+  camera.fovYDegrees = readNumber(json, where, "fov", kDefaultFovDegrees);
+  camera.width = readSide(json, where, "width", kDefaultImageSide);
+  camera.height = readSide(json, where, "height", kDefaultImageSide);
   try {
     camera.validate();
   } catch (const std::runtime_error& e) {
     // validate() speaks of "camera: ..."; here the file is the better subject.
     std::string what = e.what();
     if (what.starts_with("camera: ")) what.erase(0, 8);
-    throw std::runtime_error(file + ": " + what);
+    throw std::runtime_error(where + ": " + what);
   }
   return camera;
+}
+
+}  // namespace
+
+Camera loadCamera(const std::filesystem::path& path) {
+  return cameraOf(parseJsonFile(path), path.string());
+}
+
+std::vector<Camera> loadCameraPath(const std::filesystem::path& path) {
+  const Json json = parseJsonFile(path);
+  if (!json.is_array() || json.empty())
+    throw std::runtime_error(path.string() + ": a camera path must be a non-empty JSON array of cameras");
+  std::vector<Camera> cameras;
+  for (std::size_t i = 0; i < json.size(); ++i)
+    cameras.push_back(cameraOf(json[i], path.string() + ": camera " + std::to_string(i)));
+  return cameras;
 }
 
 }  // namespace svo

@@ -212,6 +212,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
   std::vector<std::byte> raw;
   try {
     raw = store_.readSlice(request.slice);  // disk, checksum and zstd: no lock held
+    bytesRead_.fetch_add(store_.slices()[request.slice].compressedBytes, std::memory_order_relaxed);
   } catch (const std::exception& e) {
     out.error = e.what();
     return out;
@@ -219,7 +220,8 @@ Pager::Prepared Pager::prepare(const Request& request) {
   std::shared_lock lock(poolMutex_);
   const Region& region = regions_[out.region];
   out.version = region.version;
-  if (region.resident != indexInRegion_[request.slice]) return out;  // stale: commit drops it
+  const std::uint32_t resident = region.resident;
+  if (resident != indexInRegion_[request.slice]) return out;  // stale: commit drops it
   const StoreHeader& header = store_.header();
   try {
     VoxelLevels levels;
@@ -254,6 +256,8 @@ Pager::Prepared Pager::prepare(const Request& request) {
       }
       levels = readSubtree(d, voxel);
     }
+    // The pool is read; decoding and layout need only this copy, so commits need not wait for them.
+    lock.unlock();
     const SliceInfo& info = store_.slices()[request.slice];
     if (region.cubeLevel + int(levels.size()) != info.voxelLevel)
       throw std::runtime_error("the resident levels do not end above it");
@@ -265,7 +269,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
     // Completing the region: its child regions' cube voxels get descriptors to link them by (stubs where the
     // voxel has no children here).
     std::map<std::uint32_t, std::size_t> recordOf;
-    if (region.resident + 1 == region.slices.size()) {
+    if (resident + 1 == region.slices.size()) {
       std::vector<std::size_t> levelStart{0};
       for (const auto& l : levels) levelStart.push_back(levelStart.back() + l.size());
       for (const std::uint32_t child : region.children) {

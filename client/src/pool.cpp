@@ -46,28 +46,40 @@ void BlockPool::release(std::uint32_t firstPage, std::uint32_t pages) {
   freeRuns_[firstPage] = pages;
 }
 
-void BlockPool::compact(const std::function<void(BlockId)>& moved) {
+void BlockPool::compact(std::uint32_t pages, const std::function<void(BlockId)>& moved) {
   std::vector<BlockId> order;
   for (BlockId id = 0; id < blocks_.size(); ++id)
     if (blocks_[id].pages) order.push_back(id);
   std::sort(order.begin(), order.end(),
             [&](BlockId a, BlockId b) { return blocks_[a].firstPage < blocks_[b].firstPage; });
+  // Slide blocks towards the start only until the gap after them holds `pages`: moving the whole arena for
+  // one block would cost a frame.
   std::vector<BlockId> relocated;
   std::uint32_t next = 0;
-  for (const BlockId id : order) {
-    Entry& e = blocks_[id];
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    Entry& e = blocks_[order[k]];
     if (e.firstPage != next) {
       // Moving towards the start: source and destination may overlap, memmove copies front to back.
       std::memmove(arena_.data() + std::size_t(next) * kPageBytes,
                    arena_.data() + std::size_t(e.firstPage) * kPageBytes, std::size_t(e.pages) * kPageBytes);
       movedBytes_ += std::uint64_t(e.pages) * kPageBytes;
       e.firstPage = next;
-      relocated.push_back(id);
+      relocated.push_back(order[k]);
     }
     next += e.pages;
+    const std::uint32_t gapEnd = k + 1 < order.size() ? blocks_[order[k + 1]].firstPage : pageCount_;
+    if (gapEnd - next >= pages) break;
   }
+  // The free runs are the gaps between the blocks now.
+  std::sort(order.begin(), order.end(),
+            [&](BlockId a, BlockId b) { return blocks_[a].firstPage < blocks_[b].firstPage; });
   freeRuns_.clear();
-  if (next < pageCount_) freeRuns_[next] = pageCount_ - next;
+  std::uint32_t cursor = 0;
+  for (const BlockId id : order) {
+    if (blocks_[id].firstPage > cursor) freeRuns_[cursor] = blocks_[id].firstPage - cursor;
+    cursor = blocks_[id].firstPage + blocks_[id].pages;
+  }
+  if (cursor < pageCount_) freeRuns_[cursor] = pageCount_ - cursor;
   ++compactions_;
   if (moved)
     for (const BlockId id : relocated) moved(id);
@@ -79,7 +91,7 @@ std::optional<BlockPool::BlockId> BlockPool::insert(std::span<const std::byte> b
   if (pages == 0 || pages > pageCount_ - usedPages_) return std::nullopt;
   std::optional<std::uint32_t> first = takeRun(pages);
   if (!first) {
-    compact(moved);
+    compact(pages, moved);
     first = takeRun(pages);
     if (!first) throw std::logic_error("block pool: no run after compaction although the pages are free");
   }

@@ -1,10 +1,21 @@
 // `svo render IN.svo -o frame.png`: ray casts the octree on all cores and writes PNG or EXR.
+// With --budget the store streams through a block pool of that size (issue 5): one view refines until it has
+// converged, or with --path a camera path renders frame by frame while the scene streams in, with a CSV row
+// per frame and a plot of the error against the converged frames over time.
+#include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
+#include <fstream>
 
 #include <spdlog/spdlog.h>
 
+#include "bench_common.hpp"
 #include "commands.hpp"
+#include "plot.hpp"
+#include "streaming.hpp"
+#include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo::tools {
@@ -13,17 +24,153 @@ namespace {
 glm::dvec3 vec3Of(const std::vector<double>& v) {
   return {v[0], v[1], v[2]};
 }
+
+struct RenderArgs {
+  std::string in, out, cameraFile;
+  std::vector<double> eye, target, up{0.0, 1.0, 0.0}, view{-0.35, -0.25, -1.0};
+  double fov = 40.0;
+  int width = 1024, height = 1024;
+  RenderOptions options;
+  bool noContours = false, aux = false;
+  std::size_t budget = 0, referenceBudget = std::size_t(1) << 30;
+  std::string pathFile;
+  int ioThreads = 2;
+  double timeout = 300.0;
+};
+
+Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
+  Camera camera;
+  if (!args.cameraFile.empty()) {
+    camera = loadCamera(args.cameraFile);
+  } else if (!args.eye.empty()) {
+    if (args.target.empty()) throw UsageError("--eye needs --target");
+    camera.eye = vec3Of(args.eye);
+    camera.target = vec3Of(args.target);
+    camera.up = vec3Of(args.up);
+    camera.fovYDegrees = args.fov;
+    camera.width = args.width, camera.height = args.height;
+  } else {
+    camera = Camera::framing(scene, vec3Of(args.view), args.width, args.height);
+    camera.up = vec3Of(args.up);
+  }
+  camera.validate();
+  return camera;
+}
+
+PagerOptions pagerOptions(std::size_t budget, int ioThreads) {
+  PagerOptions options;
+  options.budgetBytes = budget;
+  options.ioThreads = ioThreads;
+  return options;
+}
+
+// One view from a cold start until it has converged.
+void renderConverged(const RenderArgs& args, RenderOptions options) {
+  const std::filesystem::path out = args.out;
+  dropFileCache(args.in);
+  const auto start = std::chrono::steady_clock::now();
+  Pager pager(args.in, pagerOptions(args.budget, args.ioThreads));
+  const Camera camera = cameraOf(args, pager.transform());
+  options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
+  const Frame first = render(pager.trunk(), pager.transform(), camera, options);
+  const double firstSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  StreamedFrame last;
+  const double seconds = convergeView(pager, camera, options, args.timeout, &last);
+  if (seconds < 0.0)
+    throw std::runtime_error(args.in + ": the view did not converge within " + std::to_string(args.timeout) +
+                             " s (budget " + formatBytes(pager.budgetBytes()) + ")");
+  writeFrame(out, last.frame, args.aux);
+  std::printf("first coarse image %.1f ms after opening (%d x %d, %.1f ms to render)\n", firstSeconds * 1e3,
+              first.width, first.height, first.seconds * 1e3);
+  std::printf("converged in %.3f s after the first image: %zu slices resident (%s of %s), %s read\n", seconds,
+              pager.residentSlices().size(), formatBytes(pager.residentBytes()).c_str(),
+              formatBytes(pager.budgetBytes()).c_str(), formatBytes(pager.bytesRead()).c_str());
+  for (const std::string& e : pager.takeErrors()) spdlog::warn("{}", e);
+  std::printf("wrote %s\n", args.out.c_str());
+}
+
+// A camera path while streaming: frames, frames.csv, error.png.
+void renderPath(const RenderArgs& args, RenderOptions options) {
+  const std::filesystem::path folder = args.out;
+  std::error_code ec;
+  std::filesystem::create_directories(folder, ec);
+  if (ec || !std::filesystem::is_directory(folder))
+    throw UsageError(args.out + ": cannot create the output folder");
+  checkWritableOutput(folder / "frames.csv");
+  const std::vector<Camera> cameras = loadCameraPath(args.pathFile);
+  Pager pager(args.in, pagerOptions(args.budget, args.ioThreads));
+  options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
+
+  std::vector<StreamedFrame> frames;
+  std::vector<double> elapsed;
+  const auto start = std::chrono::steady_clock::now();
+  spdlog::info("streaming {} frames through a {} pool ...", cameras.size(), formatBytes(pager.budgetBytes()));
+  for (std::size_t i = 0; i < cameras.size(); ++i) {
+    frames.push_back(streamFrame(pager, cameras[i], options));
+    if (frames.back().stats.residentBytes > pager.budgetBytes())
+      throw std::logic_error("resident bytes exceed the budget at frame " + std::to_string(i));
+    elapsed.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%04zu.png", i);
+    writeFrame(folder / name, frames.back().frame, false);
+    for (const std::string& e : pager.takeErrors()) spdlog::warn("{}", e);
+  }
+  // The converged frame of each camera, from a pool large enough to hold everything the view wants.
+  spdlog::info("converging the reference frames ({} pool) ...", formatBytes(args.referenceBudget));
+  Pager reference(args.in, pagerOptions(args.referenceBudget, args.ioThreads));
+  std::ofstream csv(folder / "frames.csv");
+  csv << "frame,elapsed_s,frame_ms,update_ms,resident_bytes,loaded,evicted,requested,cancelled,failed,"
+         "wanted,in_flight,rmse,silhouette_pct,reference_converged\n";
+  plot::Series rmse{"RMSE vs converged", {}}, silhouette{"silhouette mismatch %", {}};
+  std::vector<double> frameMs;
+  std::size_t maxResident = 0;
+  for (std::size_t i = 0; i < cameras.size(); ++i) {
+    maxResident = std::max(maxResident, frames[i].stats.residentBytes);
+    StreamedFrame converged;
+    const bool ok = convergeView(reference, cameras[i], options, args.timeout, &converged) >= 0.0;
+    const FrameError error = frameError(frames[i].frame, converged.frame);
+    const StreamedFrame& f = frames[i];
+    const PagerStats& s = f.stats;
+    frameMs.push_back(f.seconds() * 1e3);
+    csv << i << ',' << elapsed[i] << ',' << f.seconds() * 1e3 << ',' << f.updateSeconds * 1e3 << ','
+        << s.residentBytes << ',' << s.loaded << ',' << s.evicted << ',' << s.requested << ',' << s.cancelled
+        << ',' << s.failed << ',' << s.wanted << ',' << s.inFlight << ',' << error.rmse << ','
+        << error.silhouettePercent << ',' << int(ok) << '\n';
+    rmse.points.push_back({elapsed[i], error.rmse});
+    silhouette.points.push_back({elapsed[i], error.silhouettePercent});
+  }
+  csv.close();
+  if (!csv) throw std::runtime_error((folder / "frames.csv").string() + ": cannot write");
+  plot::writeLogLogPlot(folder / "error.png",
+                        {{"error against the converged frame while streaming", {rmse}},
+                         {"silhouette mismatch while streaming", {silhouette}}},
+                        "elapsed seconds", "error", 1400, 600);
+  const bench::Summary ms = bench::summarize(frameMs);
+  std::sort(frameMs.begin(), frameMs.end());
+  const double p99 = frameMs[std::min(frameMs.size() - 1, std::size_t(0.99 * double(frameMs.size())))];
+  std::printf("%zu frames in %.2f s: frame time median %.1f ms, p99 %.1f ms; resident at most %s of %s\n",
+              cameras.size(), elapsed.back(), ms.median, p99, formatBytes(maxResident).c_str(),
+              formatBytes(pager.budgetBytes()).c_str());
+  std::printf("wrote %s: frame_NNNN.png, frames.csv, error.png\n", folder.c_str());
+}
+
+void renderStreaming(const RenderArgs& args) {
+  RenderOptions options = args.options;
+  options.cast.contours = !args.noContours;
+  if (args.pathFile.empty()) {
+    const std::string ext = std::filesystem::path(args.out).extension().string();
+    if (ext != ".png" && ext != ".exr") throw UsageError(args.out + ": output must end in .png or .exr");
+    checkWritableOutput(args.out);
+    renderConverged(args, options);
+  } else {
+    renderPath(args, options);
+  }
+}
+
 }  // namespace
 
 void addRenderCommand(CLI::App& app) {
-  struct Args {
-    std::string in, out, cameraFile;
-    std::vector<double> eye, target, up{0.0, 1.0, 0.0}, view{-0.35, -0.25, -1.0};
-    double fov = 40.0;
-    int width = 1024, height = 1024;
-    RenderOptions options;
-    bool noContours = false, aux = false;
-  };
+  using Args = RenderArgs;
   auto args = std::make_shared<Args>();
   auto* cmd = app.add_subcommand("render", "ray cast a .svo octree to PNG or EXR");
   cmd->add_option("input", args->in, "input .svo file")->required();
@@ -55,29 +202,35 @@ void addRenderCommand(CLI::App& app) {
   cmd->add_flag("--aux", args->aux, "EXR only: add depth (Z) and voxel-size-in-pixels channels");
   cmd->add_option("--threads", args->options.threads, "threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
+  cmd->add_option(
+         "--budget", args->budget,
+         "stream the store through a block pool of this many bytes (64M, 1G): frames render from what "
+         "is resident")
+      ->transform(CLI::AsSizeValue(false));
+  cmd->add_option("--path", args->pathFile,
+                  "with --budget: a camera path (JSON array of cameras); -o is then a folder for the frames, "
+                  "frames.csv and error.png");
+  cmd->add_option("--reference-budget", args->referenceBudget,
+                  "with --path: pool for the converged reference frames")
+      ->transform(CLI::AsSizeValue(false))
+      ->capture_default_str();
+  cmd->add_option("--io-threads", args->ioThreads, "with --budget: slice read and decode threads")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  cmd->add_option("--timeout", args->timeout, "with --budget: seconds a view may take to converge")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   cmd->callback([args] {
+    if (args->budget > 0) return renderStreaming(*args);
     const std::filesystem::path out = args->out;
     const std::string ext = out.extension().string();
     if (ext != ".png" && ext != ".exr") throw UsageError(args->out + ": output must end in .png or .exr");
     if (args->aux && ext != ".exr")
       throw UsageError("--aux needs an .exr output (PNG has no float channels)");
     checkWritableOutput(out);
+    if (!args->pathFile.empty()) throw UsageError("--path needs --budget (it streams the store)");
     const Octree octree = readOctree(args->in);
-    Camera camera;
-    if (!args->cameraFile.empty()) {
-      camera = loadCamera(args->cameraFile);
-    } else if (!args->eye.empty()) {
-      if (args->target.empty()) throw UsageError("--eye needs --target");
-      camera.eye = vec3Of(args->eye);
-      camera.target = vec3Of(args->target);
-      camera.up = vec3Of(args->up);
-      camera.fovYDegrees = args->fov;
-      camera.width = args->width, camera.height = args->height;
-    } else {
-      camera = Camera::framing(octree.transform, vec3Of(args->view), args->width, args->height);
-      camera.up = vec3Of(args->up);
-    }
-    camera.validate();
+    const Camera camera = cameraOf(*args, octree.transform);
     RenderOptions options = args->options;
     options.cast.contours = !args->noContours && octree.parameters.contours;
     const Frame frame = render(octree, camera, options);

@@ -15,6 +15,7 @@
 // patch, under the exclusive lock) within a time slice, so the render thread never waits for disk.
 #pragma once
 
+#include <atomic>
 #include <condition_variable>
 #include <cstddef>
 #include <cstdint>
@@ -84,6 +85,8 @@ class Pager {
   bool converged() const;
 
   std::size_t residentBytes() const { return pool_.usedBytes(); }
+  // Compressed bytes the workers have read from the store so far.
+  std::uint64_t bytesRead() const { return bytesRead_.load(std::memory_order_relaxed); }
   std::size_t budgetBytes() const { return pool_.capacityBytes(); }
   std::vector<std::uint32_t> residentSlices() const;
   std::vector<std::uint32_t> failedSlices() const;
@@ -147,6 +150,7 @@ class Pager {
   std::vector<std::uint8_t> denied_;    // updates until a slice dropped for lack of room is requested again
   std::vector<std::string> errors_;
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0;
+  std::atomic<std::uint64_t> bytesRead_{0};
 
   mutable std::shared_mutex
       poolMutex_;  // workers read blocks shared; commits and evictions write exclusively

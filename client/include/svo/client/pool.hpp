@@ -59,7 +59,7 @@ class BlockPool {
   };
   std::optional<std::uint32_t> takeRun(std::uint32_t pages);
   void release(std::uint32_t firstPage, std::uint32_t pages);
-  void compact(const std::function<void(BlockId)>& moved);
+  void compact(std::uint32_t pages, const std::function<void(BlockId)>& moved);
 
   AlignedBytes arena_;
   std::uint32_t pageCount_ = 0, usedPages_ = 0;

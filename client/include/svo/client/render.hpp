@@ -43,6 +43,8 @@ struct Camera {
 };
 // Camera from a JSON file: {"eye":[x,y,z], "target":[..], "up":[..], "fov":deg, "width":w, "height":h}.
 Camera loadCamera(const std::filesystem::path& path);
+// A camera path: a JSON array of such objects, one per frame.
+std::vector<Camera> loadCameraPath(const std::filesystem::path& path);
 
 struct RenderOptions {
   float lodPixels = 1.0f;  // stop at voxels no larger than this many pixels; 0 = finest level

@@ -1,0 +1,74 @@
+#include "streaming.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+namespace svo::tools {
+
+StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options) {
+  StreamedFrame out;
+  const auto start = std::chrono::steady_clock::now();
+  out.stats = pager.update(viewOf(pager.transform(), camera, options.lodPixels));
+  out.updateSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  out.frame = render(pager.trunk(), pager.transform(), camera, options);
+  pager.feedback(out.frame, camera, options.lodPixels);
+  return out;
+}
+
+double convergeView(Pager& pager, const Camera& camera, const RenderOptions& options, double timeoutSeconds,
+                    StreamedFrame* last) {
+  const auto start = std::chrono::steady_clock::now();
+  const auto elapsed = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  };
+  while (true) {
+    StreamedFrame step = streamFrame(pager, camera, options);
+    const bool done = pager.converged();
+    if (last) *last = std::move(step);
+    if (done) return elapsed();
+    if (elapsed() > timeoutSeconds) return -1.0;
+  }
+}
+
+FrameError frameError(const Frame& frame, const Frame& converged) {
+  FrameError e;
+  const std::size_t n = frame.color.size();
+  if (n == 0 || converged.color.size() != n) return {NAN, NAN};
+  double squares = 0.0;
+  std::size_t mismatch = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) {
+      const double d = double(frame.color[i][c]) - double(converged.color[i][c]);
+      squares += d * d;
+    }
+    mismatch += (frame.color[i].a > 0.0f) != (converged.color[i].a > 0.0f);
+  }
+  e.rmse = std::sqrt(squares / double(3 * n));
+  e.silhouettePercent = 100.0 * double(mismatch) / double(n);
+  return e;
+}
+
+void dropFileCache(const std::filesystem::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY);
+  if (fd < 0) return;
+  ::fdatasync(fd);
+  ::posix_fadvise(fd, 0, 0, POSIX_FADV_DONTNEED);
+  ::close(fd);
+}
+
+std::string formatBytes(std::size_t bytes) {
+  char text[32];
+  if (bytes >= (std::size_t(1) << 30))
+    std::snprintf(text, sizeof text, "%.2f GiB", double(bytes) / double(1 << 30));
+  else if (bytes >= (std::size_t(1) << 20))
+    std::snprintf(text, sizeof text, "%.1f MiB", double(bytes) / double(1 << 20));
+  else
+    std::snprintf(text, sizeof text, "%.1f KiB", double(bytes) / 1024.0);
+  return text;
+}
+
+}  // namespace svo::tools

@@ -1,0 +1,43 @@
+// Streaming helpers shared by `svo render --budget`, `svo stress` and `svo bench stream`: one streamed frame
+// (pager update, render of what is resident, ray feedback), convergence loops, and a frame's error against
+// the converged frame of the same camera.
+#pragma once
+
+#include <cstddef>
+#include <string>
+
+#include "svo/client/pager.hpp"
+#include "svo/client/render.hpp"
+
+namespace svo::tools {
+
+struct StreamedFrame {
+  Frame frame;
+  PagerStats stats;
+  double updateSeconds = 0.0;  // pager update (commits, evictions, requests) on the render thread
+  double seconds() const { return updateSeconds + frame.seconds; }
+};
+
+// One frame while streaming: update the pager for the camera's view, render, feed the rays back.
+StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options);
+
+// Streams frames of one camera until its view has converged. Returns the seconds taken, or a negative value
+// when `timeoutSeconds` passed first. `last` receives the final frame when given.
+double convergeView(Pager& pager, const Camera& camera, const RenderOptions& options, double timeoutSeconds,
+                    StreamedFrame* last = nullptr);
+
+// Error of a frame against the converged frame of the same camera: RMSE of linear RGB over all pixels and the
+// share of pixels that one hits and the other misses.
+struct FrameError {
+  double rmse = 0.0;
+  double silhouettePercent = 0.0;
+};
+FrameError frameError(const Frame& frame, const Frame& converged);
+
+// Drops the file's pages from the page cache (posix_fadvise), so the next reads come from the disk.
+void dropFileCache(const std::filesystem::path& path);
+
+// "64M" style sizes in messages.
+std::string formatBytes(std::size_t bytes);
+
+}  // namespace svo::tools
