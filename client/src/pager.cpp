@@ -18,9 +18,6 @@ constexpr double kFeedbackBoost = 4.0;
 // Feedback samples every kFeedbackStride-th pixel in x and y (1/64 of the rays: plenty to find the visible
 // slices, cheap next to the frame).
 constexpr int kFeedbackStride = 8;
-// A slice dropped for lack of room is requested again after this many updates (the view may have changed
-// what is evictable); bounds the work spent on a budget that is simply full.
-constexpr int kDeniedRetryUpdates = 16;
 // Cube levels the feedback lookup key packs (16 bits per coordinate); stores never split that deep in
 // practice (8^16 slices).
 constexpr int kMaxKeyedCubeLevel = 16;
@@ -372,7 +369,7 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
     while (take < candidates.size() && needed > pool_.freeBytes() + freed + reclaimable)
       reclaimable += pool_.size(regions_[candidates[take++]].block);
     if (needed > pool_.freeBytes() + freed + reclaimable) {
-      denied_[prepared.slice] = kDeniedRetryUpdates;
+      denied_[prepared.slice] = needed;
       return false;  // detail is dropped, never memory added
     }
     // Evicting a leaf can turn its parent into a leaf; this pass only evicts the ones found above, which
@@ -404,8 +401,22 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
 // ---------------------------------------------------------------------------------------------------------
 // The render thread's side.
 
+// Whether a block of `bytes` could be made room for at `priority`: free pages plus the leaf regions less
+// wanted. A slice once dropped for lack of room is asked for again only then, so a full budget settles.
+bool Pager::roomFor(std::size_t bytes, double priority) const {
+  std::size_t room = pool_.freeBytes();
+  for (std::uint32_t r = 1; r < regions_.size() && room < bytes; ++r) {
+    const Region& c = regions_[r];
+    if (!c.resident || c.priority >= priority) continue;
+    if (std::none_of(c.children.begin(), c.children.end(),
+                     [&](std::uint32_t k) { return regions_[k].resident != 0; }))
+      room += pool_.size(c.block);
+  }
+  return room >= bytes;
+}
+
 bool Pager::requestable(std::uint32_t slice) const {
-  if (failed_[slice] || inFlight_[slice] || denied_[slice]) return false;
+  if (failed_[slice] || inFlight_[slice]) return false;
   const Region& region = regions_[regionOf_[slice]];
   if (region.resident != indexInRegion_[slice]) return false;
   if (region.resident == 0 && region.parent >= 0) {
@@ -428,8 +439,6 @@ PagerStats Pager::update(const ViewQuery& view) {
     for (std::uint32_t k = 0; k < r.resident; ++k)
       r.priority = std::max(r.priority, wantedPriority_[r.slices[k]]);
   }
-  for (auto& d : denied_)
-    if (d) --d;
 
   // 2. Commit what the workers finished, most wanted first, within the time slice.
   std::vector<Prepared> finished;
@@ -464,7 +473,8 @@ PagerStats Pager::update(const ViewQuery& view) {
     const Region& region = regions_[regionOf_[s]];
     if (region.resident > indexInRegion_[s]) continue;
     ++missing;
-    if (requestable(s)) candidates.push_back({s, wantedPriority_[s], 0.0, true});
+    if (requestable(s) && (!denied_[s] || roomFor(denied_[s], wantedPriority_[s])))
+      candidates.push_back({s, wantedPriority_[s], 0.0, true});
   }
   std::sort(candidates.begin(), candidates.end(),
             [](const SliceRequest& a, const SliceRequest& b) { return a.priority > b.priority; });

@@ -332,3 +332,42 @@ TEST_F(Cli, BenchStoreOnAStoreAndOnAMesh) {
 }
 
 }  // namespace
+
+TEST_F(Cli, StreamingRenderStressAndTheirBadInput) {
+  const fs::path store = dir_ / "tet.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + store.string() + " --levels 7 --slice-size 4096")
+                .exitCode,
+            0);
+  // One view until converged, and a two-frame path with its CSV and plot.
+  const CommandResult one = svo("render " + store.string() + " --budget 16M --width 64 --height 64 -o " +
+                                (dir_ / "one.png").string());
+  ASSERT_EQ(one.exitCode, 0) << one.err;
+  EXPECT_NE(one.out.find("converged in"), std::string::npos) << one.out;
+  EXPECT_TRUE(fs::exists(dir_ / "one.png"));
+  const fs::path cams =
+      write("path.json",
+            "[{\"eye\": [2, 1, 2], \"target\": [0.2, 0.2, 0.2], \"width\": 48, \"height\": 48},"
+            " {\"eye\": [0.6, 0.5, 0.7], \"target\": [0.2, 0.2, 0.2], \"width\": 48, \"height\": 48}]");
+  const CommandResult path = svo("render " + store.string() + " --budget 16M --path " + cams.string() +
+                                 " -o " + (dir_ / "frames").string());
+  ASSERT_EQ(path.exitCode, 0) << path.err;
+  EXPECT_TRUE(fs::exists(dir_ / "frames" / "frame_0001.png"));
+  EXPECT_TRUE(fs::exists(dir_ / "frames" / "error.png"));
+  const std::string csv = slurp(dir_ / "frames" / "frames.csv");
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 3) << csv;  // header + 2 frames
+
+  const CommandResult stress = svo("stress " + store.string() + " --budgets 64K,8M --frames 6 --size 32");
+  ASSERT_EQ(stress.exitCode, 0) << stress.err;
+  EXPECT_NE(stress.out.find("zoom"), std::string::npos) << stress.out;
+
+  // Bad input: a budget below the trunk, a path without a budget, a path that is not an array.
+  expectCleanFailure(svo("render " + store.string() + " --budget 1K -o " + (dir_ / "x.png").string()),
+                     "budget", dir_ / "x.png");
+  expectCleanFailure(
+      svo("render " + store.string() + " --path " + cams.string() + " -o " + (dir_ / "y").string()),
+      "--budget", dir_ / "y");
+  const fs::path notArray = write("bad.json", "{\"eye\": [1, 1, 1], \"target\": [0, 0, 0]}");
+  expectCleanFailure(svo("render " + store.string() + " --budget 16M --path " + notArray.string() + " -o " +
+                         (dir_ / "z").string()),
+                     "array", dir_ / "z" / "frames.csv");
+}

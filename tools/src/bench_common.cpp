@@ -22,6 +22,7 @@ void addBenchCommands(CLI::App& bench) {
   bench::addStabilityBench(bench);
   bench::addQualityBench(bench);
   bench::addStoreBench(bench);
+  bench::addStreamBench(bench);
 }
 
 }  // namespace svo::tools

@@ -31,6 +31,7 @@ void addAccelBench(CLI::App& bench);      // bench_accel.cpp
 void addStabilityBench(CLI::App& bench);  // bench_stability.cpp
 void addQualityBench(CLI::App& bench);    // bench_quality.cpp
 void addStoreBench(CLI::App& bench);      // bench_store.cpp
+void addStreamBench(CLI::App& bench);     // bench_stream.cpp
 
 // Median, smallest and largest of a set of samples (seconds, or any other unit).
 struct Summary {

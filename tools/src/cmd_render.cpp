@@ -91,13 +91,13 @@ void renderConverged(const RenderArgs& args, RenderOptions options) {
 
 // A camera path while streaming: frames, frames.csv, error.png.
 void renderPath(const RenderArgs& args, RenderOptions options) {
+  const std::vector<Camera> cameras = loadCameraPath(args.pathFile);
   const std::filesystem::path folder = args.out;
   std::error_code ec;
   std::filesystem::create_directories(folder, ec);
   if (ec || !std::filesystem::is_directory(folder))
     throw UsageError(args.out + ": cannot create the output folder");
   checkWritableOutput(folder / "frames.csv");
-  const std::vector<Camera> cameras = loadCameraPath(args.pathFile);
   Pager pager(args.in, pagerOptions(args.budget, args.ioThreads));
   options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
 
@@ -222,13 +222,13 @@ void addRenderCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->callback([args] {
     if (args->budget > 0) return renderStreaming(*args);
+    if (!args->pathFile.empty()) throw UsageError("--path needs --budget (it streams the store)");
     const std::filesystem::path out = args->out;
     const std::string ext = out.extension().string();
     if (ext != ".png" && ext != ".exr") throw UsageError(args->out + ": output must end in .png or .exr");
     if (args->aux && ext != ".exr")
       throw UsageError("--aux needs an .exr output (PNG has no float channels)");
     checkWritableOutput(out);
-    if (!args->pathFile.empty()) throw UsageError("--path needs --budget (it streams the store)");
     const Octree octree = readOctree(args->in);
     const Camera camera = cameraOf(*args, octree.transform);
     RenderOptions options = args->options;

@@ -11,6 +11,7 @@ void addBuildCommand(CLI::App& app);     // cmd_build.cpp
 void addRenderCommand(CLI::App& app);    // cmd_render.cpp
 void addStoreCommands(CLI::App& app);    // cmd_store.cpp: `svo verify`, `svo inspect`
 void addGenCommand(CLI::App& app);       // cmd_gen.cpp: `svo gen`
+void addStressCommand(CLI::App& app);    // cmd_stress.cpp: `svo stress`
 void addBenchCommands(CLI::App& bench);  // bench_*.cpp: `svo bench raycast`, `build`, `store`
 
 // Thrown by subcommands for a bad command line: main prints "svo: <message>" and exits 2.

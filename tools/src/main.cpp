@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   svo::tools::addRenderCommand(app);
   svo::tools::addStoreCommands(app);
   svo::tools::addGenCommand(app);
+  svo::tools::addStressCommand(app);
   auto* bench = app.add_subcommand("bench", "benchmarks against peers measured in the same run");
   bench->require_subcommand(1);
   svo::tools::addBenchCommands(*bench);

@@ -133,6 +133,7 @@ class Pager {
   void link(std::uint32_t region);
   void relinkAll();
   bool requestable(std::uint32_t slice) const;
+  bool roomFor(std::size_t bytes, double priority) const;
   const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
   ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
 
@@ -147,7 +148,7 @@ class Pager {
   std::vector<std::vector<std::int32_t>> cubeLevelsOf_;
   std::unordered_map<std::uint32_t, std::uint32_t> feedbackHits_;
   std::vector<double> wantedPriority_;  // per slice, from the last update (0 = not wanted)
-  std::vector<std::uint8_t> denied_;    // updates until a slice dropped for lack of room is requested again
+  std::vector<std::size_t> denied_;     // bytes a slice dropped for lack of room needed (0 = not dropped)
   std::vector<std::string> errors_;
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0;
   std::atomic<std::uint64_t> bytesRead_{0};

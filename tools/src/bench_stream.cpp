@@ -1,0 +1,212 @@
+// `svo bench stream IN.svo`: the paging client's numbers (issue 5), each against its reference in the same
+// run:
+//   - open to first complete coarse image (cold file), goal < 100 ms;
+//   - a close-up view from a cold start until converged, against reading the same slices' bytes sequentially
+//     from the cold file, goal <= 1.5x; with the error of every frame against the converged one over time,
+//     one curve per budget (error_vs_time.png);
+//   - frame time while streaming a camera path, p99, against the same path with everything resident, goal
+//     <= 1.5x.
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+#include <spdlog/spdlog.h>
+#include <glm/geometric.hpp>
+
+#include "bench_common.hpp"
+#include "commands.hpp"
+#include "plot.hpp"
+#include "streaming.hpp"
+
+namespace svo::tools::bench {
+namespace {
+
+struct StreamArgs {
+  std::string input, output = "stream-report";
+  std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
+  int size = 512, runs = 3, pathFrames = 60;
+  float lodPixels = 1.0f;
+  double timeout = 300.0;
+};
+
+double since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+double percentile(std::vector<double> v, double q) {
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
+}
+
+// Reads the slices' compressed bytes in file order with one thread: the sequential reference.
+double readSequentially(const StoreReader& store, const std::vector<std::uint32_t>& slices) {
+  std::vector<std::uint32_t> order = slices;
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return store.slices()[a].offset < store.slices()[b].offset;
+  });
+  dropFileCache(store.path());
+  const int fd = ::open(store.path().c_str(), O_RDONLY);
+  if (fd < 0) throw std::runtime_error(store.path().string() + ": cannot open");
+  std::vector<char> buffer;
+  const auto start = std::chrono::steady_clock::now();
+  for (const std::uint32_t s : order) {
+    const SliceInfo& info = store.slices()[s];
+    buffer.resize(info.compressedBytes);
+    std::size_t done = 0;
+    while (done < buffer.size()) {
+      const ssize_t got = ::pread(fd, buffer.data() + done, buffer.size() - done, off_t(info.offset + done));
+      if (got <= 0) break;
+      done += std::size_t(got);
+    }
+  }
+  const double seconds = since(start);
+  ::close(fd);
+  return seconds;
+}
+
+Camera closeUp(const Pager& pager, int size) {
+  // Aim at the surface the centre pixel of a framing view sees, and stand a few percent of the scene away.
+  const SceneTransform& scene = pager.transform();
+  Camera framing = Camera::framing(scene, glm::dvec3(-0.35, -0.25, -1.0), size, size);
+  RenderOptions options;
+  options.lodPixels = 1.0f;
+  const Frame frame = render(pager.trunk(), scene, framing, options);
+  const std::size_t centre = std::size_t(size / 2) * std::size_t(size) + std::size_t(size / 2);
+  double depth = frame.depth[centre];
+  if (!std::isfinite(depth)) depth = glm::length(framing.target - framing.eye);
+  glm::dvec3 direction;
+  Camera::pixelRay(framing, framing.basis(), size / 2, size / 2, direction);
+  Camera c = framing;
+  c.target = framing.eye + direction * depth;
+  c.eye = c.target - direction * (0.04 * scene.size);
+  return c;
+}
+
+std::vector<Camera> orbitPath(const SceneTransform& scene, int frames, int size) {
+  const glm::dvec3 centre = scene.origin + 0.5 * scene.size;
+  std::vector<Camera> out;
+  for (int i = 0; i < frames; ++i) {
+    const double s = double(i) / std::max(1, frames - 1), a = 2.0 * s;
+    Camera c;
+    c.width = c.height = size;
+    c.fovYDegrees = 40.0;
+    c.target = centre;
+    const double d = scene.size * (1.6 - 1.1 * s);
+    c.eye = centre + glm::dvec3(d * std::sin(a), 0.3 * scene.size, d * std::cos(a));
+    out.push_back(c);
+  }
+  return out;
+}
+
+void runStreamBench(const StreamArgs& args) {
+  requireRuns(args.runs);
+  std::filesystem::create_directories(args.output);
+  RenderOptions options;
+  options.lodPixels = args.lodPixels;
+  Table table({"budget", "first image", "close-up converge", "bytes read", "sequential read",
+               "converge / seq", "stream p99", "resident p99", "p99 ratio", "max resident"});
+  std::vector<plot::Series> curves;
+  for (const std::size_t budget : args.budgets) {
+    PagerOptions pagerOptions;
+    pagerOptions.budgetBytes = budget;
+    // 1. Open to the first coarse image, cold.
+    std::vector<double> firstImage;
+    for (int run = 0; run < args.runs; ++run) {
+      dropFileCache(args.input);
+      const auto start = std::chrono::steady_clock::now();
+      Pager pager(args.input, pagerOptions);
+      const Camera framing =
+          Camera::framing(pager.transform(), glm::dvec3(-0.35, -0.25, -1.0), args.size, args.size);
+      render(pager.trunk(), pager.transform(), framing, options);
+      firstImage.push_back(since(start));
+    }
+    // 2. Close-up from cold: converge, bytes, the same bytes read sequentially; error over time.
+    std::vector<double> converge, sequential;
+    std::uint64_t bytes = 0;
+    plot::Series curve{formatBytes(budget), {}};
+    for (int run = 0; run < args.runs; ++run) {
+      dropFileCache(args.input);
+      Pager pager(args.input, pagerOptions);
+      const Camera camera = closeUp(pager, args.size);
+      std::vector<std::pair<double, Frame>> frames;
+      const auto start = std::chrono::steady_clock::now();
+      bool done = false;
+      while (!done && since(start) < args.timeout) {
+        StreamedFrame step = streamFrame(pager, camera, options);
+        done = pager.converged();
+        if (run == 0) frames.push_back({since(start), std::move(step.frame)});
+      }
+      if (!done) throw std::runtime_error(args.input + ": the close-up did not converge within the timeout");
+      converge.push_back(since(start));
+      bytes = pager.bytesRead();
+      sequential.push_back(readSequentially(pager.store(), pager.residentSlices()));
+      if (run == 0)
+        for (const auto& [t, frame] : frames)
+          curve.points.push_back({t, std::max(1e-4, frameError(frame, frames.back().second).rmse)});
+    }
+    curves.push_back(curve);
+    // 3. A camera path streaming, against the same path with everything each frame wants resident.
+    std::vector<double> streaming, resident;
+    std::size_t maxResident = 0;
+    {
+      Pager pager(args.input, pagerOptions);
+      for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
+        const StreamedFrame step = streamFrame(pager, c, options);
+        streaming.push_back(step.seconds());
+        maxResident = std::max(maxResident, step.stats.residentBytes);
+      }
+      for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
+        convergeView(pager, c, options, args.timeout);
+        resident.push_back(streamFrame(pager, c, options).seconds());
+      }
+    }
+    const Summary first = summarize(firstImage), conv = summarize(converge), seq = summarize(sequential);
+    const double streamP99 = percentile(streaming, 0.99), residentP99 = percentile(resident, 0.99);
+    char ratio[32], p99ratio[32];
+    std::snprintf(ratio, sizeof ratio, "%.2fx", conv.median / seq.median);
+    std::snprintf(p99ratio, sizeof p99ratio, "%.2fx", streamP99 / residentP99);
+    table.addRow({formatBytes(budget), formatSeconds(first.median), formatSeconds(conv.median),
+                  formatBytes(bytes), formatSeconds(seq.median), ratio, formatSeconds(streamP99),
+                  formatSeconds(residentP99), p99ratio, formatBytes(maxResident)});
+  }
+  const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
+  plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},
+                        "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
+  printTitle("svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
+             std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs)");
+  table.print();
+  std::printf("goals: first image < 100 ms; converge / seq <= 1.5x; streaming p99 <= 1.5x resident p99\n");
+  std::printf("wrote %s\n", plotPath.c_str());
+}
+
+}  // namespace
+
+void addStreamBench(CLI::App& bench) {
+  auto args = std::make_shared<StreamArgs>();
+  auto* cmd = bench.add_subcommand("stream",
+                                   "paging client: first image, cold convergence vs sequential read, "
+                                   "streaming frame time vs resident, error over time");
+  cmd->add_option("input", args->input, "a .svo store")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--budgets", args->budgets, "pool budgets, e.g. 32M,256M (default 32M,256M)")
+      ->delimiter(',')
+      ->transform(CLI::AsSizeValue(false));
+  cmd->add_option("-o,--output", args->output, "folder for error_vs_time.png")->capture_default_str();
+  cmd->add_option("--size", args->size, "frame width and height")
+      ->check(CLI::Range(8, 4096))
+      ->capture_default_str();
+  cmd->add_option("--runs", args->runs, "cold runs per measurement; the median is reported")
+      ->capture_default_str();
+  cmd->add_option("--frames", args->pathFrames, "frames of the camera path")
+      ->check(CLI::Range(2, 100000))
+      ->capture_default_str();
+  cmd->add_option("--lod-pixels", args->lodPixels, "target voxel size in pixels")
+      ->check(CLI::Range(0.01, 64.0))
+      ->capture_default_str();
+  cmd->callback([args] { runStreamBench(*args); });
+}
+
+}  // namespace svo::tools::bench
