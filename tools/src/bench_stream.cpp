@@ -37,11 +37,6 @@ double since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-double percentile(std::vector<double> v, double q) {
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
-}
-
 // Reads the slices' compressed bytes in file order with one thread: the sequential reference.
 double readSequentially(const StoreReader& store, const std::vector<std::uint32_t>& slices) {
   std::vector<std::uint32_t> order = slices;

@@ -146,8 +146,7 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
                          {"silhouette mismatch while streaming", {silhouette}}},
                         "elapsed seconds", "error", 1400, 600);
   const bench::Summary ms = bench::summarize(frameMs);
-  std::sort(frameMs.begin(), frameMs.end());
-  const double p99 = frameMs[std::min(frameMs.size() - 1, std::size_t(0.99 * double(frameMs.size())))];
+  const double p99 = percentile(frameMs, 0.99);
   std::printf("%zu frames in %.2f s: frame time median %.1f ms, p99 %.1f ms; resident at most %s of %s\n",
               cameras.size(), elapsed.back(), ms.median, p99, formatBytes(maxResident).c_str(),
               formatBytes(pager.budgetBytes()).c_str());

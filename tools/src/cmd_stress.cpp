@@ -115,11 +115,11 @@ void runStress(const StressArgs& args) {
         before = after;
       }
       const double converge = convergeView(*pager, cameras.back(), render, args.timeout);
-      std::sort(frameMs.begin(), frameMs.end());
-      const double p99 = frameMs[std::min(frameMs.size() - 1, std::size_t(0.99 * double(frameMs.size())))];
+      const double p99 = percentile(frameMs, 0.99);
+      const double worstMs = *std::max_element(frameMs.begin(), frameMs.end());
       char thrash[32], worst[32], p99Text[32], conv[32];
       std::snprintf(thrash, sizeof thrash, "%.1f%%", loads ? 100.0 * double(reloads) / double(loads) : 0.0);
-      std::snprintf(worst, sizeof worst, "%.1f ms", frameMs.back());
+      std::snprintf(worst, sizeof worst, "%.1f ms", worstMs);
       std::snprintf(p99Text, sizeof p99Text, "%.1f ms", p99);
       if (converge >= 0.0)
         std::snprintf(conv, sizeof conv, "%.2f s", converge);

@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <string>
+#include <vector>
 
 #include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
@@ -36,6 +37,9 @@ FrameError frameError(const Frame& frame, const Frame& converged);
 
 // Drops the file's pages from the page cache (posix_fadvise), so the next reads come from the disk.
 void dropFileCache(const std::filesystem::path& path);
+
+// The q-quantile (0..1) of the samples, nearest rank; NaN for none.
+double percentile(std::vector<double> samples, double q);
 
 // "64M" style sizes in messages.
 std::string formatBytes(std::size_t bytes);
