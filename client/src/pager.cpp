@@ -1,5 +1,7 @@
 #include "svo/client/pager.hpp"
 
+#include <pthread.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -21,6 +23,9 @@ constexpr int kFeedbackStride = 8;
 // Cube levels the feedback lookup key packs (16 bits per coordinate); stores never split that deep in
 // practice (8^16 slices).
 constexpr int kMaxKeyedCubeLevel = 16;
+// A block's bytes per decoded slice byte it holds, for judging whether a chained request's block will fit
+// before it is built (measured: 2.4-3.0 on the bunny's single-slice regions, 1.5 on its 8-slice trunk).
+constexpr double kBlockBytesPerRawByte = 3.0;
 
 std::uint64_t sliceKey(int voxelLevel, int cubeLevel, glm::ivec3 c) {
   return std::uint64_t(voxelLevel) << 58 | std::uint64_t(cubeLevel) << 53 | std::uint64_t(c.x) << 32 |
@@ -101,7 +106,7 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
   const std::vector<SliceInfo>& slices = store_.slices();
   const std::size_t n = slices.size();
   regionOf_.assign(n, 0), indexInRegion_.assign(n, 0), failed_.assign(n, 0), inFlight_.assign(n, 0);
-  wantedPriority_.assign(n, 0.0), denied_.assign(n, 0);
+  wantedPriority_.assign(n, 0.0), viewPriority_.assign(n, 0.0), denied_.assign(n, 0);
   cubeLevelsOf_.resize(std::size_t(kMaxLevels) + 2);
   std::map<std::uint64_t, std::uint32_t> regionAt;  // (cube level, cube) -> region
   const auto fail = [&](std::uint32_t s, const std::string& what) {
@@ -145,19 +150,18 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
   if (regions_.empty()) throw std::runtime_error(path.string() + ": the store has no slices");
 
   // The trunk: the root cube's levels, synchronously. It is the first coarse image and never leaves the pool.
-  for (const std::uint32_t slice : regions_[0].slices) {
-    Prepared prepared = prepare({slice, 1.0});
-    if (!prepared.error.empty()) throw std::runtime_error(prepared.error);
-    const std::size_t needed = prepared.block.bytes().size();
-    if (needed > pool_.capacityBytes())
-      throw std::runtime_error("budget: " + std::to_string(pool_.capacityBytes()) +
-                               " bytes cannot hold the trunk (levels 1-" +
-                               std::to_string(store_.slices()[slice].voxelLevel) + ") of " + path.string() +
-                               ", which needs " + std::to_string(needed) + " bytes");
-    PagerStats ignored;
-    wantedPriority_[slice] = 1.0;
-    if (!commit(prepared, ignored)) throw std::logic_error("pager: the trunk did not commit");
-  }
+  const std::vector<std::uint32_t>& trunk = regions_[0].slices;
+  Prepared prepared = prepare({trunk.front(), std::uint32_t(trunk.size()), 1.0});
+  if (!prepared.error.empty()) throw std::runtime_error(prepared.error);
+  const std::size_t needed = prepared.block.bytes().size();
+  if (needed > pool_.capacityBytes())
+    throw std::runtime_error("budget: " + std::to_string(pool_.capacityBytes()) +
+                             " bytes cannot hold the trunk (levels 1-" +
+                             std::to_string(store_.slices()[trunk.back()].voxelLevel) + ") of " +
+                             path.string() + ", which needs " + std::to_string(needed) + " bytes");
+  PagerStats ignored;
+  for (const std::uint32_t slice : trunk) wantedPriority_[slice] = viewPriority_[slice] = 1.0;
+  if (!commit(prepared, ignored)) throw std::logic_error("pager: the trunk did not commit");
   for (int i = 0; i < options.ioThreads; ++i) workers_.emplace_back([this](std::stop_token t) { work(t); });
 }
 
@@ -182,6 +186,7 @@ ChildDescriptor* Pager::descriptorAt(Region& region, std::uint32_t slot) {
 // Workers.
 
 void Pager::work(std::stop_token stop) {
+  pthread_setname_np(pthread_self(), "svo-pager");  // tells the workers apart in top, perf and gdb
   while (true) {
     Request request;
     {
@@ -205,25 +210,37 @@ Pager::Prepared Pager::prepare(const Request& request) {
   Prepared out;
   out.slice = request.slice;
   out.region = regionOf_[request.slice];
-  out.priority = request.priority;
-  std::vector<std::byte> raw;
-  try {
-    raw = store_.readSlice(request.slice);  // disk, checksum and zstd: no lock held
-    bytesRead_.fetch_add(store_.slices()[request.slice].compressedBytes, std::memory_order_relaxed);
-  } catch (const std::exception& e) {
-    out.error = e.what();
-    return out;
+  out.requested = request.count;
+  const Region& region = regions_[out.region];  // its slice list never changes: no lock needed
+  const std::uint32_t first = indexInRegion_[request.slice];
+  const auto fail = [&](std::uint32_t slice, const std::string& what) {
+    out.failedSlice = slice;
+    out.error = store_.path().string() + ": slice " + std::to_string(slice) + ": " + what;
+  };
+  // Disk, checksum and zstd, no lock held; a failed slice ends the chain, the ones before it still load.
+  std::vector<std::vector<std::byte>> raw;
+  for (std::uint32_t k = 0; k < request.count; ++k) {
+    const std::uint32_t slice = region.slices[first + k];
+    try {
+      raw.push_back(store_.readSlice(slice));
+      bytesRead_.fetch_add(store_.slices()[slice].compressedBytes, std::memory_order_relaxed);
+    } catch (const std::exception& e) {
+      out.error = e.what();
+      out.failedSlice = slice;
+      break;
+    }
   }
+  if (raw.empty()) return out;
+
   std::shared_lock lock(poolMutex_);
-  const Region& region = regions_[out.region];
   out.version = region.version;
   const std::uint32_t resident = region.resident;
-  if (resident != indexInRegion_[request.slice]) return out;  // stale: commit drops it
+  if (resident != first) return out;  // stale: commit drops it
   const StoreHeader& header = store_.header();
+  VoxelLevels levels;
   try {
-    VoxelLevels levels;
     if (region.resident > 0) {
-      // Deepen: the region's own block, one level more.
+      // Deepen: the region's own block, more levels.
       const BlockView view = BlockView::unchecked(pool_.data(region.block), pool_.size(region.block));
       levels = readSubtree(descriptorAt(region, region.rootSlot),
                            {region.cubeCoord, 0, false, 0, rootValue(view, AttachmentType::Color),
@@ -253,20 +270,34 @@ Pager::Prepared Pager::prepare(const Request& request) {
       }
       levels = readSubtree(d, voxel);
     }
-    // The pool is read; decoding and layout need only this copy, so commits need not wait for them.
-    lock.unlock();
-    const SliceInfo& info = store_.slices()[request.slice];
-    if (region.cubeLevel + int(levels.size()) != info.voxelLevel)
-      throw std::runtime_error("the resident levels do not end above it");
-    std::vector<SliceVoxel> added;
-    store_.decodeSlice(request.slice, raw, levels.back(), added);
-    levels.push_back(std::move(added));
+  } catch (const std::exception& e) {
+    fail(request.slice, e.what());
+    return out;
+  }
+  // The pool is read; decoding and layout need only this copy, so commits need not wait for them.
+  lock.unlock();
+  for (std::uint32_t k = 0; k < raw.size(); ++k) {
+    const std::uint32_t slice = region.slices[first + k];
+    try {
+      if (region.cubeLevel + int(levels.size()) != store_.slices()[slice].voxelLevel)
+        throw std::runtime_error("the resident levels do not end above it");
+      std::vector<SliceVoxel> added;
+      store_.decodeSlice(slice, raw[k], levels.back(), added);
+      levels.push_back(std::move(added));
+      ++out.added;
+    } catch (const std::exception& e) {
+      fail(slice, e.what());
+      break;
+    }
+  }
+  if (out.added == 0) return out;
 
+  try {
     VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
     // Completing the region: its child regions' cube voxels get descriptors to link them by (stubs where the
     // voxel has no children here).
     std::map<std::uint32_t, std::size_t> recordOf;
-    if (resident + 1 == region.slices.size()) {
+    if (resident + out.added == region.slices.size()) {
       std::vector<std::size_t> levelStart{0};
       for (const auto& l : levels) levelStart.push_back(levelStart.back() + l.size());
       for (const std::uint32_t child : region.children) {
@@ -289,7 +320,8 @@ Pager::Prepared Pager::prepare(const Request& request) {
     out.rootSlot = out.block.view().info().rootSlot;
     for (const auto& [child, record] : recordOf) out.childSlot[child] = slotOf[record];
   } catch (const std::exception& e) {
-    out.error = store_.path().string() + ": slice " + std::to_string(request.slice) + ": " + e.what();
+    fail(region.slices[first + out.added - 1], e.what());
+    out.added = 0;
     out.block = Block();
   }
   return out;
@@ -327,21 +359,22 @@ void Pager::evict(std::uint32_t index, PagerStats& stats) {
 }
 
 bool Pager::commit(Prepared& prepared, PagerStats& stats) {
-  inFlight_[prepared.slice] = 0;
   Region& region = regions_[prepared.region];
+  const std::uint32_t first = indexInRegion_[prepared.slice];
+  for (std::uint32_t k = 0; k < prepared.requested; ++k) inFlight_[region.slices[first + k]] = 0;
   if (!prepared.error.empty()) {
-    failed_[prepared.slice] = 1;
+    failed_[prepared.failedSlice] = 1;
     ++stats.failed;
     errors_.push_back(prepared.error);
-    return false;
   }
-  if (prepared.block.bytes().size() == 0 || region.version != prepared.version ||
-      region.resident != indexInRegion_[prepared.slice])
-    return false;  // stale: the region changed while the worker read it
+  if (prepared.added == 0 || region.version != prepared.version || region.resident != first)
+    return false;  // nothing to add, or stale: the region changed while the worker read it
   if (region.parent >= 0 &&
       regions_[std::size_t(region.parent)].resident != regions_[std::size_t(region.parent)].slices.size())
     return false;
-  const double priority = wantedPriority_[prepared.slice];
+  // Room is made by the view's own ranking, without ray feedback: a slice's feedback stops once it is
+  // resident (rays then stop at its finer voxels), so boosted slices would evict each other in turn.
+  const double priority = viewPriority_[prepared.slice];
   if (priority <= 0.0) {
     ++stats.cancelled;  // the view moved on while it was read
     return false;
@@ -355,13 +388,8 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
     for (std::int32_t r = std::int32_t(prepared.region); r >= 0; r = regions_[std::size_t(r)].parent)
       keep[std::size_t(r)] = 1;
     std::vector<std::uint32_t> candidates;
-    for (std::uint32_t r = 1; r < regions_.size(); ++r) {
-      const Region& c = regions_[r];
-      if (!c.resident || keep[r] || c.priority >= priority) continue;
-      const bool leaf = std::none_of(c.children.begin(), c.children.end(),
-                                     [&](std::uint32_t k) { return regions_[k].resident != 0; });
-      if (leaf) candidates.push_back(r);
-    }
+    for (std::uint32_t r = 1; r < regions_.size(); ++r)
+      if (!keep[r] && evictable(r, priority)) candidates.push_back(r);
     std::sort(candidates.begin(), candidates.end(),
               [&](std::uint32_t a, std::uint32_t b) { return regions_[a].priority < regions_[b].priority; });
     std::size_t reclaimable = 0;
@@ -369,8 +397,10 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
     while (take < candidates.size() && needed > pool_.freeBytes() + freed + reclaimable)
       reclaimable += pool_.size(regions_[candidates[take++]].block);
     if (needed > pool_.freeBytes() + freed + reclaimable) {
-      denied_[prepared.slice] = needed;
-      return false;  // detail is dropped, never memory added
+      // Detail is dropped, never memory added. The chain's last slice is marked, so a shorter chain can
+      // still load.
+      denied_[region.slices[first + prepared.added - 1]] = needed;
+      return false;
     }
     // Evicting a leaf can turn its parent into a leaf; this pass only evicts the ones found above, which
     // together suffice.
@@ -386,7 +416,8 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
   region.rootSlot = prepared.rootSlot;
   region.childSlot = std::move(prepared.childSlot);
   region.unlinked.clear();
-  ++region.resident;
+  for (std::uint32_t k = 0; k < prepared.added; ++k) denied_[region.slices[first + k]] = 0;
+  region.resident += prepared.added;
   ++region.version;
   region.priority = std::max(region.priority, priority);
   if (moved) {
@@ -394,25 +425,46 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
   } else if (region.parent >= 0) {
     link(prepared.region);
   }
-  ++stats.loaded;
+  stats.loaded += prepared.added;
   return true;
 }
 
 // ---------------------------------------------------------------------------------------------------------
 // The render thread's side.
 
+// A resident region that no resident region hangs from, less wanted than `priority`; never the trunk.
+bool Pager::evictable(std::uint32_t index, double priority) const {
+  const Region& r = regions_[index];
+  return index != 0 && r.resident && r.priority < priority &&
+         std::none_of(r.children.begin(), r.children.end(),
+                      [&](std::uint32_t k) { return regions_[k].resident != 0; });
+}
+
 // Whether a block of `bytes` could be made room for at `priority`: free pages plus the leaf regions less
 // wanted. A slice once dropped for lack of room is asked for again only then, so a full budget settles.
 bool Pager::roomFor(std::size_t bytes, double priority) const {
   std::size_t room = pool_.freeBytes();
-  for (std::uint32_t r = 1; r < regions_.size() && room < bytes; ++r) {
-    const Region& c = regions_[r];
-    if (!c.resident || c.priority >= priority) continue;
-    if (std::none_of(c.children.begin(), c.children.end(),
-                     [&](std::uint32_t k) { return regions_[k].resident != 0; }))
-      room += pool_.size(c.block);
-  }
+  for (std::uint32_t r = 1; r < regions_.size() && room < bytes; ++r)
+    if (evictable(r, priority)) room += pool_.size(regions_[r].block);
   return room >= bytes;
+}
+
+// How many of the region's slices from `slice` on one request takes: the following ones too while the view
+// wants them and the grown block would still fit the free pages (a chain never evicts to make room for its
+// tail).
+std::uint32_t Pager::chainLength(std::uint32_t slice) const {
+  const Region& region = regions_[regionOf_[slice]];
+  double estimate = (region.resident ? double(pool_.size(region.block)) : 0.0) +
+                    kBlockBytesPerRawByte * store_.slices()[slice].rawBytes;
+  std::uint32_t count = 1;
+  for (std::uint32_t i = indexInRegion_[slice] + 1; i < region.slices.size(); ++i, ++count) {
+    const std::uint32_t s = region.slices[i];
+    estimate += kBlockBytesPerRawByte * store_.slices()[s].rawBytes;
+    if (viewPriority_[s] <= 0.0 || failed_[s] || denied_[s] > pool_.freeBytes() ||
+        estimate > double(pool_.freeBytes()))
+      break;
+  }
+  return count;
 }
 
 bool Pager::requestable(std::uint32_t slice) const {
@@ -431,13 +483,16 @@ PagerStats Pager::update(const ViewQuery& view) {
   const std::size_t n = store_.slices().size();
   // 1. What the view wants, with ray feedback.
   std::fill(wantedPriority_.begin(), wantedPriority_.end(), 0.0);
-  for (const SliceRequest& r : scheduleSlices(store_.slices(), view))
+  std::fill(viewPriority_.begin(), viewPriority_.end(), 0.0);
+  for (const SliceRequest& r : scheduleSlices(store_.slices(), view)) {
+    viewPriority_[r.slice] = r.priority;
     wantedPriority_[r.slice] = r.priority * (feedbackHits_.count(r.slice) ? kFeedbackBoost : 1.0);
+  }
   feedbackHits_.clear();
   for (Region& r : regions_) {
     r.priority = 0.0;
     for (std::uint32_t k = 0; k < r.resident; ++k)
-      r.priority = std::max(r.priority, wantedPriority_[r.slices[k]]);
+      r.priority = std::max(r.priority, viewPriority_[r.slices[k]]);
   }
 
   // 2. Commit what the workers finished, most wanted first, within the time slice.
@@ -473,7 +528,7 @@ PagerStats Pager::update(const ViewQuery& view) {
     const Region& region = regions_[regionOf_[s]];
     if (region.resident > indexInRegion_[s]) continue;
     ++missing;
-    if (requestable(s) && (!denied_[s] || roomFor(denied_[s], wantedPriority_[s])))
+    if (requestable(s) && (!denied_[s] || roomFor(denied_[s], viewPriority_[s])))
       candidates.push_back({s, wantedPriority_[s], 0.0, true});
   }
   std::sort(candidates.begin(), candidates.end(),
@@ -481,27 +536,32 @@ PagerStats Pager::update(const ViewQuery& view) {
   {
     std::lock_guard lock(queueMutex_);
     // Re-rank what is queued with this view's priorities; what it no longer wants is cancelled.
+    const auto setInFlight = [&](const Request& q, std::uint8_t value) {
+      const Region& region = regions_[regionOf_[q.slice]];
+      for (std::uint32_t k = 0; k < q.count; ++k)
+        inFlight_[region.slices[indexInRegion_[q.slice] + k]] = value;
+    };
     std::vector<Request> keep;
     for (const Request& q : queue_) {
       if (wantedPriority_[q.slice] > 0.0) {
-        keep.push_back({q.slice, wantedPriority_[q.slice]});
+        keep.push_back({q.slice, q.count, wantedPriority_[q.slice]});
       } else {
-        inFlight_[q.slice] = 0;
-        ++stats.cancelled;
+        setInFlight(q, 0);
+        stats.cancelled += q.count;
       }
     }
     for (const SliceRequest& c : candidates) {
       if (keep.size() + working_ + done_.size() >= std::size_t(options_.maxInFlight)) break;
-      keep.push_back({c.slice, c.priority});
-      inFlight_[c.slice] = 1;
-      ++stats.requested;
+      keep.push_back({c.slice, chainLength(c.slice), c.priority});
+      setInFlight(keep.back(), 1);
+      stats.requested += keep.back().count;
     }
     std::sort(keep.begin(), keep.end(),
               [](const Request& a, const Request& b) { return a.priority > b.priority; });
     // Over the limit after re-ranking: the least wanted wait for a later update.
     while (keep.size() + working_ + done_.size() > std::size_t(options_.maxInFlight) && !keep.empty()) {
-      inFlight_[keep.back().slice] = 0;
-      ++stats.cancelled;
+      setInFlight(keep.back(), 0);
+      stats.cancelled += keep.back().count;
       keep.pop_back();
     }
     queue_.assign(keep.begin(), keep.end());

@@ -14,7 +14,7 @@ BlockPool::BlockPool(std::size_t budgetBytes) {
   pageCount_ = std::uint32_t(std::min<std::size_t>(budgetBytes / kPageBytes, UINT32_MAX));
   // Exactly the budget, rounded down to whole pages; AlignedBytes zero-fills, so the pages are touched once
   // here and the resident size is the budget from the start (no surprise growth later).
-  arena_ = AlignedBytes(std::size_t(pageCount_) * kPageBytes);
+  arena_ = AlignedBytes(std::size_t(pageCount_) * kPageBytes, /*zeroed=*/false);
   freeRuns_[0] = pageCount_;
 }
 

@@ -14,12 +14,12 @@
 namespace svo {
 
 // ---------------------------------------------------------------------------------------------------------
-AlignedBytes::AlignedBytes(std::size_t size) {
+AlignedBytes::AlignedBytes(std::size_t size, bool zeroed) {
   const std::size_t rounded =
       std::max<std::size_t>(kPageBytes, (size + kPageBytes - 1) / kPageBytes * kPageBytes);
   auto* p = static_cast<std::byte*>(std::aligned_alloc(kPageBytes, rounded));
   if (!p) throw std::bad_alloc();
-  std::memset(p, 0, rounded);
+  if (zeroed) std::memset(p, 0, rounded);
   data_.reset(p);
   size_ = rounded;
 }

@@ -110,19 +110,23 @@ class Pager {
     std::map<std::uint32_t, std::uint32_t> childSlot;   // child region -> its cube voxel's slot in this block
     std::map<std::uint32_t, ChildDescriptor> unlinked;  // slot -> descriptor before a link replaced it
     std::uint64_t version = 0;                          // bumped by every commit or eviction
-    double priority = 0.0;                              // highest wanted priority of its resident slices
+    double priority = 0.0;                              // highest view priority of its resident slices
   };
+  // Consecutive slices of one region, `count` from `slice` on: a worker decodes them in turn and lays the
+  // region out once, so a cold view deepens a region by several levels in one commit.
   struct Request {
-    std::uint32_t slice = 0;
+    std::uint32_t slice = 0, count = 1;
     double priority = 0.0;
   };
   struct Prepared {  // a worker's new block for a region, or the error that stopped it
     std::uint32_t slice = 0, region = 0;
-    std::uint64_t version = 0;  // of the region when read
-    double priority = 0.0;
+    std::uint32_t requested = 0;  // slices of the request
+    std::uint32_t added = 0;      // slices the block adds (fewer than requested when one failed)
+    std::uint64_t version = 0;    // of the region when read
     Block block;
     std::uint32_t rootSlot = 0;
     std::map<std::uint32_t, std::uint32_t> childSlot;
+    std::uint32_t failedSlice = SliceInfo::kNoSlice;
     std::string error;
   };
 
@@ -133,6 +137,8 @@ class Pager {
   void link(std::uint32_t region);
   void relinkAll();
   bool requestable(std::uint32_t slice) const;
+  std::uint32_t chainLength(std::uint32_t slice) const;
+  bool evictable(std::uint32_t region, double priority) const;
   bool roomFor(std::size_t bytes, double priority) const;
   const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
   ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
@@ -147,7 +153,8 @@ class Pager {
   std::unordered_map<std::uint64_t, std::uint32_t> sliceAt_;
   std::vector<std::vector<std::int32_t>> cubeLevelsOf_;
   std::unordered_map<std::uint32_t, std::uint32_t> feedbackHits_;
-  std::vector<double> wantedPriority_;  // per slice, from the last update (0 = not wanted)
+  std::vector<double> viewPriority_;    // per slice, the view query's rank (0 = not wanted): decides eviction
+  std::vector<double> wantedPriority_;  // the same with ray feedback: decides load order
   std::vector<std::size_t> denied_;     // bytes a slice dropped for lack of room needed (0 = not dropped)
   std::vector<std::string> errors_;
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0;

@@ -43,7 +43,9 @@ inline constexpr std::uint32_t kBlockInfoMagic = 0x4f464e49;  // "INFO"
 class AlignedBytes {
  public:
   AlignedBytes() = default;
-  explicit AlignedBytes(std::size_t size);
+  // Zero-filled unless `zeroed` is false: a block pool's arena is only ever read where a block was copied in,
+  // and leaving it untouched lets the OS map its pages on first use instead of at open.
+  explicit AlignedBytes(std::size_t size, bool zeroed = true);
   std::byte* data() { return data_.get(); }
   const std::byte* data() const { return data_.get(); }
   std::size_t size() const { return size_; }
