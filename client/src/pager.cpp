@@ -1,6 +1,9 @@
 #include "svo/client/pager.hpp"
 
 #include <pthread.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -103,6 +106,9 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
       }()) {
   if (options.ioThreads < 1 || options.maxInFlight < 1 || !(options.commitMillis > 0.0))
     throw std::runtime_error("pager: ioThreads, maxInFlight and commitMillis must be positive");
+  if (options.workerNice < 0 || options.workerNice > 19)
+    throw std::runtime_error("pager: worker nice must be in [0, 19], got " +
+                             std::to_string(options.workerNice));
   const std::vector<SliceInfo>& slices = store_.slices();
   const std::size_t n = slices.size();
   regionOf_.assign(n, 0), indexInRegion_.assign(n, 0), failed_.assign(n, 0), inFlight_.assign(n, 0);
@@ -187,6 +193,9 @@ ChildDescriptor* Pager::descriptorAt(Region& region, std::uint32_t slot) {
 
 void Pager::work(std::stop_token stop) {
   pthread_setname_np(pthread_self(), "svo-pager");  // tells the workers apart in top, perf and gdb
+  // Linux nice values are per thread: a positive one yields the cores to the render threads (best effort; an
+  // unprivileged process may always lower its own priority).
+  if (options_.workerNice != 0) setpriority(PRIO_PROCESS, id_t(::syscall(SYS_gettid)), options_.workerNice);
   while (true) {
     Request request;
     {

@@ -1,5 +1,7 @@
 #include "reference.hpp"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -10,6 +12,14 @@
 #include <glm/geometric.hpp>
 
 namespace svotest {
+
+TempFile::TempFile(const std::string& stem, const std::string& extension)
+    : path(std::filesystem::temp_directory_path() / (stem + "_" + std::to_string(::getpid()) + extension)) {}
+
+TempFile::~TempFile() {
+  std::error_code ignored;
+  if (!path.empty()) std::filesystem::remove(path, ignored);
+}
 
 // ---------------------------------------------------------------------------------------------------------
 // (a)

@@ -6,7 +6,10 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <filesystem>
 #include <limits>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include <glm/vec3.hpp>
@@ -17,6 +20,16 @@
 #include "svo/store/format.hpp"
 
 namespace svotest {
+
+// A file in the temp folder named `stem_<pid><extension>`, removed when its owner goes (moves hand it on).
+struct TempFile {
+  TempFile() = default;
+  TempFile(const std::string& stem, const std::string& extension);
+  TempFile(TempFile&& other) noexcept : path(std::exchange(other.path, {})) {}
+  TempFile& operator=(TempFile&&) = delete;
+  ~TempFile();
+  std::filesystem::path path;
+};
 
 inline constexpr double kInf = std::numeric_limits<double>::infinity();
 

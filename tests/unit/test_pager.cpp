@@ -24,22 +24,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-struct TempStore {
-  TempStore() = default;
-  TempStore(TempStore&&) = default;
-  ~TempStore() {
-    std::error_code ignored;
-    if (!path.empty()) fs::remove(path, ignored);
-  }
-  fs::path path;
-};
+using TempStore = svotest::TempFile;
 
 // A colored sphere and box at 8 levels with 4 KB slices: many regions, cubes that split at once, regions
 // whose cube voxel is the parent's deepest level (stubs) and attributes inherited across blocks.
 const TempStore& sphereStore() {
   static const TempStore f = [] {
-    TempStore s;
-    s.path = fs::temp_directory_path() / ("svo_pager_" + std::to_string(::getpid()) + ".svo");
+    TempStore s("svo_pager", ".svo");
     svo::Mesh mesh = svotest::makeSphere({0, 0, 0}, 1.0, 24, 24);
     svotest::appendMesh(mesh, svotest::makeBox({-1.2, -1.2, -0.2}, {0.3, -0.9, 0.9}));
     for (const glm::dvec3& p : mesh.positions)
@@ -294,8 +285,7 @@ TEST(Pager, AStillViewWithRayFeedbackSettlesUnderATightBudget) {
 
 TEST(Pager, BudgetBelowTheTrunkIsAClearError) {
   // One slice size of 1 MiB: the trunk (the root cube's levels) is the whole 8-level octree, many pages.
-  TempStore store;
-  store.path = fs::temp_directory_path() / ("svo_pager_trunk_" + std::to_string(::getpid()) + ".svo");
+  const TempStore store("svo_pager_trunk", ".svo");
   svo::BuildOptions build;
   build.levels = 8;
   svo::writeOctree(store.path, svo::buildOctree(svotest::makeSphere({0, 0, 0}, 1.0, 24, 24), build));
@@ -319,8 +309,7 @@ TEST(Pager, BudgetBelowTheTrunkIsAClearError) {
 
 TEST(Pager, CorruptSliceIsReportedOnceAndTheRestStillRenders) {
   const TempStore& store = sphereStore();
-  TempStore copy;
-  copy.path = store.path.string() + ".corrupt.svo";
+  const TempStore copy("svo_pager_corrupt", ".svo");
   fs::copy_file(store.path, copy.path);
   std::uint32_t victim = 0;
   {

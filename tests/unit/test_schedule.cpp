@@ -21,13 +21,7 @@ namespace fs = std::filesystem;
 namespace {
 
 struct StoreFixture {
-  StoreFixture() = default;
-  StoreFixture(StoreFixture&&) = default;
-  ~StoreFixture() {
-    std::error_code ignored;
-    if (!path.empty()) fs::remove(path, ignored);
-  }
-  fs::path path;
+  svotest::TempFile file{"svo_schedule", ".svo"};
   std::unique_ptr<svo::StoreReader> reader;
   std::vector<svotest::LeafVoxel> leaves;
 };
@@ -35,13 +29,13 @@ struct StoreFixture {
 const StoreFixture& store() {
   static const StoreFixture f = [] {
     StoreFixture s;
-    s.path = fs::temp_directory_path() / ("svo_schedule_" + std::to_string(::getpid()) + ".svo");
     svo::BuildOptions options;
     options.levels = 7;
     svo::StoreWriteOptions write;
     write.sliceBytes = 2048;  // small: cubes split
-    svo::writeOctree(s.path, svo::buildOctree(svotest::makeSphere({0, 0, 0}, 1.0, 16, 16), options), write);
-    s.reader = std::make_unique<svo::StoreReader>(s.path);
+    svo::writeOctree(s.file.path, svo::buildOctree(svotest::makeSphere({0, 0, 0}, 1.0, 16, 16), options),
+                     write);
+    s.reader = std::make_unique<svo::StoreReader>(s.file.path);
     return s;
   }();
   return f;

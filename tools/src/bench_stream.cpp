@@ -28,7 +28,7 @@ namespace {
 struct StreamArgs {
   std::string input, output = "stream-report";
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
-  int size = 512, runs = 3, pathFrames = 60;
+  int size = 512, runs = 3, pathFrames = 60, workerNice = 0;
   float lodPixels = 1.0f;
   double timeout = 300.0;
 };
@@ -108,6 +108,7 @@ void runStreamBench(const StreamArgs& args) {
   for (const std::size_t budget : args.budgets) {
     PagerOptions pagerOptions;
     pagerOptions.budgetBytes = budget;
+    pagerOptions.workerNice = args.workerNice;
     // 1. Open to the first coarse image, cold.
     std::vector<double> firstImage;
     for (int run = 0; run < args.runs; ++run) {
@@ -128,15 +129,13 @@ void runStreamBench(const StreamArgs& args) {
       Pager pager(args.input, pagerOptions);
       const Camera camera = closeUp(pager, args.size);
       std::vector<std::pair<double, Frame>> frames;
-      const auto start = std::chrono::steady_clock::now();
-      bool done = false;
-      while (!done && since(start) < args.timeout) {
-        StreamedFrame step = streamFrame(pager, camera, options);
-        done = pager.converged();
-        if (run == 0) frames.push_back({since(start), std::move(step.frame)});
-      }
-      if (!done) throw std::runtime_error(args.input + ": the close-up did not converge within the timeout");
-      converge.push_back(since(start));
+      const double seconds =
+          convergeView(pager, camera, options, args.timeout, nullptr, [&](double t, StreamedFrame& step) {
+            if (run == 0) frames.push_back({t, std::move(step.frame)});
+          });
+      if (seconds < 0.0)
+        throw std::runtime_error(args.input + ": the close-up did not converge within the timeout");
+      converge.push_back(seconds);
       bytes = pager.bytesRead();
       sequential.push_back(readSequentially(pager.store(), pager.residentSlices()));
       if (run == 0)
@@ -172,7 +171,8 @@ void runStreamBench(const StreamArgs& args) {
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
   printTitle("svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
-             std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs)");
+             std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) +
+             " runs, worker nice " + std::to_string(args.workerNice) + ")");
   table.print();
   std::printf("goals: first image < 100 ms; converge / seq <= 1.5x; streaming p99 <= 1.5x resident p99\n");
   std::printf("wrote %s\n", plotPath.c_str());
@@ -200,6 +200,10 @@ void addStreamBench(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--lod-pixels", args->lodPixels, "target voxel size in pixels")
       ->check(CLI::Range(0.01, 64.0))
+      ->capture_default_str();
+  cmd->add_option("--worker-nice", args->workerNice,
+                  "nice value of the pager's threads: trades convergence time for streaming frame time")
+      ->check(CLI::Range(0, 19))
       ->capture_default_str();
   cmd->callback([args] { runStreamBench(*args); });
 }

@@ -34,7 +34,7 @@ struct RenderArgs {
   bool noContours = false, aux = false;
   std::size_t budget = 0, referenceBudget = std::size_t(1) << 30;
   std::string pathFile;
-  int ioThreads = 2;
+  int ioThreads = 2, workerNice = 0;
   double timeout = 300.0;
 };
 
@@ -57,10 +57,11 @@ Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
   return camera;
 }
 
-PagerOptions pagerOptions(std::size_t budget, int ioThreads) {
+PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
   PagerOptions options;
   options.budgetBytes = budget;
-  options.ioThreads = ioThreads;
+  options.ioThreads = args.ioThreads;
+  options.workerNice = args.workerNice;
   return options;
 }
 
@@ -69,7 +70,7 @@ void renderConverged(const RenderArgs& args, RenderOptions options) {
   const std::filesystem::path out = args.out;
   dropFileCache(args.in);
   const auto start = std::chrono::steady_clock::now();
-  Pager pager(args.in, pagerOptions(args.budget, args.ioThreads));
+  Pager pager(args.in, pagerOptions(args.budget, args));
   const Camera camera = cameraOf(args, pager.transform());
   options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
   const Frame first = render(pager.trunk(), pager.transform(), camera, options);
@@ -98,7 +99,7 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
   if (ec || !std::filesystem::is_directory(folder))
     throw UsageError(args.out + ": cannot create the output folder");
   checkWritableOutput(folder / "frames.csv");
-  Pager pager(args.in, pagerOptions(args.budget, args.ioThreads));
+  Pager pager(args.in, pagerOptions(args.budget, args));
   options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
 
   std::vector<StreamedFrame> frames;
@@ -117,7 +118,7 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
   }
   // The converged frame of each camera, from a pool large enough to hold everything the view wants.
   spdlog::info("converging the reference frames ({} pool) ...", formatBytes(args.referenceBudget));
-  Pager reference(args.in, pagerOptions(args.referenceBudget, args.ioThreads));
+  Pager reference(args.in, pagerOptions(args.referenceBudget, args));
   std::ofstream csv(folder / "frames.csv");
   csv << "frame,elapsed_s,frame_ms,update_ms,resident_bytes,loaded,evicted,requested,cancelled,failed,"
          "wanted,in_flight,rmse,silhouette_pct,reference_converged\n";
@@ -215,6 +216,11 @@ void addRenderCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--io-threads", args->ioThreads, "with --budget: slice read and decode threads")
       ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  cmd->add_option("--worker-nice", args->workerNice,
+                  "with --budget: nice value of those threads; higher gives frames more of the CPU and "
+                  "slows convergence")
+      ->check(CLI::Range(0, 19))
       ->capture_default_str();
   cmd->add_option("--timeout", args->timeout, "with --budget: seconds a view may take to converge")
       ->check(CLI::PositiveNumber)

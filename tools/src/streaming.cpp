@@ -21,7 +21,7 @@ StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOption
 }
 
 double convergeView(Pager& pager, const Camera& camera, const RenderOptions& options, double timeoutSeconds,
-                    StreamedFrame* last) {
+                    StreamedFrame* last, const std::function<void(double, StreamedFrame&)>& each) {
   const auto start = std::chrono::steady_clock::now();
   const auto elapsed = [&] {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -29,6 +29,7 @@ double convergeView(Pager& pager, const Camera& camera, const RenderOptions& opt
   while (true) {
     StreamedFrame step = streamFrame(pager, camera, options);
     const bool done = pager.converged();
+    if (each) each(elapsed(), step);
     if (last) *last = std::move(step);
     if (done) return elapsed();
     if (elapsed() > timeoutSeconds) return -1.0;

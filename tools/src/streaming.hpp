@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstddef>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -23,9 +24,11 @@ struct StreamedFrame {
 StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options);
 
 // Streams frames of one camera until its view has converged. Returns the seconds taken, or a negative value
-// when `timeoutSeconds` passed first. `last` receives the final frame when given.
+// when `timeoutSeconds` passed first. `last` receives the final frame when given; `each` sees every frame
+// with the seconds since the start.
 double convergeView(Pager& pager, const Camera& camera, const RenderOptions& options, double timeoutSeconds,
-                    StreamedFrame* last = nullptr);
+                    StreamedFrame* last = nullptr,
+                    const std::function<void(double, StreamedFrame&)>& each = nullptr);
 
 // Error of a frame against the converged frame of the same camera: RMSE of linear RGB over all pixels and the
 // share of pixels that one hits and the other misses.
