@@ -241,6 +241,33 @@ TEST_F(Cli, BenchQualityWritesReportPlotAndImages) {
                      "--levels", dir_ / "nothing");
 }
 
+TEST_F(Cli, BenchQualityStreamWritesOneCurvePerBudget) {
+  const fs::path out = dir_ / "stream";
+  const CommandResult r =
+      svo("bench quality " + tetrahedron().string() +
+          " --stream --levels 6 --budgets 128K,4M --size 32 --threads 1 -o " + out.string());
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  std::istringstream csv(slurp(out / "stream.csv"));
+  std::string line;
+  std::getline(csv, line);  // header
+  std::map<long, std::vector<double>> timesOf;
+  while (std::getline(csv, line)) {
+    std::vector<double> v;
+    std::istringstream fields(line);
+    for (std::string f; std::getline(fields, f, ',');) v.push_back(std::stod(f));
+    ASSERT_EQ(v.size(), 7u) << line;
+    for (const double x : v) EXPECT_TRUE(std::isfinite(x)) << line;
+    timesOf[long(v[0])].push_back(v[1]);
+  }
+  ASSERT_EQ(timesOf.size(), 2u);  // 128K and 4M
+  for (const auto& [budget, times] : timesOf) {
+    EXPECT_GE(times.size(), 2u) << budget;  // the first frame and the converged one at least
+    EXPECT_TRUE(std::is_sorted(times.begin(), times.end())) << budget;
+  }
+  EXPECT_GT(fs::file_size(out / "error-vs-time-streaming.png"), 100u);
+  EXPECT_EQ(svo("bench quality " + tetrahedron().string() + " --budgets 4M -o " + out.string()).exitCode, 2);
+}
+
 TEST_F(Cli, GenStiffWritesEveryCaseAndTheyBuild) {
   const fs::path dir = dir_ / "stiff";
   const CommandResult r = svo("gen stiff -o " + dir.string());

@@ -6,7 +6,12 @@
 // voxels) and silhouette mismatch (pixels hit by exactly one). Writes a Markdown report, PNG plots of each
 // error against time with the Pareto front marked, the reference image and difference images of the best and
 // worst settings.
+//
+// With --stream the store of the deepest --levels streams in from a cold file through a block pool of each
+// --budgets size, and the same errors against the triangle reference are plotted against the elapsed time
+// from opening the store, one curve per budget (stream.md, stream.csv, error-vs-time-streaming.png).
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -24,8 +29,10 @@
 
 #include "bench_common.hpp"
 #include "plot.hpp"
+#include "streaming.hpp"
 #include "svo/builder/accel/accel.hpp"
 #include "svo/builder/build.hpp"
+#include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo::tools::bench {
@@ -42,6 +49,12 @@ constexpr double kDepthQuantile = 0.99;
 // Goals at 1 voxel per pixel with contours (issue 6): silhouette mismatch and depth p99.
 constexpr double kGoalSilhouettePercent = 1.0;
 constexpr double kGoalDepthVoxels = 1.0;
+// --stream keeps a frame for comparison when it comes this many times later than the last one kept (and
+// always the first and the converged one): even steps on the log time axis, bounded memory.
+constexpr double kStreamKeepRatio = 1.1;
+// --stream looks at the surface from this fraction of the scene size: near enough to want the finest levels
+// of an 11-level store at 512 pixels, far enough to keep silhouettes in view.
+constexpr double kStreamViewDistance = 0.3;
 
 struct QualityArgs {
   std::string mesh;
@@ -51,6 +64,9 @@ struct QualityArgs {
   std::string view = "-0.35,-0.25,-1";
   int threads = 0;
   std::string out = "out/quality";
+  bool stream = false;
+  std::vector<std::size_t> budgets{std::size_t(4) << 20, std::size_t(64) << 20};
+  double timeout = 300.0;
 };
 
 struct Image {
@@ -121,6 +137,15 @@ void writePng(const std::filesystem::path& path, const OIIO::ImageBuf& linear) {
     throw std::runtime_error(path.string() + ": cannot write (" + srgb.geterror() + ")");
 }
 
+Image imageOf(Frame&& frame) {
+  Image image;
+  image.width = frame.width, image.height = frame.height;
+  image.color.resize(frame.color.size());
+  for (std::size_t i = 0; i < frame.color.size(); ++i) image.color[i] = glm::vec3(frame.color[i]);
+  image.depth = std::move(frame.depth);
+  return image;
+}
+
 struct Setting {
   int levels = 0;
   float lod = 1.0f;
@@ -179,6 +204,105 @@ std::vector<const Measured*> paretoFront(const std::vector<Measured>& all, doubl
   return front;
 }
 
+// --stream: from a cold store, frames of one camera while the store streams in; each kept frame's error
+// against the triangle reference, by elapsed time since the store was opened.
+void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads, int levels) {
+  const std::filesystem::path out = args.out;
+  BuildOptions build;
+  build.levels = levels;
+  spdlog::info("building {} levels ...", levels);
+  const Octree octree = buildOctree(mesh, build);
+  const std::filesystem::path store = out / fmt::format("L{}.svo", levels);
+  writeOctree(store, octree);
+  // The store is scratch: gone however this ends.
+  const std::unique_ptr<const std::filesystem::path, void (*)(const std::filesystem::path*)> removeStore(
+      &store, [](const std::filesystem::path* p) {
+        std::error_code ignored;
+        std::filesystem::remove(*p, ignored);
+      });
+  const double finestVoxel = octree.transform.size / double(std::int64_t(1) << levels);
+  RenderOptions options;
+  options.threads = threads;
+  options.lodPixels = 1.0f;
+  // A close-up, so the view wants the finest levels and the curve has somewhere to go.
+  const Camera camera = closeUp(octree.block.view(), octree.transform, args.size, kStreamViewDistance);
+  spdlog::info("reference: kd-tree over {} triangles ...", mesh.triangles.size());
+  const std::unique_ptr<accel::Accel> kd = accel::buildByName("kd-binned", accel::trianglesOf(mesh));
+  const Image reference = renderReference(mesh, *kd, camera, options, threads);
+  writePng(out / "stream-reference.png", toImageBuf(reference));
+
+  const std::vector<std::pair<std::string, double Measured::*>> metrics = {
+      {"color RMSE", &Measured::rmse},
+      {"depth p99 (finest voxels)", &Measured::depthTail},
+      {"silhouette mismatch (%)", &Measured::silhouettePercent}};
+  std::vector<plot::Panel> panels;
+  for (const auto& [title, metric] : metrics) panels.push_back({title, {}});
+  Table table({"budget", "first frame", "converged", "read", "first RMSE", "first silhouette", "final RMSE",
+               "final depth p99", "final silhouette"});
+  std::string csv = "budget_bytes,seconds,rmse,psnr_db,depth_mean_vox,depth_p99_vox,silhouette_pct\n";
+  for (const std::size_t budget : args.budgets) {
+    PagerOptions pagerOptions;
+    pagerOptions.budgetBytes = budget;
+    dropFileCache(store);
+    const auto opened = std::chrono::steady_clock::now();
+    const auto since = [&] {
+      return std::chrono::duration<double>(std::chrono::steady_clock::now() - opened).count();
+    };
+    Pager pager(store, pagerOptions);
+    std::vector<std::pair<double, Frame>> kept;
+    StreamedFrame last;
+    const double converged =
+        convergeView(pager, camera, options, args.timeout, &last, [&](double, StreamedFrame& step) {
+          const double t = since();
+          if (kept.empty() || t >= kStreamKeepRatio * kept.back().first) kept.push_back({t, step.frame});
+        });
+    if (converged < 0.0)
+      throw std::runtime_error(fmt::format("{}: the view did not converge within {} s at a {} budget",
+                                           store.string(), args.timeout, formatBytes(budget)));
+    kept.push_back({since(), std::move(last.frame)});
+    writePng(out / fmt::format("stream-{}K.png", budget >> 10),
+             toImageBuf(imageOf(Frame(kept.back().second))));
+    std::vector<Measured> series;
+    for (auto& [t, frame] : kept) {
+      Measured m;
+      m.seconds = t;
+      m.image = imageOf(std::move(frame));
+      compare(reference, m.image, finestVoxel, m);
+      m.image = {};
+      csv += fmt::format("{},{:.6f},{:.6f},{:.3f},{:.4f},{:.4f},{:.4f}\n", budget, t, m.rmse, m.psnr,
+                         m.depthMean, m.depthTail, m.silhouettePercent);
+      series.push_back(std::move(m));
+    }
+    for (std::size_t k = 0; k < metrics.size(); ++k) {
+      plot::Series curve{formatBytes(budget), {}};
+      for (const Measured& m : series)
+        curve.points.push_back({m.seconds, std::max(m.*metrics[k].second, 1e-4)});
+      panels[k].series.push_back(std::move(curve));
+    }
+    const Measured &first = series.front(), &final = series.back();
+    table.addRow({formatBytes(budget), formatSeconds(first.seconds), formatSeconds(final.seconds),
+                  formatBytes(pager.bytesRead()), fmt::format("{:.4f}", first.rmse),
+                  fmt::format("{:.2f}%", first.silhouettePercent), fmt::format("{:.4f}", final.rmse),
+                  fmt::format("{:.3f}", final.depthTail), fmt::format("{:.2f}%", final.silhouettePercent)});
+  }
+  const std::string title = fmt::format(
+      "Error against elapsed time while streaming {} levels from a cold store (close-up, {}x{}, 1 voxel per "
+      "pixel)",
+      levels, args.size, args.size);
+  printTitle(title);
+  table.print();
+  plot::writeLogLogPlot(out / "error-vs-time-streaming.png", panels, "seconds since the store was opened",
+                        "error against the triangle reference (log)");
+  std::ofstream(out / "stream.csv") << csv;
+  std::ofstream(out / "stream.md") << fmt::format(
+      "# svo bench quality --stream: {}\n\n{}. Reference: kd-tree ray cast of the mesh. Frames kept when "
+      "{}x later than the last kept one.\n\n![error against elapsed time](error-vs-time-streaming.png)\n\n"
+      "Per frame: `stream.csv`.\n",
+      args.mesh, title, kStreamKeepRatio);
+  fmt::print("report: {}, plot: {}, per-frame errors: {}\n", (out / "stream.md").string(),
+             (out / "error-vs-time-streaming.png").string(), (out / "stream.csv").string());
+}
+
 void runQualityBench(const QualityArgs& args) {
   requireRuns(args.runs);
   if (args.size < 16 || args.size > 8192)
@@ -208,6 +332,8 @@ void runQualityBench(const QualityArgs& args) {
   std::filesystem::create_directories(out);
 
   const Mesh mesh = loadBenchMesh(args.mesh);
+  if (args.stream)
+    return runStreamingQuality(args, mesh, threads, *std::max_element(levelList.begin(), levelList.end()));
   const SceneTransform scene = fitSceneCube(mesh);
   const Camera camera = Camera::framing(scene, view, args.size, args.size);
   spdlog::info("reference: kd-tree over {} triangles ...", mesh.triangles.size());
@@ -243,10 +369,7 @@ void runQualityBench(const QualityArgs& args) {
           options.beamTile = beam;
           Frame frame;
           m.seconds = timeRuns(args.runs, [&] { frame = render(octree, camera, options); }).median;
-          m.image.width = frame.width, m.image.height = frame.height;
-          m.image.color.resize(frame.color.size());
-          for (std::size_t i = 0; i < frame.color.size(); ++i) m.image.color[i] = glm::vec3(frame.color[i]);
-          m.image.depth = std::move(frame.depth);
+          m.image = imageOf(std::move(frame));
           compare(reference, m.image, finestVoxel, m);
           all.push_back(std::move(m));
         }
@@ -368,6 +491,18 @@ void addQualityBench(CLI::App& bench) {
   cmd->add_option("--view", args->view, "view direction x,y,z for Camera::framing")->capture_default_str();
   cmd->add_option("--threads", args->threads, "threads (0 = all cores)")->capture_default_str();
   cmd->add_option("-o,--output", args->out, "folder for the report, plots and images")->capture_default_str();
+  CLI::Option* stream = cmd->add_flag(
+      "--stream", args->stream,
+      "instead of the sweep: error against elapsed time while the deepest --levels store streams "
+      "in from a cold file, one curve per --budgets");
+  cmd->add_option("--budgets", args->budgets, "with --stream: pool budgets, e.g. 4M,64M (default 4M,64M)")
+      ->delimiter(',')
+      ->transform(CLI::AsSizeValue(false))
+      ->needs(stream);
+  cmd->add_option("--timeout", args->timeout, "with --stream: seconds the view may take to converge")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str()
+      ->needs(stream);
   cmd->callback([args] { runQualityBench(*args); });
 }
 

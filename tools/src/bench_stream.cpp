@@ -63,23 +63,9 @@ double readSequentially(const StoreReader& store, const std::vector<std::uint32_
   return seconds;
 }
 
-Camera closeUp(const Pager& pager, int size) {
-  // Aim at the surface the centre pixel of a framing view sees, and stand a few percent of the scene away.
-  const SceneTransform& scene = pager.transform();
-  Camera framing = Camera::framing(scene, glm::dvec3(-0.35, -0.25, -1.0), size, size);
-  RenderOptions options;
-  options.lodPixels = 1.0f;
-  const Frame frame = render(pager.trunk(), scene, framing, options);
-  const std::size_t centre = std::size_t(size / 2) * std::size_t(size) + std::size_t(size / 2);
-  double depth = frame.depth[centre];
-  if (!std::isfinite(depth)) depth = glm::length(framing.target - framing.eye);
-  glm::dvec3 direction;
-  Camera::pixelRay(framing, framing.basis(), size / 2, size / 2, direction);
-  Camera c = framing;
-  c.target = framing.eye + direction * depth;
-  c.eye = c.target - direction * (0.04 * scene.size);
-  return c;
-}
+// The close-up stands this fraction of the scene size from the surface: near enough that a 256-512 pixel
+// frame wants the bunny's finest levels.
+constexpr double kCloseUpDistance = 0.04;
 
 std::vector<Camera> orbitPath(const SceneTransform& scene, int frames, int size) {
   const glm::dvec3 centre = scene.origin + 0.5 * scene.size;
@@ -127,7 +113,7 @@ void runStreamBench(const StreamArgs& args) {
     for (int run = 0; run < args.runs; ++run) {
       dropFileCache(args.input);
       Pager pager(args.input, pagerOptions);
-      const Camera camera = closeUp(pager, args.size);
+      const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
       std::vector<std::pair<double, Frame>> frames;
       const double seconds =
           convergeView(pager, camera, options, args.timeout, nullptr, [&](double t, StreamedFrame& step) {

@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include <glm/geometric.hpp>
+
 namespace svo::tools {
 
 StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options) {
@@ -34,6 +36,23 @@ double convergeView(Pager& pager, const Camera& camera, const RenderOptions& opt
     if (done) return elapsed();
     if (elapsed() > timeoutSeconds) return -1.0;
   }
+}
+
+Camera closeUp(const BlockView& root, const SceneTransform& scene, int size, double distance) {
+  // Aim at the surface the centre pixel of a framing view sees, and stand a few percent of the scene away.
+  const Camera framing = Camera::framing(scene, glm::dvec3(-0.35, -0.25, -1.0), size, size);
+  RenderOptions options;
+  options.lodPixels = 1.0f;
+  const Frame frame = render(root, scene, framing, options);
+  const std::size_t centre = std::size_t(size / 2) * std::size_t(size) + std::size_t(size / 2);
+  double depth = frame.depth[centre];
+  if (!std::isfinite(depth)) depth = glm::length(framing.target - framing.eye);
+  glm::dvec3 direction;
+  Camera::pixelRay(framing, framing.basis(), size / 2, size / 2, direction);
+  Camera c = framing;
+  c.target = framing.eye + direction * depth;
+  c.eye = c.target - direction * (distance * scene.size);
+  return c;
 }
 
 FrameError frameError(const Frame& frame, const Frame& converged) {
