@@ -1,9 +1,10 @@
 // `svo bench store STORE_OR_MESH`: the slice store's I/O, measured against peers in the same run:
 //   - slice read + XXH3 verify + zstd decode (StoreReader::readSlice, warm page cache) against plain
 //     ZSTD_decompress of the same compressed bytes already in memory;
-//   - random-order slice reads from a cold file against the sequential bandwidth `dd bs=1M` gets from the
-//   same
-//     cold file (the page cache is dropped with posix_fadvise(POSIX_FADV_DONTNEED) before every run);
+//   - random-order slice reads from a cold file, by one reader and by --read-threads concurrent readers (as
+//     the pager's workers read), whole readSlice and bare pread, against the sequential bandwidth
+//     `dd bs=1M` gets from the same cold file (the page cache is dropped with
+//     posix_fadvise(POSIX_FADV_DONTNEED) before every run); the goal is judged on readSlice with readers;
 //   - bytes per leaf voxel on disk, per part and attachment (the accounting `svo inspect` uses);
 //   - given a mesh: the in-core build (buildOctree + writeOctree) on 1 and 2 threads, triangles/s, voxels/s
 //     and peak RSS, against OpenVDB meshToLevelSet at the same resolution (bench_build.cpp's peer).
@@ -16,6 +17,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -25,6 +27,7 @@
 #include <random>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include <fmt/format.h>
@@ -58,6 +61,7 @@ struct StoreArgs {
   std::string input, store;
   int levels = 10;
   int runs = 3;
+  int readThreads = 4;
 };
 
 double megabytesPerSecond(double bytes, double seconds) {
@@ -161,6 +165,20 @@ class CachedFile {
   int fd_;
   std::uint64_t bytes_ = 0;
 };
+
+// Seconds to run `read(id)` for every id of `order`, `threads` workers taking the next id in turn: the
+// reads a pager's workers keep in flight at once (the disk sees that queue depth).
+template <class Read>
+double timeConcurrentReads(const std::vector<std::uint32_t>& order, int threads, Read&& read) {
+  std::atomic<std::size_t> next{0};
+  return timeSeconds([&] {
+    std::vector<std::jthread> workers;
+    for (int i = 0; i < threads; ++i)
+      workers.emplace_back([&] {
+        for (std::size_t k; (k = next.fetch_add(1)) < order.size();) read(order[k]);
+      });
+  });
+}
 
 // `dd if=FILE of=/dev/null bs=1M` with LC_ALL=C; dd's own byte count and seconds from its last line
 // ("N bytes (...) copied, T s, R MB/s"). nullopt when dd cannot be run or says something else.
@@ -297,7 +315,7 @@ void benchBuild(const StoreArgs& args, const std::filesystem::path& storePath) {
 
 // ----- the store measurements ------------------------------------------------------------------------------
 
-void benchStore(const std::filesystem::path& path, int runs) {
+void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
   const StoreReader reader(path);
   const StoreHeader& h = reader.header();
   const std::vector<SliceInfo>& slices = reader.slices();
@@ -352,26 +370,32 @@ void benchStore(const std::filesystem::path& path, int runs) {
   std::vector<std::uint32_t> order(slices.size());
   std::iota(order.begin(), order.end(), 0u);
   std::shuffle(order.begin(), order.end(), std::mt19937_64(kShuffleSeed));
-  std::vector<double> coldSlice, coldPread, ddSeconds, residents;
+  // Cold runs: readSlice and bare pread, each with one reader and with --read-threads readers.
+  const std::vector<int> readerCounts =
+      readThreads > 1 ? std::vector<int>{1, readThreads} : std::vector<int>{1};
+  std::vector<std::vector<double>> coldSlice(readerCounts.size()), coldPread(readerCounts.size());
+  std::vector<double> ddSeconds, residents;
   std::uint32_t largestCompressed = 0;
   for (const SliceInfo& s : slices) largestCompressed = std::max(largestCompressed, s.compressedBytes);
-  std::vector<char> buffer(largestCompressed);
   std::uint64_t ddBytes = 0;
   bool ddRan = true;
+  std::atomic<std::size_t> readSink{0};
   spdlog::info("cold reads: random slice order vs dd, {} runs ...", runs);
   for (int i = 0; i < runs; ++i) {
-    file.drop();
-    residents.push_back(file.resident());
-    coldSlice.push_back(timeSeconds([&] {
-      for (const std::uint32_t id : order) sink += reader.readSlice(id).size();
-    }));
-    file.drop();
-    residents.push_back(file.resident());
-    coldPread.push_back(timeSeconds([&] {
-      for (const std::uint32_t id : order)
-        sink += std::size_t(
+    for (std::size_t c = 0; c < readerCounts.size(); ++c) {
+      file.drop();
+      residents.push_back(file.resident());
+      coldSlice[c].push_back(timeConcurrentReads(
+          order, readerCounts[c], [&](std::uint32_t id) { readSink += reader.readSlice(id).size(); }));
+      file.drop();
+      residents.push_back(file.resident());
+      coldPread[c].push_back(timeConcurrentReads(order, readerCounts[c], [&](std::uint32_t id) {
+        thread_local std::vector<char> buffer;
+        buffer.resize(largestCompressed);
+        readSink += std::size_t(
             ::pread(file.fd(), buffer.data(), slices[id].compressedBytes, off_t(slices[id].offset)));
-    }));
+      }));
+    }
     file.drop();
     residents.push_back(file.resident());
     if (const std::optional<DdResult> dd = runDd(path)) {
@@ -381,7 +405,7 @@ void benchStore(const std::filesystem::path& path, int runs) {
       ddRan = false;
     }
   }
-  const Summary cold = summarize(coldSlice), coldIo = summarize(coldPread);
+  sink += readSink;
   const std::optional<Summary> dd = ddRan ? std::optional(summarize(ddSeconds)) : std::nullopt;
   const double maxResident = *std::max_element(residents.begin(), residents.end());
 
@@ -411,8 +435,13 @@ void benchStore(const std::filesystem::path& path, int runs) {
                          : std::string("dd failed"),
                       goal ? fmt::format(">= {:.1f}x", kColdReadGoal) : std::string()});
   };
-  coldRow("readSlice, random slice order", cold, disk, true);
-  coldRow("pread only, random slice order", coldIo, disk, false);
+  for (std::size_t c = 0; c < readerCounts.size(); ++c) {
+    const std::string readers =
+        readerCounts[c] == 1 ? "1 reader" : fmt::format("{} readers", readerCounts[c]);
+    coldRow(fmt::format("readSlice, random slice order, {}", readers), summarize(coldSlice[c]), disk,
+            c + 1 == readerCounts.size());
+    coldRow(fmt::format("pread only, random slice order, {}", readers), summarize(coldPread[c]), disk, false);
+  }
   if (dd)
     coldRow("dd if=FILE of=/dev/null bs=1M", *dd, double(ddBytes), false);
   else
@@ -458,7 +487,7 @@ void runStoreBench(const StoreArgs& args) {
   requireRuns(args.runs);
   if (!std::filesystem::exists(args.input)) throw std::runtime_error(args.input + ": no such file");
   if (isStore(args.input)) {
-    benchStore(args.input, args.runs);
+    benchStore(args.input, args.runs, args.readThreads);
     return;
   }
   // A mesh: build it, then measure the store that was written. A store path not given is a temporary file
@@ -478,7 +507,7 @@ void runStoreBench(const StoreArgs& args) {
     }
   } remove{temporary ? storePath : std::filesystem::path()};
   benchBuild(args, storePath);
-  benchStore(storePath, args.runs);
+  benchStore(storePath, args.runs, args.readThreads);
 }
 
 }  // namespace
@@ -494,6 +523,10 @@ void addStoreBench(CLI::App& bench) {
       ->check(CLI::Range(1, kMaxLevels))
       ->capture_default_str();
   cmd->add_option("--runs", args->runs, "timed runs per measurement; the median is reported")
+      ->capture_default_str();
+  cmd->add_option("--read-threads", args->readThreads,
+                  "cold random reads also with this many concurrent readers (the pager's workers)")
+      ->check(CLI::Range(1, 64))
       ->capture_default_str();
   cmd->add_option("--store", args->store,
                   "when building a mesh: keep the store at this path (default: a "
