@@ -251,12 +251,12 @@ void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads,
     Pager pager(store, pagerOptions);
     std::vector<std::pair<double, Frame>> kept;
     StreamedFrame last;
-    const double converged =
+    const Convergence converged =
         convergeView(pager, camera, options, args.timeout, &last, [&](double, StreamedFrame& step) {
           const double t = since();
           if (kept.empty() || t >= kStreamKeepRatio * kept.back().first) kept.push_back({t, step.frame});
         });
-    if (converged < 0.0)
+    if (!converged.converged())
       throw std::runtime_error(fmt::format("{}: the view did not converge within {} s at a {} budget",
                                            store.string(), args.timeout, formatBytes(budget)));
     kept.push_back({since(), std::move(last.frame)});

@@ -88,7 +88,7 @@ void runStreamBench(const StreamArgs& args) {
   std::filesystem::create_directories(args.output);
   RenderOptions options;
   options.lodPixels = args.lodPixels;
-  Table table({"budget", "first image", "close-up converge", "bytes read", "sequential read",
+  Table table({"budget", "first image", "close-up converge", "image final", "bytes read", "sequential read",
                "converge / seq", "stream p99", "resident p99", "p99 ratio", "max resident"});
   std::vector<plot::Series> curves;
   for (const std::size_t budget : args.budgets) {
@@ -107,7 +107,7 @@ void runStreamBench(const StreamArgs& args) {
       firstImage.push_back(since(start));
     }
     // 2. Close-up from cold: converge, bytes, the same bytes read sequentially; error over time.
-    std::vector<double> converge, sequential;
+    std::vector<double> converge, imageFinal, sequential;
     std::uint64_t bytes = 0;
     plot::Series curve{formatBytes(budget), {}};
     for (int run = 0; run < args.runs; ++run) {
@@ -115,13 +115,14 @@ void runStreamBench(const StreamArgs& args) {
       Pager pager(args.input, pagerOptions);
       const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
       std::vector<std::pair<double, Frame>> frames;
-      const double seconds =
+      const Convergence c =
           convergeView(pager, camera, options, args.timeout, nullptr, [&](double t, StreamedFrame& step) {
             if (run == 0) frames.push_back({t, std::move(step.frame)});
           });
-      if (seconds < 0.0)
+      if (!c.converged())
         throw std::runtime_error(args.input + ": the close-up did not converge within the timeout");
-      converge.push_back(seconds);
+      converge.push_back(c.seconds);
+      imageFinal.push_back(c.imageFinalSeconds);
       bytes = pager.bytesRead();
       sequential.push_back(readSequentially(pager.store(), pager.residentSlices()));
       if (run == 0)
@@ -144,14 +145,15 @@ void runStreamBench(const StreamArgs& args) {
         resident.push_back(streamFrame(pager, c, options).seconds());
       }
     }
-    const Summary first = summarize(firstImage), conv = summarize(converge), seq = summarize(sequential);
+    const Summary first = summarize(firstImage), conv = summarize(converge), seq = summarize(sequential),
+                  final = summarize(imageFinal);
     const double streamP99 = percentile(streaming, 0.99), residentP99 = percentile(resident, 0.99);
     char ratio[32], p99ratio[32];
     std::snprintf(ratio, sizeof ratio, "%.2fx", conv.median / seq.median);
     std::snprintf(p99ratio, sizeof p99ratio, "%.2fx", streamP99 / residentP99);
     table.addRow({formatBytes(budget), formatSeconds(first.median), formatSeconds(conv.median),
-                  formatBytes(bytes), formatSeconds(seq.median), ratio, formatSeconds(streamP99),
-                  formatSeconds(residentP99), p99ratio, formatBytes(maxResident)});
+                  formatSeconds(final.median), formatBytes(bytes), formatSeconds(seq.median), ratio,
+                  formatSeconds(streamP99), formatSeconds(residentP99), p99ratio, formatBytes(maxResident)});
   }
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},

@@ -76,16 +76,19 @@ void renderConverged(const RenderArgs& args, RenderOptions options) {
   const Frame first = render(pager.trunk(), pager.transform(), camera, options);
   const double firstSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   StreamedFrame last;
-  const double seconds = convergeView(pager, camera, options, args.timeout, &last);
-  if (seconds < 0.0)
+  const Convergence c = convergeView(pager, camera, options, args.timeout, &last);
+  if (!c.converged())
     throw std::runtime_error(args.in + ": the view did not converge within " + std::to_string(args.timeout) +
                              " s (budget " + formatBytes(pager.budgetBytes()) + ")");
   writeFrame(out, last.frame, args.aux);
   std::printf("first coarse image %.1f ms after opening (%d x %d, %.1f ms to render)\n", firstSeconds * 1e3,
               first.width, first.height, first.seconds * 1e3);
-  std::printf("converged in %.3f s after the first image: %zu slices resident (%s of %s), %s read\n", seconds,
-              pager.residentSlices().size(), formatBytes(pager.residentBytes()).c_str(),
-              formatBytes(pager.budgetBytes()).c_str(), formatBytes(pager.bytesRead()).c_str());
+  std::printf(
+      "converged in %.3f s after the first image (final image after %.3f s): %zu slices resident (%s "
+      "of %s), %s read\n",
+      c.seconds, c.imageFinalSeconds, pager.residentSlices().size(),
+      formatBytes(pager.residentBytes()).c_str(), formatBytes(pager.budgetBytes()).c_str(),
+      formatBytes(pager.bytesRead()).c_str());
   for (const std::string& e : pager.takeErrors()) spdlog::warn("{}", e);
   std::printf("wrote %s\n", args.out.c_str());
 }
@@ -128,7 +131,7 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
   for (std::size_t i = 0; i < cameras.size(); ++i) {
     maxResident = std::max(maxResident, frames[i].stats.residentBytes);
     StreamedFrame converged;
-    const bool ok = convergeView(reference, cameras[i], options, args.timeout, &converged) >= 0.0;
+    const bool ok = convergeView(reference, cameras[i], options, args.timeout, &converged).converged();
     const FrameError error = frameError(frames[i].frame, converged.frame);
     const StreamedFrame& f = frames[i];
     const PagerStats& s = f.stats;

@@ -114,7 +114,7 @@ void runStress(const StressArgs& args) {
         everEvicted.insert(removed.begin(), removed.end());
         before = after;
       }
-      const double converge = convergeView(*pager, cameras.back(), render, args.timeout);
+      const double converge = convergeView(*pager, cameras.back(), render, args.timeout).seconds;
       const double p99 = percentile(frameMs, 0.99);
       const double worstMs = *std::max_element(frameMs.begin(), frameMs.end());
       char thrash[32], worst[32], p99Text[32], conv[32];

@@ -8,9 +8,23 @@
 #include <cmath>
 #include <cstdio>
 
+#include <xxhash.h>
 #include <glm/geometric.hpp>
 
 namespace svo::tools {
+namespace {
+
+std::uint64_t frameHash(const Frame& frame) {
+  XXH3_state_t* state = XXH3_createState();
+  XXH3_64bits_reset(state);
+  XXH3_64bits_update(state, frame.color.data(), frame.color.size() * sizeof(frame.color[0]));
+  XXH3_64bits_update(state, frame.depth.data(), frame.depth.size() * sizeof(frame.depth[0]));
+  const std::uint64_t hash = XXH3_64bits_digest(state);
+  XXH3_freeState(state);
+  return hash;
+}
+
+}  // namespace
 
 StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options) {
   StreamedFrame out;
@@ -22,19 +36,26 @@ StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOption
   return out;
 }
 
-double convergeView(Pager& pager, const Camera& camera, const RenderOptions& options, double timeoutSeconds,
-                    StreamedFrame* last, const std::function<void(double, StreamedFrame&)>& each) {
+Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions& options,
+                         double timeoutSeconds, StreamedFrame* last,
+                         const std::function<void(double, StreamedFrame&)>& each) {
   const auto start = std::chrono::steady_clock::now();
   const auto elapsed = [&] {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   };
+  // Each frame's hash and time; the run of frames equal to the last one tells when the image became final.
+  std::uint64_t lastHash = 0;
+  double sameSince = 0.0;
   while (true) {
     StreamedFrame step = streamFrame(pager, camera, options);
     const bool done = pager.converged();
-    if (each) each(elapsed(), step);
+    const double t = elapsed();
+    const std::uint64_t hash = frameHash(step.frame);
+    if (hash != lastHash) lastHash = hash, sameSince = t;
+    if (each) each(t, step);
     if (last) *last = std::move(step);
-    if (done) return elapsed();
-    if (elapsed() > timeoutSeconds) return -1.0;
+    if (done) return {elapsed(), sameSince};
+    if (t > timeoutSeconds) return {};
   }
 }
 

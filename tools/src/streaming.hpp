@@ -23,12 +23,18 @@ struct StreamedFrame {
 // One frame while streaming: update the pager for the camera's view, render, feed the rays back.
 StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options);
 
-// Streams frames of one camera until its view has converged. Returns the seconds taken, or a negative value
-// when `timeoutSeconds` passed first. `last` receives the final frame when given; `each` sees every frame
-// with the seconds since the start.
-double convergeView(Pager& pager, const Camera& camera, const RenderOptions& options, double timeoutSeconds,
-                    StreamedFrame* last = nullptr,
-                    const std::function<void(double, StreamedFrame&)>& each = nullptr);
+// Streams frames of one camera until its view has converged. `last` receives the final frame when given;
+// `each` sees every frame with the seconds since the start.
+struct Convergence {
+  double seconds = -1.0;  // until the pager had nothing left to load for the view; negative: timed out
+  // When the frames stopped changing: the first frame from which on every frame equals the converged one
+  // bit for bit (later loads refined nothing this view shows). Negative when timed out.
+  double imageFinalSeconds = -1.0;
+  bool converged() const { return seconds >= 0.0; }
+};
+Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions& options,
+                         double timeoutSeconds, StreamedFrame* last = nullptr,
+                         const std::function<void(double, StreamedFrame&)>& each = nullptr);
 
 // A close-up of the surface the centre pixel of a framing view of `root` sees, from `distance` times the
 // scene size away (a few percent: a view that needs the finest levels).
