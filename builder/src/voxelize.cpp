@@ -8,10 +8,13 @@
 #include <bit>
 #include <chrono>
 #include <cmath>
+#include <exception>
+#include <mutex>
 #include <numbers>
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <thread>
 
 #include <tbb/parallel_for.h>
 #include <glm/geometric.hpp>
@@ -113,9 +116,55 @@ class Voxelizer {
     tree.hasColors = colors_;
     tree.hasNormals = true;
     if (stats) {
+      *stats = BuildStats{};
       stats->trianglesUsed = triangles_.size();
-      collectStats(tree, *stats);
+      addTreeStats(tree, 0, *stats);
     }
+    return tree;
+  }
+
+  // The levels above `cellLevel` as voxelize() builds them, each cell (a voxel of cellLevel) built on its own
+  // and handed to `callbacks.built`, up to `concurrency` cells at a time. Returns the tree down to cellLevel
+  // with the cells' roots as leaves.
+  VoxelTree runCells(int cellLevel, const CellCallbacks& callbacks, int concurrency) {
+    // 1. Top down to the cells, exactly as buildParallel prepares these levels.
+    std::vector<TopVoxel> top;
+    std::vector<Node> cellNodes;
+    Node root;
+    root.triangles.resize(triangles_.size());
+    for (std::uint32_t i = 0; i < root.triangles.size(); ++i) root.triangles[i] = i;
+    prepareTop(std::move(root), cellLevel, top, cellNodes);
+    if (callbacks.planned) callbacks.planned(cellNodes.size());
+
+    // 2. The cells: built (or taken from an earlier run) and handed on; only their roots stay here.
+    std::vector<CellRoot> cells(cellNodes.size());
+    std::atomic<std::size_t> next{0};
+    std::mutex failedMutex;
+    std::exception_ptr failed;  // the first error stops the rest and is rethrown here
+    const auto work = [&] {
+      try {
+        buildCells(next, cellNodes, cells, callbacks);
+      } catch (...) {
+        std::lock_guard lock(failedMutex);
+        if (!failed) failed = std::current_exception();
+        next = cellNodes.size();
+      }
+    };
+    {
+      std::vector<std::jthread> workers;
+      for (int t = 1; t < std::max(1, concurrency); ++t) workers.emplace_back(work);
+      work();
+    }
+    if (failed) std::rethrow_exception(failed);
+
+    // 3. The top's attributes from the cells' sums, bottom up in slot order as buildParallel adds them.
+    VoxelTree tree;
+    tree.hasColors = colors_;
+    tree.hasNormals = true;
+    tree.voxels.resize(1);
+    const Aggregate all = assembleTop(top, 0, cells, tree.voxels, 0);
+    if (all.weight == 0.0) throw std::runtime_error("mesh produced no voxels");
+    tree.voxels = prune(tree.voxels);
     return tree;
   }
 
@@ -124,6 +173,99 @@ class Voxelizer {
     std::vector<VoxelRecord> records;  // [0] is the subtree's root
     Aggregate attributes;
   };
+
+  void buildCells(std::atomic<std::size_t>& next, std::vector<Node>& cellNodes, std::vector<CellRoot>& cells,
+                  const CellCallbacks& callbacks) const {
+    for (std::size_t i; (i = next.fetch_add(1)) < cellNodes.size();) {
+      Node& node = cellNodes[i];
+      const glm::ivec3 coord = node.coord;
+      if (callbacks.finished)
+        if (std::optional<CellRoot> done = callbacks.finished(coord)) {
+          cells[i] = *done;
+          node = Node{};
+          continue;
+        }
+      Subtree cell;
+      cell.records.resize(1);
+      cell.attributes = buildInto(node, cell.records, 0);
+      node = Node{};
+      VoxelTree tree;
+      const bool dead = std::any_of(cell.records.begin(), cell.records.end(),
+                                    [](const VoxelRecord& r) { return r.firstChild == kDeadVoxel; });
+      tree.voxels = dead ? prune(cell.records) : std::move(cell.records);
+      cell.records = {};
+      tree.hasColors = colors_;
+      tree.hasNormals = true;
+      cells[i] = {tree.voxels[0], {cell.attributes.weight, cell.attributes.color, cell.attributes.normal}};
+      callbacks.built(coord, std::move(tree), cells[i]);
+    }
+  }
+
+  // A voxel above the cells: its prepared record, and its children (top voxels or cells) in slot order.
+  struct TopVoxel {
+    VoxelRecord record;
+    bool leaf = false;
+    Aggregate leafAttributes;
+    std::vector<std::int64_t> children;  // >= 0: a top voxel; < 0: cell ~index
+  };
+
+  void prepareTop(Node node, int cellLevel, std::vector<TopVoxel>& top, std::vector<Node>& cellNodes) const {
+    const std::size_t self = top.size();
+    top.emplace_back();
+    Prepared p = prepare(node);
+    node.triangles = {};
+    top[self].record = p.record;
+    if (p.leaf) {
+      top[self].leaf = true;
+      top[self].leafAttributes = p.leafAttributes;
+      return;
+    }
+    for (Node& child : p.children) {
+      if (child.level == cellLevel) {
+        top[self].children.push_back(~std::int64_t(cellNodes.size()));
+        cellNodes.push_back(std::move(child));
+      } else {
+        top[self].children.push_back(std::int64_t(top.size()));
+        prepareTop(std::move(child), cellLevel, top, cellNodes);
+      }
+    }
+  }
+
+  // Writes top voxel `t` at out[self] and its children's records after it, depth first like buildInto;
+  // cells become leaves carrying their roots' contour and attributes. Returns the voxel's sums.
+  Aggregate assembleTop(const std::vector<TopVoxel>& top, std::size_t t, const std::vector<CellRoot>& cells,
+                        std::vector<VoxelRecord>& out, std::size_t self) const {
+    const TopVoxel& v = top[t];
+    if (v.leaf) {
+      out[self] = v.record;
+      return v.leafAttributes;
+    }
+    const std::size_t first = out.size();
+    out[self] = v.record;
+    out[self].firstChild = std::uint32_t(first);
+    out.resize(first + v.children.size());
+    Aggregate sum;
+    for (std::size_t k = 0; k < v.children.size(); ++k) {
+      const std::int64_t c = v.children[k];
+      if (c >= 0) {
+        sum.add(assembleTop(top, std::size_t(c), cells, out, first + k));
+        continue;
+      }
+      const CellRoot& cell = cells[std::size_t(~c)];
+      VoxelRecord leaf = cell.record;
+      leaf.childMask = 0;
+      if (cell.sums.weight == 0.0) {
+        leaf.firstChild = kDeadVoxel;  // the cell's voxels all died: pruned like any dead voxel
+        deadFound_ = true;
+      } else {
+        leaf.firstChild = 0;
+      }
+      out[first + k] = leaf;
+      sum.add(Aggregate{cell.sums.weight, cell.sums.color, cell.sums.normal});
+    }
+    if (!markIfDead(out[self], sum)) setAttributes(out[self], sum);
+    return sum;
+  }
 
   geom::Cube cubeOf(const Node& node) const {
     const double size = std::ldexp(1.0, -node.level);
@@ -281,7 +423,10 @@ class Voxelizer {
     Prepared out;
     const geom::Cube cube = cubeOf(node);
     const bool finest = node.level == options_.levels;
-    const std::vector<Piece> pieces = clipPieces(node, cube);
+    // Clipped pieces feed the contour fit and a leaf's attributes. The root needs neither (it has no contour
+    // and is never a leaf), which spares holding every triangle of the scene clipped at once (~340 B each).
+    const bool needPieces = finest || (options_.contours && node.level > 0);
+    const std::vector<Piece> pieces = needPieces ? clipPieces(node, cube) : std::vector<Piece>{};
     // The root has no parent descriptor to hold a contour.
     std::optional<ContourFit> contour;
     if (options_.contours && node.level > 0)
@@ -457,23 +602,6 @@ class Voxelizer {
     options_.progress(std::min(done, 1.0));
   }
 
-  static void collectStats(const VoxelTree& tree, BuildStats& stats) {
-    stats.voxelsPerLevel.clear();
-    stats.leafVoxels = stats.contours = 0;
-    std::vector<std::pair<std::uint32_t, int>> stack{{0u, 0}};
-    while (!stack.empty()) {
-      const auto [v, level] = stack.back();
-      stack.pop_back();
-      if (stats.voxelsPerLevel.size() <= std::size_t(level)) stats.voxelsPerLevel.resize(level + 1);
-      ++stats.voxelsPerLevel[level];
-      const VoxelRecord& r = tree.voxels[v];
-      stats.contours += r.hasContour;
-      if (r.childMask == 0) ++stats.leafVoxels;
-      for (int c = 0; c < std::popcount(unsigned(r.childMask)); ++c)
-        stack.push_back({r.firstChild + c, level + 1});
-    }
-  }
-
   const Mesh& mesh_;
   const BuildOptions& options_;
   const bool colors_;
@@ -504,6 +632,31 @@ VoxelTree voxelize(const Mesh& mesh, const SceneTransform& transform, const Buil
   VoxelTree tree = Voxelizer(mesh, transform, options).run(stats);
   if (stats) stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return tree;
+}
+
+VoxelTree voxelizeCells(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
+                        int cellLevel, const CellCallbacks& callbacks, int concurrency) {
+  if (cellLevel < 1 || cellLevel >= options.levels)
+    throw std::invalid_argument("cell level must be in [1, levels - 1] = [1, " +
+                                std::to_string(options.levels - 1) + "], got " + std::to_string(cellLevel));
+  if (!callbacks.built) throw std::invalid_argument("voxelizeCells: no callback for built cells");
+  return Voxelizer(mesh, transform, options).runCells(cellLevel, callbacks, concurrency);
+}
+
+void addTreeStats(const VoxelTree& tree, int rootLevel, BuildStats& stats) {
+  std::vector<std::pair<std::uint32_t, int>> stack{{0u, rootLevel}};
+  while (!stack.empty()) {
+    const auto [v, level] = stack.back();
+    stack.pop_back();
+    if (stats.voxelsPerLevel.size() <= std::size_t(level))
+      stats.voxelsPerLevel.resize(std::size_t(level) + 1);
+    ++stats.voxelsPerLevel[std::size_t(level)];
+    const VoxelRecord& r = tree.voxels[v];
+    stats.contours += r.hasContour;
+    if (r.childMask == 0) ++stats.leafVoxels;
+    for (int c = 0; c < std::popcount(unsigned(r.childMask)); ++c)
+      stack.push_back({r.firstChild + c, level + 1});
+  }
 }
 
 Octree buildOctree(const Mesh& mesh, const BuildOptions& options, BuildStats* stats) {

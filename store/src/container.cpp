@@ -180,19 +180,19 @@ std::uint32_t wordAt(const std::byte* words, std::size_t i) {
 // a contiguous range of every deeper level.
 class StoreWriter {
  public:
-  StoreWriter(const VoxelTree& tree, const StoreWriteOptions& options) : tree_(tree), options_(options) {
+  StoreWriter(const VoxelTree& tree, const StoreWriteOptions& options, const SubtreePlacement& at)
+      : tree_(tree), options_(options), at_(at) {
     if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
       throw std::invalid_argument("writeStore: the tree has no voxels below the root");
-    if (options.sliceBytes < kMinSliceBytes)
-      throw std::invalid_argument("writeStore: slice size must be at least " +
-                                  std::to_string(kMinSliceBytes) + " bytes (got " +
-                                  std::to_string(options.sliceBytes) + ")");
     const InheritanceRule inherits(options.inheritance);
     const std::size_t n = tree.voxels.size();
     effectiveColor_.assign(n, 0), effectiveNormal_.assign(n, 0);
     storesColor_.assign(n, 0), storesNormal_.assign(n, 0);
-    effectiveColor_[0] = tree.voxels[0].color, effectiveNormal_[0] = tree.voxels[0].normal;
-    levels_.push_back({{0u, glm::ivec3(0)}});
+    if (at.rootLevel < 0 || at.rootLevel >= kMaxLevels)
+      throw std::invalid_argument("writeStore: a subtree's root level must be in [0, " +
+                                  std::to_string(kMaxLevels) + ")");
+    effectiveColor_[0] = at.rootColor, effectiveNormal_[0] = at.rootNormal;
+    levels_.push_back({{0u, at.rootCoord}});
     while (true) {
       std::vector<Voxel> next;
       for (const Voxel& parent : levels_.back()) {
@@ -212,7 +212,7 @@ class StoreWriter {
         }
       }
       if (next.empty()) break;
-      if (levels_.size() > std::size_t(kMaxLevels))
+      if (std::size_t(at.rootLevel) + levels_.size() > std::size_t(kMaxLevels))
         throw std::invalid_argument("writeStore: the tree is deeper than " + std::to_string(kMaxLevels) +
                                     " levels");
       levels_.push_back(std::move(next));
@@ -236,11 +236,14 @@ class StoreWriter {
     }
   }
 
-  // Plans the slices (cube splits included) and hands each one's raw bytes and entry to `emit`.
+  // Plans the slices (cube splits included) and hands each one's raw bytes and entry to `emit`. The root's
+  // cube is the first cube: a subtree's slices start one level below its root.
   template <class Emit>
   void run(Emit&& emit) {
-    plan(0, glm::ivec3(0), 1, 0, 1, SliceInfo::kNoSlice, emit);
+    plan(at_.rootLevel, at_.rootCoord, at_.rootLevel + 1, 0, 1, at_.parentSlice, emit);
   }
+  std::size_t voxelCount() const { return tree_.voxels.size(); }
+  EffectiveAttributes effective() const { return {effectiveColor_, effectiveNormal_}; }
 
  private:
   struct Voxel {
@@ -251,9 +254,14 @@ class StoreWriter {
     std::vector<std::uint32_t> children, splits, contours, colors, normals;
   };
 
+  // Per-level data by absolute voxel level (the root sits at at_.rootLevel).
+  const std::vector<Voxel>& voxelsAt(int level) const { return levels_[std::size_t(level - at_.rootLevel)]; }
+  const Prefix& prefixAt(int level) const { return prefix_[std::size_t(level - at_.rootLevel)]; }
+  int deepestLevel() const { return at_.rootLevel + int(levels_.size()) - 1; }
+
   SliceHead headOf(int level, std::size_t a, std::size_t b) const {
-    const Prefix& up = prefix_[level - 1];
-    const Prefix& here = prefix_[level];
+    const Prefix& up = prefixAt(level - 1);
+    const Prefix& here = prefixAt(level);
     const std::uint32_t ca = up.children[a], cb = up.children[b];
     SliceHead h{};
     h.magic = kSliceMagic;
@@ -271,13 +279,13 @@ class StoreWriter {
   template <class Emit>
   void plan(int cubeLevel, glm::ivec3 cube, int level, std::size_t a, std::size_t b,
             std::uint32_t parentSlice, Emit& emit) {
-    if (level >= int(levels_.size())) return;
+    if (level > deepestLevel()) return;
     const SliceHead head = headOf(level, a, b);
     if (head.voxelCount == 0) return;
     if (sliceRawBytes(head) > options_.sliceBytes && cubeLevel < level - 1) {
       // Split into the 8 sub-cubes; the parents of each are a contiguous run of the Morton-ordered level.
       const int shift = level - 1 - (cubeLevel + 1);
-      const std::vector<Voxel>& parents = levels_[level - 1];
+      const std::vector<Voxel>& parents = voxelsAt(level - 1);
       for (std::size_t i = a; i < b;) {
         const glm::ivec3 sub = parents[i].coord >> shift;
         std::size_t j = i;
@@ -298,7 +306,7 @@ class StoreWriter {
     info.normalCount = head.normalCount;
     info.parentSlice = parentSlice;
     const std::uint32_t id = emit(encode(head, level, a, b), info);
-    const Prefix& up = prefix_[level - 1];
+    const Prefix& up = prefixAt(level - 1);
     plan(cubeLevel, cube, level + 1, up.children[a], up.children[b], id, emit);
   }
 
@@ -306,15 +314,15 @@ class StoreWriter {
     std::vector<std::byte> out(sizeof head);
     std::memcpy(out.data(), &head, sizeof head);
     out.reserve(sliceRawBytes(head));
-    const std::vector<Voxel>& parents = levels_[level - 1];
+    const std::vector<Voxel>& parents = voxelsAt(level - 1);
     {
       BitWriter split(out);
       for (std::size_t i = a; i < b; ++i) split.push(tree_.voxels[parents[i].record].childMask != 0);
     }
     for (std::size_t i = a; i < b; ++i)
       if (const std::uint8_t mask = tree_.voxels[parents[i].record].childMask) out.push_back(std::byte(mask));
-    const std::uint32_t ca = prefix_[level - 1].children[a], cb = prefix_[level - 1].children[b];
-    const std::vector<Voxel>& voxels = levels_[level];
+    const std::uint32_t ca = prefixAt(level - 1).children[a], cb = prefixAt(level - 1).children[b];
+    const std::vector<Voxel>& voxels = voxelsAt(level);
     const auto section = [&](auto has, auto value) {
       {
         BitWriter bits(out);
@@ -336,6 +344,7 @@ class StoreWriter {
 
   const VoxelTree& tree_;
   const StoreWriteOptions& options_;
+  const SubtreePlacement at_;
   std::vector<std::uint32_t> effectiveColor_, effectiveNormal_;
   std::vector<std::uint8_t> storesColor_, storesNormal_;
   std::vector<std::vector<Voxel>> levels_;
@@ -377,82 +386,120 @@ SliceError StoreReader::sliceError(std::uint32_t id, const std::string& what) co
   return SliceError(id, path_.string() + ": " + name + ": " + what);
 }
 
+StoreFileWriter::StoreFileWriter(const std::filesystem::path& path, const StoreWriteOptions& options)
+    : path_(path), temp_(path.string() + ".tmp." + std::to_string(::getpid())), options_(options) {
+  if (options.sliceBytes < kMinSliceBytes)
+    throw std::invalid_argument("writeStore: slice size must be at least " + std::to_string(kMinSliceBytes) +
+                                " bytes (got " + std::to_string(options.sliceBytes) + ")");
+  // Temporary name in the same folder, flushed, then renamed: the target is never half-written.
+  file_ = std::fopen(temp_.c_str(), "wb");
+  if (!file_) fail(path_, std::string("cannot write (") + std::strerror(errno) + ")");
+  const FileHeader placeholder{};  // until the directory's place is known
+  put(&placeholder, sizeof placeholder);
+  offset_ = sizeof placeholder;
+}
+
+StoreFileWriter::~StoreFileWriter() {
+  if (!file_) return;
+  std::fclose(file_);
+  std::error_code ignored;
+  std::filesystem::remove(temp_, ignored);
+}
+
+void StoreFileWriter::put(const void* data, std::size_t bytes) {
+  if (std::fwrite(data, 1, bytes, file_) != bytes)
+    fail(path_, std::string("cannot write (") + std::strerror(errno) + ")");
+}
+
+std::vector<std::uint32_t> StoreFileWriter::append(const VoxelTree& tree, const SubtreePlacement& at,
+                                                   EffectiveAttributes* effective) {
+  if (!file_) throw std::logic_error("StoreFileWriter: append after finish");
+  if (at.parentSlice != SliceInfo::kNoSlice && at.parentSlice >= slices_.size())
+    throw std::invalid_argument("writeStore: a subtree's parent slice is not written yet");
+  StoreWriter writer(tree, options_, at);
+  std::vector<std::uint32_t> ids;
+  std::vector<char> compressed;
+  std::uint64_t voxelsWritten = 1;  // the root is the parent slice's (or the header's)
+  writer.run([&](const std::vector<std::byte>& raw, SliceInfo info) {
+    compressed.resize(ZSTD_compressBound(raw.size()));
+    const std::size_t packed =
+        ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), kZstdLevel);
+    if (ZSTD_isError(packed)) fail(path_, std::string("compression failed: ") + ZSTD_getErrorName(packed));
+    info.offset = offset_;
+    info.compressedBytes = std::uint32_t(packed);
+    info.rawBytes = std::uint32_t(raw.size());
+    info.checksum = XXH3_64bits(compressed.data(), packed);
+    put(compressed.data(), packed);
+    offset_ += packed;
+    slices_.push_back(info);
+    ids.push_back(std::uint32_t(slices_.size() - 1));
+    voxelsWritten += info.voxelCount;
+    if (options_.progress) options_.progress(double(voxelsWritten) / double(writer.voxelCount()));
+    return ids.back();
+  });
+  if (effective) *effective = writer.effective();
+  return ids;
+}
+
+void StoreFileWriter::finish(const StoreContents& contents) {
+  if (!file_) throw std::logic_error("StoreFileWriter: finish twice");
+  if (slices_.empty()) throw std::invalid_argument("writeStore: the store has no slices");
+  std::vector<DirectoryEntry> directory(slices_.size());
+  for (std::size_t i = 0; i < slices_.size(); ++i) directory[i] = entryOf(slices_[i]);
+  const std::size_t directoryBytes = directory.size() * sizeof(DirectoryEntry);
+  put(directory.data(), directoryBytes);
+
+  FileHeader h{};
+  std::memcpy(h.magic, kFileMagic, sizeof h.magic);
+  h.version = kFileVersion;
+  h.headerBytes = sizeof(FileHeader);
+  for (int i = 0; i < 3; ++i) h.origin[i] = contents.transform.origin[i];
+  h.size = contents.transform.size;
+  h.levels = contents.parameters.levels;
+  h.geometryError = contents.parameters.geometryError;
+  h.colorError = contents.parameters.colorError;
+  h.normalError = contents.parameters.normalError;
+  h.contours = contents.parameters.contours;
+  if (contents.hasColors) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Color) - 1);
+  if (contents.hasNormals) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Normal) - 1);
+  h.rootColor = contents.rootColor;
+  h.rootNormal = contents.rootNormal;
+  h.sliceBytes = options_.sliceBytes;
+  h.sliceCount = std::uint32_t(slices_.size());
+  h.directoryOffset = offset_;
+  h.directoryBytes = directoryBytes;
+  h.directoryChecksum = XXH3_64bits(directory.data(), directoryBytes);
+  h.headerChecksum = headerChecksum(h);
+  if (std::fseek(file_, 0, SEEK_SET) != 0) fail(path_, "cannot seek to the header");
+  put(&h, sizeof h);
+  if (std::fflush(file_) != 0 || ::fsync(::fileno(file_)) != 0)
+    fail(path_, std::string("cannot write (") + std::strerror(errno) + ")");
+  const int closed = std::fclose(file_);
+  file_ = nullptr;
+  if (closed != 0) {
+    std::error_code ignored;
+    std::filesystem::remove(temp_, ignored);
+    fail(path_, std::string("cannot write (") + std::strerror(errno) + ")");
+  }
+  std::error_code ec;
+  std::filesystem::rename(temp_, path_, ec);
+  if (ec) {
+    std::error_code ignored;
+    std::filesystem::remove(temp_, ignored);
+    fail(path_, "cannot rename into place (" + ec.message() + ")");
+  }
+}
+
 std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const VoxelTree& tree,
                                   const SceneTransform& transform, const BuildParameters& parameters,
                                   const StoreWriteOptions& options) {
-  StoreWriter writer(tree, options);
-  // Temporary name in the same folder, flushed, then renamed: the target is never half-written.
-  const std::filesystem::path temp = path.string() + ".tmp." + std::to_string(::getpid());
-  std::FILE* f = std::fopen(temp.c_str(), "wb");
-  if (!f) fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
-  std::vector<SliceInfo> slices;
-  try {
-    const auto put = [&](const void* data, std::size_t bytes) {
-      if (std::fwrite(data, 1, bytes, f) != bytes)
-        fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
-    };
-    FileHeader h{};
-    put(&h, sizeof h);  // placeholder until the directory's place is known
-    std::uint64_t offset = sizeof h;
-    std::vector<char> compressed;
-    std::uint64_t voxelsWritten = 1;  // the root is in the header
-    writer.run([&](const std::vector<std::byte>& raw, SliceInfo info) {
-      compressed.resize(ZSTD_compressBound(raw.size()));
-      const std::size_t packed =
-          ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), kZstdLevel);
-      if (ZSTD_isError(packed)) fail(path, std::string("compression failed: ") + ZSTD_getErrorName(packed));
-      info.offset = offset;
-      info.compressedBytes = std::uint32_t(packed);
-      info.rawBytes = std::uint32_t(raw.size());
-      info.checksum = XXH3_64bits(compressed.data(), packed);
-      put(compressed.data(), packed);
-      offset += packed;
-      slices.push_back(info);
-      voxelsWritten += info.voxelCount;
-      if (options.progress) options.progress(double(voxelsWritten) / double(tree.voxels.size()));
-      return std::uint32_t(slices.size() - 1);
-    });
-    std::vector<DirectoryEntry> directory(slices.size());
-    for (std::size_t i = 0; i < slices.size(); ++i) directory[i] = entryOf(slices[i]);
-    const std::size_t directoryBytes = directory.size() * sizeof(DirectoryEntry);
-    put(directory.data(), directoryBytes);
-
-    std::memcpy(h.magic, kFileMagic, sizeof h.magic);
-    h.version = kFileVersion;
-    h.headerBytes = sizeof(FileHeader);
-    for (int i = 0; i < 3; ++i) h.origin[i] = transform.origin[i];
-    h.size = transform.size;
-    h.levels = parameters.levels;
-    h.geometryError = parameters.geometryError;
-    h.colorError = parameters.colorError;
-    h.normalError = parameters.normalError;
-    h.contours = parameters.contours;
-    if (tree.hasColors) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Color) - 1);
-    if (tree.hasNormals) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Normal) - 1);
-    h.rootColor = tree.voxels[0].color;
-    h.rootNormal = tree.voxels[0].normal;
-    h.sliceBytes = options.sliceBytes;
-    h.sliceCount = std::uint32_t(slices.size());
-    h.directoryOffset = offset;
-    h.directoryBytes = directoryBytes;
-    h.directoryChecksum = XXH3_64bits(directory.data(), directoryBytes);
-    h.headerChecksum = headerChecksum(h);
-    if (std::fseek(f, 0, SEEK_SET) != 0) fail(path, "cannot seek to the header");
-    put(&h, sizeof h);
-    if (std::fflush(f) != 0 || ::fsync(::fileno(f)) != 0)
-      fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
-    const int closed = std::fclose(f);
-    f = nullptr;
-    if (closed != 0) fail(path, std::string("cannot write (") + std::strerror(errno) + ")");
-    std::error_code ec;
-    std::filesystem::rename(temp, path, ec);
-    if (ec) fail(path, "cannot rename into place (" + ec.message() + ")");
-  } catch (...) {
-    if (f) std::fclose(f);
-    std::error_code ignored;
-    std::filesystem::remove(temp, ignored);
-    throw;
-  }
+  if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
+    throw std::invalid_argument("writeStore: the tree has no voxels below the root");
+  StoreFileWriter writer(path, options);
+  const VoxelRecord& root = tree.voxels[0];
+  writer.append(tree, {0, glm::ivec3(0), root.color, root.normal, SliceInfo::kNoSlice});
+  std::vector<SliceInfo> slices = writer.slices();
+  writer.finish({transform, parameters, tree.hasColors, tree.hasNormals, root.color, root.normal});
   return slices;
 }
 

@@ -16,6 +16,16 @@ namespace svotest {
 TempFile::TempFile(const std::string& stem, const std::string& extension)
     : path(std::filesystem::temp_directory_path() / (stem + "_" + std::to_string(::getpid()) + extension)) {}
 
+std::size_t differingVoxels(const svo::VoxelTree& a, const svo::VoxelTree& b) {
+  std::size_t differing = 0;
+  for (std::size_t i = 0; i < std::min(a.voxels.size(), b.voxels.size()); ++i) {
+    const svo::VoxelRecord &x = a.voxels[i], &y = b.voxels[i];
+    differing += x.childMask != y.childMask || x.firstChild != y.firstChild || x.hasContour != y.hasContour ||
+                 (x.hasContour && x.contour != y.contour) || x.color != y.color || x.normal != y.normal;
+  }
+  return differing;
+}
+
 TempFile::~TempFile() {
   std::error_code ignored;
   if (!path.empty()) std::filesystem::remove(path, ignored);

@@ -21,6 +21,10 @@
 
 namespace svotest {
 
+// Voxels (records by index) that differ between two trees in children, contour or attributes; the trees
+// must be the same size.
+std::size_t differingVoxels(const svo::VoxelTree& a, const svo::VoxelTree& b);
+
 // A file in the temp folder named `stem_<pid><extension>`, removed when its owner goes (moves hand it on).
 struct TempFile {
   TempFile() = default;

@@ -1,7 +1,12 @@
 // End-to-end: the `svo` command on good and bad input. Bad input must give one clear error line naming the
 // problem, a non-zero exit and no file at the target path. When SVO_ASAN_BINARY is set (tools/scripts/test.sh
 // builds it) the same runs happen under AddressSanitizer, which turns any memory error into a failure.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+#include <csignal>
+#include <cstring>
 
 #include <cstdlib>
 #include <filesystem>
@@ -11,6 +16,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "reference.hpp"
 #include "svo/store/container.hpp"
 
 namespace fs = std::filesystem;
@@ -102,6 +108,50 @@ TEST_F(Cli, BuildAndRenderRoundTrip) {
   CommandResult x =
       svo("render " + svoFile.string() + " -o " + exr.string() + " --width 32 --height 32 --aux");
   ASSERT_EQ(x.exitCode, 0) << x.err;
+}
+
+// A build killed with SIGKILL mid-way leaves no store at the target; --resume keeps the cells on disk and
+// gives the same octree as an in-core build.
+TEST_F(Cli, OutOfCoreBuildSurvivesSigkillAndResumes) {
+  const fs::path mesh = dir_ / "sphere.ply", store = dir_ / "s.svo", inCore = dir_ / "in.svo";
+  ASSERT_EQ(svo("gen sphere --triangles 20k -o " + mesh.string()).exitCode, 0);
+  const std::string build = "build " + mesh.string() + " --levels 9 --cell-level 3 --threads 1 -o ";
+  ASSERT_EQ(svo(build.substr(0, build.find(" --cell-level")) + " -o " + inCore.string()).exitCode, 0);
+
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const int null = ::open("/dev/null", O_WRONLY);
+    ::dup2(null, 1), ::dup2(null, 2);
+    const std::string bin = binary(), m = mesh.string(), s = store.string();
+    ::execl(bin.c_str(), bin.c_str(), "build", m.c_str(), "--levels", "9", "--cell-level", "3", "--threads",
+            "1", "-o", s.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  // Kill it once two cells are on disk (or when it is done, whichever comes first).
+  const fs::path work = store.string() + ".build";
+  for (int i = 0; i < 3000; ++i) {
+    std::size_t cells = 0;
+    std::error_code ec;
+    for (fs::directory_iterator it(work, ec), end; !ec && it != end; it.increment(ec))
+      cells += it->path().extension() == ".bin";
+    if (cells >= 2 || ::waitpid(pid, nullptr, WNOHANG) == pid) break;
+    ::usleep(10000);
+  }
+  ::kill(pid, SIGKILL);
+  ::waitpid(pid, nullptr, 0);
+  const bool interrupted = !fs::exists(store);
+  if (interrupted) EXPECT_TRUE(fs::exists(work / "manifest.json"));
+  std::printf("the build was %s\n", interrupted ? "killed mid-way" : "done before the kill");
+
+  const CommandResult resumed = svo(build + store.string() + " --resume");
+  ASSERT_EQ(resumed.exitCode, 0) << resumed.err;
+  if (interrupted) EXPECT_EQ(resumed.err.find(" 0 reused"), std::string::npos) << resumed.err;
+  const svo::VoxelTree a = svo::StoreReader(store).loadTree(), b = svo::StoreReader(inCore).loadTree();
+  ASSERT_EQ(a.voxels.size(), b.voxels.size());
+  EXPECT_EQ(svotest::differingVoxels(a, b), 0u);
+  EXPECT_FALSE(fs::exists(work));
+  EXPECT_EQ(svo("verify " + store.string()).exitCode, 0);
 }
 
 TEST_F(Cli, FlatMeshBuilds) {

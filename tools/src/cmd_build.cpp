@@ -6,6 +6,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 
 #include <nlohmann/json.hpp>
 
@@ -37,6 +38,10 @@ struct BuildArgs {
   bool noContours = false;
   int threads = 0;
   std::uint64_t sliceBytes = kDefaultSliceBytes;
+  // Out of core (any of these): cells spilled to OUTPUT.build, bounded memory, resumable.
+  std::uint64_t memory = 0;
+  int cellLevel = 0;
+  bool resume = false;
 };
 
 double secondsSince(std::chrono::steady_clock::time_point start) {
@@ -86,29 +91,53 @@ void runBuild(const BuildArgs& args) {
   BuildOptions options = args.options;
   options.contours = !args.noContours;
   BuildStats stats;
-  phaseStart = std::chrono::steady_clock::now();
-  const SceneTransform transform = fitSceneCube(mesh);
-  VoxelTree tree;
-  {
-    ProgressBar bar("voxelize");
-    options.progress = [&bar](double f) { bar.update(f); };
-    tree = voxelize(mesh, transform, options, &stats);
-  }
-  phases["voxelize"] = secondsSince(phaseStart);
-
-  phaseStart = std::chrono::steady_clock::now();
-  const BuildParameters parameters{options.levels, options.geometryError, options.colorError,
-                                   options.normalError, std::uint32_t(options.contours)};
   StoreWriteOptions storeOptions;
   storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
   storeOptions.inheritance = options.layout;
   std::vector<SliceInfo> slices;
-  {
-    ProgressBar bar("write");
-    storeOptions.progress = [&bar](double f) { bar.update(f); };
-    slices = writeStore(args.out, tree, transform, parameters, storeOptions);
+  const bool hasColors = mesh.hasColor();
+  if (args.memory > 0 || args.cellLevel > 0 || args.resume) {
+    if (args.cellLevel >= options.levels)
+      throw UsageError("--cell-level must be below --levels (" + std::to_string(options.levels) + ")");
+    OutOfCoreOptions ooc;
+    ooc.memoryBytes = args.memory;
+    ooc.cellLevel = args.cellLevel;
+    ooc.resume = args.resume;
+    ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
+    std::unique_ptr<ProgressBar> bar;
+    std::string current;
+    ooc.progress = [&](const char* phase, double f) {
+      if (current != phase) bar = std::make_unique<ProgressBar>(current = phase);
+      bar->update(f);
+    };
+    const OutOfCoreReport built = buildStore(mesh, options, storeOptions, ooc, args.out);
+    bar.reset();
+    for (const auto& [phase, seconds] : built.phaseSeconds) phases[phase] = seconds;
+    stats = built.stats;
+    slices = built.slices;
+    spdlog::info("out of core: {} cells of level {}, {} reused from an interrupted run", built.cells,
+                 built.cellLevel, built.cellsReused);
+  } else {
+    phaseStart = std::chrono::steady_clock::now();
+    const SceneTransform transform = fitSceneCube(mesh);
+    VoxelTree tree;
+    {
+      ProgressBar bar("voxelize");
+      options.progress = [&bar](double f) { bar.update(f); };
+      tree = voxelize(mesh, transform, options, &stats);
+    }
+    phases["voxelize"] = secondsSince(phaseStart);
+
+    phaseStart = std::chrono::steady_clock::now();
+    const BuildParameters parameters{options.levels, options.geometryError, options.colorError,
+                                     options.normalError, std::uint32_t(options.contours)};
+    {
+      ProgressBar bar("write");
+      storeOptions.progress = [&bar](double f) { bar.update(f); };
+      slices = writeStore(args.out, tree, transform, parameters, storeOptions);
+    }
+    phases["write"] = secondsSince(phaseStart);
   }
-  phases["write"] = secondsSince(phaseStart);
 
   // The report: phases, voxels and slices per level, bytes per leaf voxel on disk and decoded by part.
   const std::uint64_t fileBytes = std::filesystem::file_size(args.out);
@@ -117,7 +146,7 @@ void runBuild(const BuildArgs& args) {
   SliceParts parts;
   for (const SliceInfo& s : slices) {
     if (std::size_t(s.voxelLevel) < slicesPerLevel.size()) ++slicesPerLevel[s.voxelLevel];
-    const SliceParts p = slicePartsOf(s, tree.hasColors, tree.hasNormals);
+    const SliceParts p = slicePartsOf(s, hasColors, true);
     parts.hierarchy += p.hierarchy, parts.contours += p.contours, parts.colors += p.colors,
         parts.normals += p.normals;
   }
@@ -187,6 +216,16 @@ void addBuildCommand(CLI::App& app) {
   cmd->add_option("--threads", args->threads, "worker threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
   cmd->add_option("--report", args->report, "JSON build report (default: OUTPUT.build.json)");
+  cmd->add_option("--memory", args->memory,
+                  "build out of core within about this much memory (e.g. 1G): cells spilled to OUTPUT.build, "
+                  "a cell level chosen to fit")
+      ->transform(CLI::AsSizeValue(false));
+  cmd->add_option("--cell-level", args->cellLevel,
+                  "build out of core with cells of this level (instead of choosing one from --memory)")
+      ->check(CLI::Range(1, kMaxLevels - 1));
+  cmd->add_flag("--resume", args->resume,
+                "out of core: keep the cells an interrupted build of the same input and options left in "
+                "OUTPUT.build");
   cmd->callback([args] { runBuild(*args); });
 }
 

@@ -2,8 +2,15 @@
 #pragma once
 
 #include <cstdint>
+#include <filesystem>
 #include <functional>
+#include <map>
+#include <optional>
+#include <string>
 #include <vector>
+
+#include <glm/vec3.hpp>
+#include <glm/vec4.hpp>
 
 #include "svo/builder/mesh.hpp"
 #include "svo/store/block.hpp"
@@ -42,6 +49,60 @@ SceneTransform fitSceneCube(const Mesh& mesh);
 // and options, whatever the thread count.
 VoxelTree voxelize(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
                    BuildStats* stats = nullptr);
+
+// The out-of-core build voxelizes cell by cell: a cell is a voxel of the cell level with its whole subtree.
+struct CellRoot {
+  VoxelRecord record;  // the cell's root voxel (its children are in the cell's subtree)
+  struct Sums {        // area-weighted attribute sums; the cell's ancestors' attributes add them up
+    double weight = 0.0;
+    glm::dvec4 color{0.0};
+    glm::dvec3 normal{0.0};
+  } sums;
+};
+struct CellCallbacks {
+  // How many cells the top levels found (once, before any cell is built).
+  std::function<void(std::size_t cells)> planned;
+  // A cell an earlier run finished (resume): its root, or nullopt to build it. From worker threads.
+  std::function<std::optional<CellRoot>(glm::ivec3 cell)> finished;
+  // A cell's subtree (root first), pruned, with its root; from worker threads.
+  std::function<void(glm::ivec3 cell, VoxelTree&& subtree, const CellRoot& root)> built;
+};
+
+// voxelize() cell by cell below `cellLevel` (in [1, levels - 1]), `concurrency` cells at a time: the levels
+// above are built as voxelize() builds them, each cell's subtree goes to `callbacks.built` and is dropped.
+// Returns the tree down to the cell level, the cells' roots as leaves. The top tree plus the cells' subtrees
+// are exactly voxelize()'s tree.
+VoxelTree voxelizeCells(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
+                        int cellLevel, const CellCallbacks& callbacks, int concurrency);
+
+// Adds a tree's voxels per level, leaves and contours to `stats`; its root is a voxel of `rootLevel`.
+void addTreeStats(const VoxelTree& tree, int rootLevel, BuildStats& stats);
+
+// The out-of-core build: mesh -> store with bounded memory, resumable.
+struct OutOfCoreOptions {
+  // Peak resident bytes to stay within: picks the shallowest cell level whose fullest cell (estimated from
+  // the surface area in it) fits next to the mesh. Not needed when cellLevel is given.
+  std::size_t memoryBytes = 0;
+  int cellLevel = 0;  // in [1, levels - 1]; 0: chosen from memoryBytes
+  int threads = 1;    // cells built at once (each holds its own subtree)
+  // Keep the cells an interrupted run of the same build spilled (same input and options), build the rest.
+  bool resume = false;
+  std::filesystem::path workDir;  // spilled cells; default: STORE.build, removed when the store is written
+  std::function<void(const char* phase, double fraction)> progress;
+  // After each cell's spill file is complete on disk (a throw here interrupts the build, as a kill would).
+  std::function<void(glm::ivec3 cell)> cellSpilled;
+};
+struct OutOfCoreReport {
+  int cellLevel = 0;
+  std::size_t cells = 0, cellsReused = 0;
+  std::vector<SliceInfo> slices;
+  BuildStats stats;
+  std::map<std::string, double> phaseSeconds;
+};
+// Writes `store` from the mesh with voxelizeCells: its octree (StoreReader::loadTree) is exactly the in-core
+// build's. Like writeStore, the target is written only complete.
+OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const StoreWriteOptions& write,
+                           const OutOfCoreOptions& ooc, const std::filesystem::path& store);
 
 // voxelize + layoutBlock: the whole in-core build.
 Octree buildOctree(const Mesh& mesh, const BuildOptions& options, BuildStats* stats = nullptr);

@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <functional>
 #include <memory>
@@ -120,6 +121,55 @@ struct StoreWriteOptions {
   std::uint32_t sliceBytes = kDefaultSliceBytes;  // raw bytes a slice may hold before its cube splits
   LayoutOptions inheritance;                      // when a child inherits its parent's attribute (sec. 5.4)
   std::function<void(double)> progress;           // fraction of the voxels written, from the writing thread
+};
+
+// Where a subtree's slices go in a store: its root voxel's level and cube coordinate, the effective
+// attribute values its children inherit from (the root's own, or what the root itself inherited), and the
+// slice holding the root voxel (kNoSlice for the store's root, which the header holds). The subtree's slices
+// start with the root's cube at the root's level.
+struct SubtreePlacement {
+  int rootLevel = 0;
+  glm::ivec3 rootCoord{0};
+  std::uint32_t rootColor = 0, rootNormal = 0;
+  std::uint32_t parentSlice = SliceInfo::kNoSlice;
+};
+
+// Per record of a tree: the color and normal a store holds for it, its own or the one it inherits.
+struct EffectiveAttributes {
+  std::vector<std::uint32_t> color, normal;
+};
+
+// What a store's header records besides its slices.
+struct StoreContents {
+  SceneTransform transform;
+  BuildParameters parameters;
+  bool hasColors = false, hasNormals = false;
+  std::uint32_t rootColor = 0, rootNormal = 0;
+};
+
+// Writes a store subtree by subtree (the out-of-core build appends the trunk, then each cell): slices go to
+// a temporary file in the target's folder; finish() adds the directory and header, flushes and renames it
+// into place. Destroyed unfinished, it removes the temporary file and the target keeps its old content.
+class StoreFileWriter {
+ public:
+  StoreFileWriter(const std::filesystem::path& path, const StoreWriteOptions& options);
+  ~StoreFileWriter();
+  StoreFileWriter(const StoreFileWriter&) = delete;
+  StoreFileWriter& operator=(const StoreFileWriter&) = delete;
+  // Appends the slices of `tree` placed at `at` (its parent slice already written); returns their ids.
+  // `effective` receives each record's attribute values as a reader decodes them (inheritance applied).
+  std::vector<std::uint32_t> append(const VoxelTree& tree, const SubtreePlacement& at,
+                                    EffectiveAttributes* effective = nullptr);
+  const std::vector<SliceInfo>& slices() const { return slices_; }
+  void finish(const StoreContents& contents);
+
+ private:
+  void put(const void* data, std::size_t bytes);
+  std::filesystem::path path_, temp_;
+  StoreWriteOptions options_;
+  std::FILE* file_ = nullptr;
+  std::uint64_t offset_ = 0;
+  std::vector<SliceInfo> slices_;
 };
 
 // Writes the voxel tree as a slice store, atomically: `path` either keeps its old content or gets the

@@ -1,0 +1,328 @@
+// The out-of-core build (build.hpp, buildStore): the levels above the cell level are voxelized in memory,
+// every cell's subtree is built on its own and spilled to a work folder (zstd, checksummed, renamed into
+// place when complete, so an interrupted build resumes from the cells on disk), then the store is written:
+// the top tree first, each cell's slices after it, hung below the top slice that holds the cell's root.
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+
+#include <xxhash.h>
+#include <zstd.h>
+#include <glm/geometric.hpp>
+#include <nlohmann/json.hpp>
+
+#include "svo/builder/build.hpp"
+
+namespace svo {
+namespace {
+
+// Resident bytes per voxel of a cell at its peak, while its store slices are written: the records (24 B)
+// plus the writer's per-voxel levels, prefix counts and inheritance state (~46 B). Measured: see
+// kVoxelsPerArea.
+constexpr double kPeakBytesPerVoxel = 72.0;
+// Voxels (all levels) per finest-voxel-face of surface area: a surface crosses ~1.5 voxels per voxel face
+// of area on average over orientations (|nx| + |ny| + |nz|), and the coarser levels add a third.
+constexpr double kVoxelsPerArea = 2.0;
+// Resident bytes per triangle besides the cells: the mesh (positions, indices, colors), the voxelizer's
+// copy in double precision (88 B) and the top levels' triangle lists.
+constexpr double kBytesPerTriangle = 200.0;
+// Zstd level of the spilled cells: fast, they are read once.
+constexpr int kSpillZstdLevel = 1;
+// Work-folder format; a resume refuses a folder of another format.
+constexpr int kWorkFormat = 1;
+constexpr char kCellMagic[8] = {'S', 'V', 'O', 'C', 'E', 'L', 'L', '1'};
+
+struct CellFileHeader {
+  char magic[8];
+  std::uint64_t recordCount = 0, compressedBytes = 0, checksum = 0;  // XXH3-64 of the compressed records
+  VoxelRecord root;
+  double weight = 0.0, color[4] = {}, normal[3] = {};
+  std::uint32_t hasColors = 0, hasNormals = 0;
+};
+
+std::filesystem::path cellPath(const std::filesystem::path& work, glm::ivec3 c) {
+  return work /
+         ("cell_" + std::to_string(c.x) + "_" + std::to_string(c.y) + "_" + std::to_string(c.z) + ".bin");
+}
+
+void writeCell(const std::filesystem::path& path, const VoxelTree& tree, const CellRoot& root) {
+  const std::size_t rawBytes = tree.voxels.size() * sizeof(VoxelRecord);
+  std::vector<char> packed(ZSTD_compressBound(rawBytes));
+  const std::size_t n =
+      ZSTD_compress(packed.data(), packed.size(), tree.voxels.data(), rawBytes, kSpillZstdLevel);
+  if (ZSTD_isError(n)) throw std::runtime_error(path.string() + ": compression failed");
+  CellFileHeader h{};
+  std::memcpy(h.magic, kCellMagic, sizeof h.magic);
+  h.recordCount = tree.voxels.size();
+  h.compressedBytes = n;
+  h.checksum = XXH3_64bits(packed.data(), n);
+  h.root = root.record;
+  h.weight = root.sums.weight;
+  for (int k = 0; k < 4; ++k) h.color[k] = root.sums.color[k];
+  for (int k = 0; k < 3; ++k) h.normal[k] = root.sums.normal[k];
+  h.hasColors = tree.hasColors, h.hasNormals = tree.hasNormals;
+  // Complete or absent: written under a temporary name, flushed, renamed.
+  const std::filesystem::path temp = path.string() + ".tmp";
+  {
+    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    out.write(reinterpret_cast<const char*>(&h), sizeof h);
+    out.write(packed.data(), std::streamsize(n));
+    if (!out.flush()) throw std::runtime_error(temp.string() + ": cannot write (disk full?)");
+  }
+  std::filesystem::rename(temp, path);
+}
+
+// The header of a cell file that is complete and intact, or nullopt.
+std::optional<CellFileHeader> readCellHeader(const std::filesystem::path& path, std::vector<char>* payload) {
+  std::ifstream in(path, std::ios::binary);
+  CellFileHeader h{};
+  if (!in.read(reinterpret_cast<char*>(&h), sizeof h) ||
+      std::memcmp(h.magic, kCellMagic, sizeof h.magic) != 0)
+    return std::nullopt;
+  std::error_code ec;
+  if (std::filesystem::file_size(path, ec) != sizeof h + h.compressedBytes || ec) return std::nullopt;
+  std::vector<char> data(h.compressedBytes);
+  if (!in.read(data.data(), std::streamsize(data.size())) ||
+      XXH3_64bits(data.data(), data.size()) != h.checksum)
+    return std::nullopt;
+  if (payload) *payload = std::move(data);
+  return h;
+}
+
+CellRoot rootOf(const CellFileHeader& h) {
+  CellRoot r;
+  r.record = h.root;
+  r.sums.weight = h.weight;
+  r.sums.color = glm::dvec4(h.color[0], h.color[1], h.color[2], h.color[3]);
+  r.sums.normal = glm::dvec3(h.normal[0], h.normal[1], h.normal[2]);
+  return r;
+}
+
+VoxelTree readCell(const std::filesystem::path& path) {
+  std::vector<char> payload;
+  const std::optional<CellFileHeader> h = readCellHeader(path, &payload);
+  if (!h)
+    throw std::runtime_error(path.string() +
+                             ": a spilled cell is missing or damaged; build again without --resume");
+  VoxelTree tree;
+  tree.hasColors = h->hasColors != 0, tree.hasNormals = h->hasNormals != 0;
+  tree.voxels.resize(h->recordCount);
+  const std::size_t n = ZSTD_decompress(tree.voxels.data(), tree.voxels.size() * sizeof(VoxelRecord),
+                                        payload.data(), payload.size());
+  if (ZSTD_isError(n) || n != tree.voxels.size() * sizeof(VoxelRecord))
+    throw std::runtime_error(path.string() +
+                             ": a spilled cell does not decompress; build again without --resume");
+  return tree;
+}
+
+// What a resume must agree on: the input (hashed) and every option that changes the voxels or the slices.
+nlohmann::json manifestOf(const Mesh& mesh, const BuildOptions& options, const StoreWriteOptions& write,
+                          int cellLevel) {
+  XXH3_state_t* state = XXH3_createState();
+  XXH3_64bits_reset(state);
+  XXH3_64bits_update(state, mesh.positions.data(), mesh.positions.size() * sizeof(mesh.positions[0]));
+  XXH3_64bits_update(state, mesh.triangles.data(), mesh.triangles.size() * sizeof(mesh.triangles[0]));
+  XXH3_64bits_update(state, mesh.colors.data(), mesh.colors.size() * sizeof(mesh.colors[0]));
+  XXH3_64bits_update(state, mesh.uvs.data(), mesh.uvs.size() * sizeof(mesh.uvs[0]));
+  const std::uint64_t hash = XXH3_64bits_digest(state);
+  XXH3_freeState(state);
+  return {{"format", kWorkFormat},
+          {"meshHash", std::to_string(hash)},
+          {"triangles", mesh.triangles.size()},
+          {"levels", options.levels},
+          {"contours", options.contours},
+          {"contourMinReduction", options.contourMinReduction},
+          {"geometryError", options.geometryError},
+          {"colorError", options.colorError},
+          {"normalError", options.normalError},
+          {"cellLevel", cellLevel},
+          {"sliceBytes", write.sliceBytes}};
+}
+
+// The shallowest cell level whose fullest cell, by the surface area binned to it, fits the memory left
+// after the fixed part; throws when even the deepest does not.
+int chooseCellLevel(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
+                    std::size_t memoryBytes, int concurrency) {
+  const double fixed = kBytesPerTriangle * double(mesh.triangles.size()) +
+                       double(mesh.positions.size()) * sizeof(mesh.positions[0]);
+  const double perCell = (double(memoryBytes) - fixed) / double(std::max(1, concurrency));
+  const auto needMiB = [&](double bytes) { return std::to_string(std::llround(bytes / double(1 << 20))); };
+  if (perCell <= 0.0)
+    throw std::runtime_error("--memory: " + needMiB(double(memoryBytes)) + " MiB does not hold the mesh (" +
+                             needMiB(fixed) + " MiB for " + std::to_string(mesh.triangles.size()) +
+                             " triangles)");
+  const double finest = std::ldexp(1.0, -options.levels);  // octree units: the scene cube is [1, 2]^3
+  double needed = 0.0;
+  for (int level = 1; level < options.levels; ++level) {
+    const double cells = std::ldexp(1.0, level);
+    std::map<std::int64_t, double> area;
+    for (const glm::uvec3& t : mesh.triangles) {
+      const glm::dvec3 a = transform.toOctree(mesh.positions[t.x]),
+                       b = transform.toOctree(mesh.positions[t.y]),
+                       c = transform.toOctree(mesh.positions[t.z]);
+      const glm::ivec3 cell = glm::clamp(glm::ivec3(glm::floor(((a + b + c) / 3.0 - 1.0) * cells)),
+                                         glm::ivec3(0), glm::ivec3(int(cells) - 1));
+      area[(std::int64_t(cell.z) << 42) | (std::int64_t(cell.y) << 21) | cell.x] +=
+          0.5 * glm::length(glm::cross(b - a, c - a));
+    }
+    double fullest = 0.0;
+    for (const auto& [key, value] : area) fullest = std::max(fullest, value);
+    needed = kPeakBytesPerVoxel * kVoxelsPerArea * fullest / (finest * finest);
+    if (needed <= perCell) return level;
+  }
+  throw std::runtime_error("--memory: " + needMiB(double(memoryBytes)) + " MiB is too small for " +
+                           std::to_string(options.levels) + " levels of this mesh (a cell needs about " +
+                           needMiB(needed + fixed) + " MiB)");
+}
+
+}  // namespace
+
+OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const StoreWriteOptions& write,
+                           const OutOfCoreOptions& ooc, const std::filesystem::path& store) {
+  const auto start = std::chrono::steady_clock::now();
+  const auto seconds = [](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  };
+  const auto progress = [&](const char* phase, double f) {
+    if (ooc.progress) ooc.progress(phase, f);
+  };
+  OutOfCoreReport report;
+  const SceneTransform transform = fitSceneCube(mesh);
+  const int concurrency = std::max(1, ooc.threads);
+  report.cellLevel = ooc.cellLevel > 0
+                         ? ooc.cellLevel
+                         : chooseCellLevel(mesh, transform, options, ooc.memoryBytes, concurrency);
+  const std::filesystem::path work =
+      ooc.workDir.empty() ? std::filesystem::path(store.string() + ".build") : ooc.workDir;
+
+  // The work folder: kept from an interrupted run with --resume (if it is this build's), else fresh.
+  const nlohmann::json manifest = manifestOf(mesh, options, write, report.cellLevel);
+  const std::filesystem::path manifestPath = work / "manifest.json";
+  bool reuse = false;
+  if (ooc.resume && std::filesystem::exists(manifestPath)) {
+    nlohmann::json old;
+    try {
+      std::ifstream(manifestPath) >> old;
+    } catch (const std::exception&) {
+      throw std::runtime_error(manifestPath.string() + ": unreadable; delete " + work.string() +
+                               " or drop --resume");
+    }
+    for (const auto& [key, value] : manifest.items())
+      if (!old.contains(key) || old[key] != value)
+        throw std::runtime_error("--resume: " + work.string() + " holds a build with another " + key +
+                                 "; delete it or drop --resume");
+    reuse = true;
+  } else {
+    std::filesystem::remove_all(work);
+    std::filesystem::create_directories(work);
+    std::ofstream(manifestPath) << manifest.dump(2) << "\n";
+  }
+
+  // 1. Voxels: the top in memory, cells spilled as they complete.
+  auto phase = std::chrono::steady_clock::now();
+  std::mutex mutex;
+  std::size_t cellsDone = 0, cellCount = 1;
+  CellCallbacks callbacks;
+  callbacks.planned = [&](std::size_t count) { cellCount = std::max<std::size_t>(count, 1); };
+  callbacks.finished = [&](glm::ivec3 cell) -> std::optional<CellRoot> {
+    if (!reuse) return std::nullopt;
+    const std::optional<CellFileHeader> h = readCellHeader(cellPath(work, cell), nullptr);
+    if (!h) return std::nullopt;
+    std::lock_guard lock(mutex);
+    ++report.cellsReused;
+    ++cellsDone;
+    return rootOf(*h);
+  };
+  callbacks.built = [&](glm::ivec3 cell, VoxelTree&& tree, const CellRoot& root) {
+    writeCell(cellPath(work, cell), tree, root);
+    {
+      std::lock_guard lock(mutex);
+      ++cellsDone;
+      progress("voxelize", std::min(1.0, double(cellsDone) / double(cellCount)));
+    }
+    if (ooc.cellSpilled) ooc.cellSpilled(cell);
+  };
+  const VoxelTree top = voxelizeCells(mesh, transform, options, report.cellLevel, callbacks, concurrency);
+  report.phaseSeconds["voxelize"] = seconds(phase);
+
+  // 2. The store: the top, then every live cell below the top slice holding its root.
+  phase = std::chrono::steady_clock::now();
+  StoreFileWriter writer(store, write);
+  EffectiveAttributes effective;
+  writer.append(top, {0, glm::ivec3(0), top.voxels[0].color, top.voxels[0].normal, SliceInfo::kNoSlice},
+                &effective);
+  std::map<std::tuple<int, int, int, int>, std::uint32_t> sliceOfCube;  // (cube level, cube) -> slice
+  for (std::uint32_t s = 0; s < writer.slices().size(); ++s) {
+    const SliceInfo& info = writer.slices()[s];
+    if (info.voxelLevel == report.cellLevel)
+      sliceOfCube[{info.cubeLevel, info.cubeCoord.x, info.cubeCoord.y, info.cubeCoord.z}] = s;
+  }
+  struct Cell {
+    std::uint32_t record;
+    glm::ivec3 coord;
+  };
+  std::vector<Cell> cells;
+  BuildStats& stats = report.stats;
+  addTreeStats(top, 0, stats);
+  {
+    // The top tree's voxels of the cell level, with their coordinates.
+    std::vector<std::tuple<std::uint32_t, int, glm::ivec3>> walk{{0u, 0, glm::ivec3(0)}};
+    while (!walk.empty()) {
+      const auto [v, level, coord] = walk.back();
+      walk.pop_back();
+      if (level == report.cellLevel) {
+        cells.push_back({v, coord});
+        continue;
+      }
+      const VoxelRecord& r = top.voxels[v];
+      for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot)
+        if (r.childMask >> slot & 1u) walk.push_back({c++, level + 1, childCoord(coord, int(slot))});
+    }
+  }
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    const Cell& cell = cells[i];
+    const VoxelTree tree = readCell(cellPath(work, cell.coord));
+    // The cell's root is already counted by the top as a leaf voxel of the cell level.
+    addTreeStats(tree, report.cellLevel, stats);
+    --stats.voxelsPerLevel[std::size_t(report.cellLevel)];
+    --stats.leafVoxels;
+    stats.contours -= tree.voxels[0].hasContour;
+    if (tree.voxels[0].childMask != 0) {
+      std::uint32_t parent = SliceInfo::kNoSlice;
+      for (int c = 0; c < report.cellLevel && parent == SliceInfo::kNoSlice; ++c) {
+        const glm::ivec3 cube = cell.coord >> (report.cellLevel - c);
+        if (const auto it = sliceOfCube.find({c, cube.x, cube.y, cube.z}); it != sliceOfCube.end())
+          parent = it->second;
+      }
+      if (parent == SliceInfo::kNoSlice) throw std::logic_error("buildStore: a cell has no top slice");
+      writer.append(tree, {report.cellLevel, cell.coord, effective.color[cell.record],
+                           effective.normal[cell.record], parent});
+    }
+    progress("write", double(i + 1) / double(cells.size()));
+  }
+  report.slices = writer.slices();
+  writer.finish({transform,
+                 {options.levels, options.geometryError, options.colorError, options.normalError,
+                  std::uint32_t(options.contours)},
+                 top.hasColors,
+                 top.hasNormals,
+                 top.voxels[0].color,
+                 top.voxels[0].normal});
+  report.phaseSeconds["write"] = seconds(phase);
+  report.cells = cells.size();
+  std::error_code ignored;
+  std::filesystem::remove_all(work, ignored);
+  stats.trianglesUsed = mesh.triangles.size();
+  stats.seconds = seconds(start);
+  return report;
+}
+
+}  // namespace svo

@@ -1,0 +1,136 @@
+// The out-of-core build (builder/build.hpp buildStore) against the in-core build of the same mesh and
+// options: the stores decode (StoreReader::loadTree) to the same octree, voxel for voxel, at every cell level
+// and thread count; an interrupted build leaves no store, and resuming keeps the cells already on disk and
+// still gives the same octree; a resume refuses a work folder of another build; too little memory is a
+// clear error before any work.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <set>
+#include <stdexcept>
+#include <string>
+
+#include "reference.hpp"
+#include "svo/builder/build.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// A colored sphere and a box: cells at every level hold surface, some cells are empty.
+svo::Mesh testMesh() {
+  svo::Mesh mesh = svotest::makeSphere({0, 0, 0}, 1.0, 20, 20);
+  svotest::appendMesh(mesh, svotest::makeBox({-1.2, -1.2, -0.2}, {0.3, -0.9, 0.9}));
+  for (const glm::dvec3& p : mesh.positions)
+    mesh.colors.push_back(glm::vec4(0.5 + 0.4 * p.x, 0.5 + 0.4 * p.y, 0.5 - 0.4 * p.z, 1.0));
+  return mesh;
+}
+
+svo::StoreWriteOptions smallSlices() {
+  svo::StoreWriteOptions write;
+  write.sliceBytes = 4096;
+  return write;
+}
+
+// The in-core store of the same build, written and decoded.
+svo::VoxelTree inCoreTree(const svo::Mesh& mesh, const svo::BuildOptions& options) {
+  const svotest::TempFile file("svo_ooc_incore", ".svo");
+  svo::writeOctree(file.path, svo::buildOctree(mesh, options), smallSlices());
+  return svo::StoreReader(file.path).loadTree();
+}
+
+void expectSameTree(const svo::VoxelTree& a, const svo::VoxelTree& b) {
+  ASSERT_EQ(a.voxels.size(), b.voxels.size());
+  EXPECT_EQ(a.hasColors, b.hasColors);
+  EXPECT_EQ(svotest::differingVoxels(a, b), 0u) << "of " << a.voxels.size() << " voxels";
+}
+
+}  // namespace
+
+TEST(OutOfCore, EqualsTheInCoreBuildAtEveryCellLevel) {
+  const svo::Mesh mesh = testMesh();
+  for (const bool errorStop : {false, true}) {
+    svo::BuildOptions options;
+    options.levels = 7;
+    if (errorStop) options.geometryError = 1.0f, options.colorError = 8.0f;  // leaves above the finest level
+    const svo::VoxelTree reference = inCoreTree(mesh, options);
+    for (const int cellLevel : {1, 2, 3, 6}) {
+      SCOPED_TRACE("cell level " + std::to_string(cellLevel) + (errorStop ? ", error-driven stop" : ""));
+      const svotest::TempFile store("svo_ooc", ".svo");
+      svo::OutOfCoreOptions ooc;
+      ooc.cellLevel = cellLevel;
+      ooc.threads = cellLevel == 2 ? 2 : 1;
+      const svo::OutOfCoreReport report = svo::buildStore(mesh, options, smallSlices(), ooc, store.path);
+      EXPECT_GT(report.cells, 1u);
+      EXPECT_FALSE(fs::exists(store.path.string() + ".build"));  // the work folder goes with success
+      const svo::StoreReader reader(store.path);
+      expectSameTree(reader.loadTree(), reference);
+      // The report's statistics count the whole octree once.
+      std::uint64_t voxels = 0;
+      for (const std::uint64_t v : report.stats.voxelsPerLevel) voxels += v;
+      EXPECT_EQ(voxels, reference.voxels.size());
+    }
+  }
+}
+
+TEST(OutOfCore, AnInterruptedBuildResumesFromTheSpilledCells) {
+  const svo::Mesh mesh = testMesh();
+  svo::BuildOptions options;
+  options.levels = 7;
+  const svo::VoxelTree reference = inCoreTree(mesh, options);
+  const svotest::TempFile store("svo_ooc_resume", ".svo");
+  const fs::path work = store.path.string() + ".build";
+  svo::OutOfCoreOptions ooc;
+  ooc.cellLevel = 2;
+  int spilled = 0;
+  ooc.cellSpilled = [&](glm::ivec3) {
+    if (++spilled == 5) throw std::runtime_error("interrupted");
+  };
+  EXPECT_THROW(svo::buildStore(mesh, options, smallSlices(), ooc, store.path), std::runtime_error);
+  EXPECT_FALSE(fs::exists(store.path));  // nothing half-written at the target
+  ASSERT_TRUE(fs::exists(work / "manifest.json"));
+
+  // Resuming rebuilds only what is not on disk yet.
+  ooc.resume = true;
+  std::set<std::string> rebuilt;
+  ooc.cellSpilled = [&](glm::ivec3 c) {
+    rebuilt.insert(std::to_string(c.x) + std::to_string(c.y) + std::to_string(c.z));
+  };
+  const svo::OutOfCoreReport report = svo::buildStore(mesh, options, smallSlices(), ooc, store.path);
+  EXPECT_EQ(report.cellsReused, 5u);
+  // Every cell of this mesh holds surface, so the reused and the rebuilt ones are all of them, once each.
+  EXPECT_EQ(rebuilt.size() + report.cellsReused, report.cells);
+  expectSameTree(svo::StoreReader(store.path).loadTree(), reference);
+  EXPECT_FALSE(fs::exists(work));
+}
+
+TEST(OutOfCore, ResumeRefusesTheWorkFolderOfAnotherBuildAndSmallMemoryIsClear) {
+  const svo::Mesh mesh = testMesh();
+  svo::BuildOptions options;
+  options.levels = 6;
+  const svotest::TempFile store("svo_ooc_other", ".svo");
+  svo::OutOfCoreOptions ooc;
+  ooc.cellLevel = 2;
+  ooc.cellSpilled = [](glm::ivec3) { throw std::runtime_error("interrupted"); };
+  EXPECT_THROW(svo::buildStore(mesh, options, smallSlices(), ooc, store.path), std::runtime_error);
+  options.levels = 7;
+  ooc.resume = true;
+  ooc.cellSpilled = nullptr;
+  try {
+    svo::buildStore(mesh, options, smallSlices(), ooc, store.path);
+    ADD_FAILURE() << "a resume accepted another build's cells";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("levels"), std::string::npos) << e.what();
+  }
+  fs::remove_all(store.path.string() + ".build");
+
+  svo::OutOfCoreOptions tiny;
+  tiny.memoryBytes = 1024;
+  try {
+    svo::buildStore(mesh, options, smallSlices(), tiny, store.path);
+    ADD_FAILURE() << "1 KiB of memory was accepted";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("--memory"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(store.path));
+}
