@@ -655,6 +655,50 @@ void StoreReader::decodeSlice(std::uint32_t id, const std::vector<std::byte>& ra
   if (header_.hasNormals) section(head.normalCount, [](SliceVoxel& n, std::uint32_t w) { n.normal = w; });
 }
 
+std::uint64_t StoreReader::verify(const std::function<void(double)>& progress) const {
+  std::vector<std::vector<std::uint32_t>> childSlices(slices_.size());
+  std::vector<std::uint32_t> roots;
+  for (std::uint32_t i = 0; i < slices_.size(); ++i)
+    (slices_[i].parentSlice == SliceInfo::kNoSlice ? roots : childSlices[slices_[i].parentSlice])
+        .push_back(i);
+  if (roots.size() != 1) fail(path_, std::to_string(roots.size()) + " slices start the hierarchy (one must)");
+  std::uint64_t voxels = 1, visited = 0;
+  // Depth first: a slice's voxels stay decoded while the slices below it are checked.
+  const auto visit = [&](auto&& self, std::uint32_t id, std::span<SliceVoxel> parents) -> void {
+    const SliceInfo& s = slices_[id];
+    std::vector<SliceVoxel> decoded;
+    decodeSlice(id, readSlice(id), parents, decoded);
+    voxels += decoded.size();
+    if (progress) progress(double(++visited) / double(slices_.size()));
+    std::vector<std::uint8_t> covered(decoded.size(), 0);
+    for (const std::uint32_t child : childSlices[id]) {
+      const SliceInfo& c = slices_[child];
+      if (c.voxelLevel != s.voxelLevel + 1 || c.cubeLevel < s.cubeLevel || c.cubeLevel >= c.voxelLevel ||
+          (c.cubeCoord >> (c.cubeLevel - s.cubeLevel)) != s.cubeCoord)
+        throw sliceError(child, "its cube does not lie one level below its parent slice's");
+      const int shift = s.voxelLevel - c.cubeLevel;
+      const glm::ivec3 first = c.cubeCoord << shift, last = first + ((1 << shift) - 1);
+      const auto lo =
+          std::lower_bound(decoded.begin(), decoded.end(), first,
+                           [](const SliceVoxel& n, const glm::ivec3& k) { return mortonLess(n.coord, k); });
+      const auto hi =
+          std::upper_bound(decoded.begin(), decoded.end(), last,
+                           [](const glm::ivec3& k, const SliceVoxel& n) { return mortonLess(k, n.coord); });
+      for (auto p = lo; p != hi; ++p) {
+        std::uint8_t& seen = covered[std::size_t(p - decoded.begin())];
+        if (seen) throw sliceError(child, "overlaps another slice's cube");
+        seen = 1;
+      }
+      self(self, child, std::span<SliceVoxel>(lo, hi));
+    }
+  };
+  SliceVoxel root{glm::ivec3(0), 0, false, 0, header_.rootColor, header_.rootNormal};
+  visit(visit, roots[0], std::span<SliceVoxel>(&root, 1));
+  if (visited != slices_.size())
+    fail(path_, std::to_string(slices_.size() - visited) + " slices are not reachable from the first");
+  return voxels;
+}
+
 VoxelTree StoreReader::loadTree() const {
   const int levelCount = header_.parameters.levels;
   VoxelLevels levels(1);

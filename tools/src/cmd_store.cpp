@@ -1,14 +1,18 @@
 // `svo verify STORE` and `svo inspect STORE`: every checksum and structural invariant of a slice store, and
 // what it holds per level (slices, voxels, branching, bytes per voxel per part, slice sizes).
+#include <unistd.h>
+
 #include <algorithm>
 #include <bit>
 #include <cstdio>
 #include <map>
+#include <memory>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
+#include "progress.hpp"
 #include "store_stats.hpp"
 #include "svo/store/container.hpp"
 
@@ -96,10 +100,14 @@ void addStoreCommands(CLI::App& app) {
     cmd->callback([path] {
       // Any problem throws with the file and, for a slice, its number: main prints it and exits 1.
       const StoreReader reader(*path);
-      const VoxelTree tree = reader.loadTree();
-      const Block block = layoutBlock(tree);  // the assembled octree passes the block validator too
-      std::printf("%s: ok (%zu slices, %zu voxels, %.2f MiB)\n", path->c_str(), reader.slices().size(),
-                  tree.voxels.size(), double(reader.header().fileBytes) / (1 << 20));
+      // A bar on a terminal only: in a log, the one line a failure prints stays the only one.
+      std::unique_ptr<ProgressBar> bar = ::isatty(2) ? std::make_unique<ProgressBar>("verify") : nullptr;
+      const std::uint64_t voxels = reader.verify([&bar](double f) {
+        if (bar) bar->update(f);
+      });
+      bar.reset();
+      std::printf("%s: ok (%zu slices, %llu voxels, %.2f MiB)\n", path->c_str(), reader.slices().size(),
+                  static_cast<unsigned long long>(voxels), double(reader.header().fileBytes) / (1 << 20));
     });
   }
   {
