@@ -669,7 +669,8 @@ std::uint64_t StoreReader::verify(const std::function<void(double)>& progress) c
     std::vector<SliceVoxel> decoded;
     decodeSlice(id, readSlice(id), parents, decoded);
     voxels += decoded.size();
-    if (progress) progress(double(++visited) / double(slices_.size()));
+    ++visited;
+    if (progress) progress(double(visited) / double(slices_.size()));
     std::vector<std::uint8_t> covered(decoded.size(), 0);
     for (const std::uint32_t child : childSlices[id]) {
       const SliceInfo& c = slices_[child];

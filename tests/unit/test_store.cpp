@@ -164,14 +164,23 @@ std::string smallStore(const fs::path& path) {
   return slurp(path);
 }
 
+// What is wrong with the file, as `svo verify` (StoreReader::verify, depth first) finds it; loading it whole
+// (loadTree, then the block validator) must find it too, or the message says they disagree.
 std::string loadError(const fs::path& path) {
+  std::string verified, loaded;
   try {
-    const svo::StoreReader reader(path);
-    (void)svo::layoutBlock(reader.loadTree());
+    svo::StoreReader(path).verify();
   } catch (const std::exception& e) {
-    return e.what();
+    verified = e.what();
   }
-  return {};
+  try {
+    (void)svo::layoutBlock(svo::StoreReader(path).loadTree());
+  } catch (const std::exception& e) {
+    loaded = e.what();
+  }
+  if (verified.empty() != loaded.empty())
+    return "verify says '" + verified + "', loadTree says '" + loaded + "'";
+  return verified;
 }
 
 TEST(Store, EverySingleByteCorruptionIsDetected) {
