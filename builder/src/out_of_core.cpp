@@ -2,8 +2,6 @@
 // every cell's subtree is built on its own and spilled to a work folder (zstd, checksummed, renamed into
 // place when complete, so an interrupted build resumes from the cells on disk), then the store is written:
 // the top tree first, each cell's slices after it, hung below the top slice that holds the cell's root.
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -154,10 +152,13 @@ int chooseCellLevel(const Mesh& mesh, const SceneTransform& transform, const Bui
   const double fixed = kBytesPerTriangle * double(mesh.triangles.size()) +
                        double(mesh.positions.size()) * sizeof(mesh.positions[0]);
   const double perCell = (double(memoryBytes) - fixed) / double(std::max(1, concurrency));
-  const auto needMiB = [&](double bytes) { return std::to_string(std::llround(bytes / double(1 << 20))); };
+  const auto sizeText = [&](double bytes) {
+    return bytes < double(1 << 20) ? std::to_string(std::llround(bytes / 1024.0)) + " KiB"
+                                   : std::to_string(std::llround(bytes / double(1 << 20))) + " MiB";
+  };
   if (perCell <= 0.0)
-    throw std::runtime_error("--memory: " + needMiB(double(memoryBytes)) + " MiB does not hold the mesh (" +
-                             needMiB(fixed) + " MiB for " + std::to_string(mesh.triangles.size()) +
+    throw std::runtime_error("--memory: " + sizeText(double(memoryBytes)) + " does not hold the mesh (" +
+                             sizeText(fixed) + " for " + std::to_string(mesh.triangles.size()) +
                              " triangles)");
   const double finest = std::ldexp(1.0, -options.levels);  // octree units: the scene cube is [1, 2]^3
   double needed = 0.0;
@@ -178,9 +179,9 @@ int chooseCellLevel(const Mesh& mesh, const SceneTransform& transform, const Bui
     needed = kPeakBytesPerVoxel * kVoxelsPerArea * fullest / (finest * finest);
     if (needed <= perCell) return level;
   }
-  throw std::runtime_error("--memory: " + needMiB(double(memoryBytes)) + " MiB is too small for " +
+  throw std::runtime_error("--memory: " + sizeText(double(memoryBytes)) + " is too small for " +
                            std::to_string(options.levels) + " levels of this mesh (a cell needs about " +
-                           needMiB(needed + fixed) + " MiB)");
+                           sizeText(needed + fixed) + ")");
 }
 
 }  // namespace
@@ -223,7 +224,9 @@ OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const 
   } else {
     std::filesystem::remove_all(work);
     std::filesystem::create_directories(work);
-    std::ofstream(manifestPath) << manifest.dump(2) << "\n";
+    std::ofstream out(manifestPath);
+    if (!(out << manifest.dump(2) << "\n").flush())
+      throw std::runtime_error(manifestPath.string() + ": cannot write (disk full?)");
   }
 
   // 1. Voxels: the top in memory, cells spilled as they complete.

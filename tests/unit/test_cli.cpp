@@ -152,6 +152,12 @@ TEST_F(Cli, OutOfCoreBuildSurvivesSigkillAndResumes) {
   EXPECT_EQ(svotest::differingVoxels(a, b), 0u);
   EXPECT_FALSE(fs::exists(work));
   EXPECT_EQ(svo("verify " + store.string()).exitCode, 0);
+
+  // Bad out-of-core options: one line, nothing written.
+  const fs::path none = dir_ / "none.svo";
+  EXPECT_EQ(svo("build " + mesh.string() + " --resume -o " + none.string()).exitCode, 2);
+  EXPECT_EQ(svo("build " + mesh.string() + " --levels 5 --cell-level 5 -o " + none.string()).exitCode, 2);
+  expectCleanFailure(svo("build " + mesh.string() + " --memory 1K -o " + none.string()), "--memory", none);
 }
 
 TEST_F(Cli, FlatMeshBuilds) {

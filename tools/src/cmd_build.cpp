@@ -71,6 +71,10 @@ void writeTextAtomically(const std::filesystem::path& path, const std::string& t
 
 void runBuild(const BuildArgs& args) {
   checkWritableOutput(args.out);
+  if (args.resume && args.memory == 0 && args.cellLevel == 0)
+    throw UsageError("--resume needs --memory or --cell-level (it resumes an out-of-core build)");
+  if (args.cellLevel >= args.options.levels)
+    throw UsageError("--cell-level must be below --levels (" + std::to_string(args.options.levels) + ")");
   const std::filesystem::path reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
   checkWritableOutput(reportPath);
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
@@ -97,8 +101,6 @@ void runBuild(const BuildArgs& args) {
   std::vector<SliceInfo> slices;
   const bool hasColors = mesh.hasColor();
   if (args.memory > 0 || args.cellLevel > 0 || args.resume) {
-    if (args.cellLevel >= options.levels)
-      throw UsageError("--cell-level must be below --levels (" + std::to_string(options.levels) + ")");
     OutOfCoreOptions ooc;
     ooc.memoryBytes = args.memory;
     ooc.cellLevel = args.cellLevel;
