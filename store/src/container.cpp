@@ -655,6 +655,26 @@ void StoreReader::decodeSlice(std::uint32_t id, const std::vector<std::byte>& ra
   if (header_.hasNormals) section(head.normalCount, [](SliceVoxel& n, std::uint32_t w) { n.normal = w; });
 }
 
+std::span<SliceVoxel> StoreReader::claimParents(std::uint32_t id, std::vector<SliceVoxel>& level,
+                                                std::vector<std::uint8_t>& covered) const {
+  // The cube's voxels one level above the slice: a contiguous Morton range.
+  const SliceInfo& s = slices_[id];
+  const int shift = s.voxelLevel - 1 - s.cubeLevel;
+  const glm::ivec3 first = s.cubeCoord << shift, last = first + ((1 << shift) - 1);
+  const auto lo =
+      std::lower_bound(level.begin(), level.end(), first,
+                       [](const SliceVoxel& n, const glm::ivec3& k) { return mortonLess(n.coord, k); });
+  const auto hi =
+      std::upper_bound(level.begin(), level.end(), last,
+                       [](const glm::ivec3& k, const SliceVoxel& n) { return mortonLess(k, n.coord); });
+  for (auto p = lo; p != hi; ++p) {
+    std::uint8_t& seen = covered[std::size_t(p - level.begin())];
+    if (seen) throw sliceError(id, "overlaps another slice's cube");
+    seen = 1;
+  }
+  return {lo, hi};
+}
+
 std::uint64_t StoreReader::verify(const std::function<void(double)>& progress) const {
   std::vector<std::vector<std::uint32_t>> childSlices(slices_.size());
   std::vector<std::uint32_t> roots;
@@ -677,20 +697,7 @@ std::uint64_t StoreReader::verify(const std::function<void(double)>& progress) c
       if (c.voxelLevel != s.voxelLevel + 1 || c.cubeLevel < s.cubeLevel || c.cubeLevel >= c.voxelLevel ||
           (c.cubeCoord >> (c.cubeLevel - s.cubeLevel)) != s.cubeCoord)
         throw sliceError(child, "its cube does not lie one level below its parent slice's");
-      const int shift = s.voxelLevel - c.cubeLevel;
-      const glm::ivec3 first = c.cubeCoord << shift, last = first + ((1 << shift) - 1);
-      const auto lo =
-          std::lower_bound(decoded.begin(), decoded.end(), first,
-                           [](const SliceVoxel& n, const glm::ivec3& k) { return mortonLess(n.coord, k); });
-      const auto hi =
-          std::upper_bound(decoded.begin(), decoded.end(), last,
-                           [](const glm::ivec3& k, const SliceVoxel& n) { return mortonLess(k, n.coord); });
-      for (auto p = lo; p != hi; ++p) {
-        std::uint8_t& seen = covered[std::size_t(p - decoded.begin())];
-        if (seen) throw sliceError(child, "overlaps another slice's cube");
-        seen = 1;
-      }
-      self(self, child, std::span<SliceVoxel>(lo, hi));
+      self(self, child, claimParents(child, decoded, covered));
     }
   };
   SliceVoxel root{glm::ivec3(0), 0, false, 0, header_.rootColor, header_.rootNormal};
@@ -712,22 +719,7 @@ VoxelTree StoreReader::loadTree() const {
     std::vector<std::uint8_t> covered(parents.size(), 0);  // a slice has given this voxel's split bit
     std::vector<SliceVoxel> voxels;
     for (const std::uint32_t id : slicesOf[level]) {
-      const SliceInfo& s = slices_[id];
-      // The cube's parents: a contiguous Morton range of the level above.
-      const int shift = level - 1 - s.cubeLevel;
-      const glm::ivec3 first = s.cubeCoord << shift, last = first + ((1 << shift) - 1);
-      const auto lo =
-          std::lower_bound(parents.begin(), parents.end(), first,
-                           [](const SliceVoxel& n, const glm::ivec3& c) { return mortonLess(n.coord, c); });
-      const auto hi =
-          std::upper_bound(parents.begin(), parents.end(), last,
-                           [](const glm::ivec3& c, const SliceVoxel& n) { return mortonLess(c, n.coord); });
-      for (auto p = lo; p != hi; ++p) {
-        std::uint8_t& c = covered[std::size_t(p - parents.begin())];
-        if (c) throw sliceError(id, "overlaps another slice's cube");
-        c = 1;
-      }
-      decodeSlice(id, readSlice(id), std::span<SliceVoxel>(lo, hi), voxels);
+      decodeSlice(id, readSlice(id), claimParents(id, parents, covered), voxels);
     }
     // Slices of one level cover disjoint cubes: sorting restores the level's Morton order, in which every
     // parent's children are contiguous and follow their parents' order.

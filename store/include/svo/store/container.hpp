@@ -204,6 +204,10 @@ class StoreReader {
                    std::vector<SliceVoxel>& children) const;
 
  private:
+  // Slice `id`'s parents: the voxels of `level` (Morton order, one level above the slice) inside its cube,
+  // each marked in `covered`; one marked before means two slices claim it.
+  std::span<SliceVoxel> claimParents(std::uint32_t id, std::vector<SliceVoxel>& level,
+                                     std::vector<std::uint8_t>& covered) const;
   SliceError sliceError(std::uint32_t slice, const std::string& what) const;
 
   struct File {  // the open descriptor, shared by copies of the reader
