@@ -17,6 +17,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -205,28 +206,84 @@ std::vector<const Measured*> paretoFront(const std::vector<Measured>& all, doubl
   return front;
 }
 
+// One swept depth: built in core and written as a store (its size goes in the table), with a root to render
+// from: one block when the octree fits one, else the store through a pager holding all of it (the same
+// frames bit for bit: test_pager), which has no single block's 24-bit reach.
+struct LevelScene {
+  std::filesystem::path store;
+  std::uint64_t storeBytes = 0;
+  double buildSeconds = 0.0;  // voxelize + layout
+  SceneTransform transform;
+  std::optional<Octree> octree;
+  std::unique_ptr<Pager> pager;
+  BlockView root() const { return octree ? octree->block.view() : pager->trunk(); }
+  LevelScene() = default;
+  LevelScene(const LevelScene&) = delete;
+  ~LevelScene() {
+    pager.reset();
+    std::error_code ignored;
+    if (!store.empty()) std::filesystem::remove(store, ignored);
+  }
+};
+
+// The pool budget for a whole store: its blocks take up to ~3x the decoded slice bytes (pager.cpp), which
+// are up to ~4x the compressed file; the arena's untouched pages cost nothing.
+constexpr std::size_t kWholeStoreBudgetPerFileByte = 16;
+
+void buildLevel(const Mesh& mesh, int levels, const std::filesystem::path& out, bool withRoot,
+                LevelScene& s) {
+  BuildOptions build;
+  build.levels = levels;
+  spdlog::info("building {} levels ...", levels);
+  s.transform = fitSceneCube(mesh);
+  VoxelTree tree;
+  s.buildSeconds = timeSeconds([&] { tree = voxelize(mesh, s.transform, build); });
+  s.store = out / fmt::format("L{}.svo", levels);
+  writeStore(
+      s.store, tree, s.transform,
+      {levels, build.geometryError, build.colorError, build.normalError, std::uint32_t(build.contours)});
+  s.storeBytes = std::filesystem::file_size(s.store);
+  if (!withRoot) return;
+  try {
+    Octree octree;
+    s.buildSeconds += timeSeconds([&] { octree.block = layoutBlock(tree); });
+    octree.transform = s.transform;
+    s.octree = std::move(octree);
+    return;
+  } catch (const std::runtime_error& e) {
+    if (std::string(e.what()).find("too large for one block") == std::string::npos) throw;
+  }
+  tree = {};
+  spdlog::info("{} levels exceed one block: rendering from the store, all of it resident ...", levels);
+  PagerOptions whole;
+  whole.budgetBytes =
+      std::min(std::size_t(1) << 34, std::size_t(s.storeBytes) * kWholeStoreBudgetPerFileByte + (64u << 20));
+  s.pager = std::make_unique<Pager>(s.store, whole);
+  ViewQuery everything =
+      viewOf(s.transform, Camera::framing(s.transform, glm::dvec3(0, 0, -1), 64, 64), 1e-9);
+  everything.frustum.clear();
+  while (true) {
+    s.pager->update(everything);
+    if (s.pager->converged()) break;
+    s.pager->waitForWork(0.05);
+  }
+  if (s.pager->residentSlices().size() != s.pager->store().slices().size())
+    throw std::runtime_error(s.store.string() + ": the store does not fit " + formatBytes(whole.budgetBytes));
+}
+
 // --stream: from a cold store, frames of one camera while the store streams in; each kept frame's error
 // against the triangle reference, by elapsed time since the store was opened.
 void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads, int levels) {
   const std::filesystem::path out = args.out;
-  BuildOptions build;
-  build.levels = levels;
-  spdlog::info("building {} levels ...", levels);
-  const Octree octree = buildOctree(mesh, build);
-  const std::filesystem::path store = out / fmt::format("L{}.svo", levels);
-  writeOctree(store, octree);
-  // The store is scratch: gone however this ends.
-  const std::unique_ptr<const std::filesystem::path, void (*)(const std::filesystem::path*)> removeStore(
-      &store, [](const std::filesystem::path* p) {
-        std::error_code ignored;
-        std::filesystem::remove(*p, ignored);
-      });
-  const double finestVoxel = octree.transform.size / double(std::int64_t(1) << levels);
+  LevelScene level;  // the store is scratch: gone however this ends
+  buildLevel(mesh, levels, out, false, level);
+  const std::filesystem::path& store = level.store;
+  const double finestVoxel = level.transform.size / double(std::int64_t(1) << levels);
   RenderOptions options;
   options.threads = threads;
   options.lodPixels = 1.0f;
   // A close-up, so the view wants the finest levels and the curve has somewhere to go.
-  const Camera camera = closeUp(octree.block.view(), octree.transform, args.size, kStreamViewDistance);
+  const Camera camera = closeUp(Pager(store).trunk(), level.transform, args.size, kStreamViewDistance);
   spdlog::info("reference: kd-tree over {} triangles ...", mesh.triangles.size());
   const std::unique_ptr<accel::Accel> kd = accel::buildByName("kd-binned", accel::trianglesOf(mesh));
   const Image reference = renderReference(mesh, *kd, camera, options, threads);
@@ -349,15 +406,11 @@ void runQualityBench(const QualityArgs& args) {
 
   std::vector<Measured> all;
   for (const int levels : levelList) {
-    BuildOptions build;
-    build.levels = levels;
-    spdlog::info("building {} levels ...", levels);
-    Octree octree;
-    const double buildSeconds = timeSeconds([&] { octree = buildOctree(mesh, build); });
-    const std::filesystem::path store = out / fmt::format("L{}.svo", levels);
-    writeOctree(store, octree);
-    const std::uint64_t storeBytes = std::filesystem::file_size(store);
-    std::filesystem::remove(store);
+    LevelScene level;
+    buildLevel(mesh, levels, out, true, level);
+    const double buildSeconds = level.buildSeconds;
+    const std::uint64_t storeBytes = level.storeBytes;
+    const BlockView root = level.root();
     const double finestVoxel = scene.size / double(std::int64_t(1) << levels);
     for (const bool contours : {true, false})
       for (const float lod : kLodSweep)
@@ -370,7 +423,7 @@ void runQualityBench(const QualityArgs& args) {
           options.cast.contours = contours;
           options.beamTile = beam;
           Frame frame;
-          m.seconds = timeRuns(args.runs, [&] { frame = render(octree, camera, options); }).median;
+          m.seconds = timeRuns(args.runs, [&] { frame = render(root, scene, camera, options); }).median;
           m.image = imageOf(std::move(frame));
           compare(reference, m.image, finestVoxel, m);
           all.push_back(std::move(m));
