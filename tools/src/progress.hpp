@@ -3,6 +3,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <exception>
 #include <mutex>
 #include <string>
 
@@ -13,7 +14,16 @@ namespace svo::tools {
 class ProgressBar {
  public:
   explicit ProgressBar(std::string phase) : phase_(std::move(phase)), tty_(::isatty(2)) {}
-  ~ProgressBar() { finish(); }
+  // Unwinding from an error, the bar ends where it was (a terminal gets its line ended), never at 100%.
+  ~ProgressBar() {
+    if (std::uncaught_exceptions() == 0) {
+      finish();
+      return;
+    }
+    std::lock_guard lock(mutex_);
+    if (tty_ && !done_) std::fputc('\n', stderr);
+    done_ = true;
+  }
 
   void update(double fraction) {
     std::lock_guard lock(mutex_);
