@@ -40,11 +40,23 @@ constexpr char kCellMagic[8] = {'S', 'V', 'O', 'C', 'E', 'L', 'L', '1'};
 
 struct CellFileHeader {
   char magic[8];
-  std::uint64_t recordCount = 0, compressedBytes = 0, checksum = 0;  // XXH3-64 of the compressed records
+  // XXH3-64 of this header (with checksum 0) and the compressed records: a resume trusts no unchecked byte.
+  std::uint64_t recordCount = 0, compressedBytes = 0, checksum = 0;
   VoxelRecord root;
   double weight = 0.0, color[4] = {}, normal[3] = {};
   std::uint32_t hasColors = 0, hasNormals = 0;
 };
+
+std::uint64_t cellChecksum(CellFileHeader h, const char* payload, std::size_t bytes) {
+  h.checksum = 0;
+  XXH3_state_t* state = XXH3_createState();
+  XXH3_64bits_reset(state);
+  XXH3_64bits_update(state, &h, sizeof h);
+  XXH3_64bits_update(state, payload, bytes);
+  const std::uint64_t sum = XXH3_64bits_digest(state);
+  XXH3_freeState(state);
+  return sum;
+}
 
 std::filesystem::path cellPath(const std::filesystem::path& work, glm::ivec3 c) {
   return work /
@@ -61,12 +73,12 @@ void writeCell(const std::filesystem::path& path, const VoxelTree& tree, const C
   std::memcpy(h.magic, kCellMagic, sizeof h.magic);
   h.recordCount = tree.voxels.size();
   h.compressedBytes = n;
-  h.checksum = XXH3_64bits(packed.data(), n);
   h.root = root.record;
   h.weight = root.sums.weight;
   for (int k = 0; k < 4; ++k) h.color[k] = root.sums.color[k];
   for (int k = 0; k < 3; ++k) h.normal[k] = root.sums.normal[k];
   h.hasColors = tree.hasColors, h.hasNormals = tree.hasNormals;
+  h.checksum = cellChecksum(h, packed.data(), n);
   // Complete or absent: written under a temporary name, flushed, renamed.
   const std::filesystem::path temp = path.string() + ".tmp";
   {
@@ -89,7 +101,8 @@ std::optional<CellFileHeader> readCellHeader(const std::filesystem::path& path, 
   if (std::filesystem::file_size(path, ec) != sizeof h + h.compressedBytes || ec) return std::nullopt;
   std::vector<char> data(h.compressedBytes);
   if (!in.read(data.data(), std::streamsize(data.size())) ||
-      XXH3_64bits(data.data(), data.size()) != h.checksum)
+      cellChecksum(h, data.data(), data.size()) != h.checksum ||
+      ZSTD_getFrameContentSize(data.data(), data.size()) != h.recordCount * sizeof(VoxelRecord))
     return std::nullopt;
   if (payload) *payload = std::move(data);
   return h;

@@ -2,10 +2,11 @@
 // options: the stores decode (StoreReader::loadTree) to the same octree, voxel for voxel, at every cell level
 // and thread count; an interrupted build leaves no store, and resuming keeps the cells already on disk and
 // still gives the same octree; a resume refuses a work folder of another build; too little memory is a
-// clear error before any work.
+// clear error before any work; a damaged spilled cell is built again, not trusted.
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
 #include <set>
 #include <stdexcept>
 #include <string>
@@ -90,14 +91,27 @@ TEST(OutOfCore, AnInterruptedBuildResumesFromTheSpilledCells) {
   EXPECT_FALSE(fs::exists(store.path));  // nothing half-written at the target
   ASSERT_TRUE(fs::exists(work / "manifest.json"));
 
-  // Resuming rebuilds only what is not on disk yet.
+  // One spilled cell damaged in its header (its root record): the resume must not trust it.
+  std::vector<fs::path> cells;
+  for (const auto& e : fs::directory_iterator(work))
+    if (e.path().extension() == ".bin") cells.push_back(e.path());
+  ASSERT_EQ(cells.size(), 5u);
+  {
+    std::fstream f(cells.front(), std::ios::in | std::ios::out | std::ios::binary);
+    f.seekg(40);
+    const char byte = char(f.get() ^ 0xFF);
+    f.seekp(40);
+    f.put(byte);
+  }
+
+  // Resuming rebuilds only what is not on disk intact.
   ooc.resume = true;
   std::set<std::string> rebuilt;
   ooc.cellSpilled = [&](glm::ivec3 c) {
     rebuilt.insert(std::to_string(c.x) + std::to_string(c.y) + std::to_string(c.z));
   };
   const svo::OutOfCoreReport report = svo::buildStore(mesh, options, smallSlices(), ooc, store.path);
-  EXPECT_EQ(report.cellsReused, 5u);
+  EXPECT_EQ(report.cellsReused, 4u);
   // Every cell of this mesh holds surface, so the reused and the rebuilt ones are all of them, once each.
   EXPECT_EQ(rebuilt.size() + report.cellsReused, report.cells);
   expectSameTree(svo::StoreReader(store.path).loadTree(), reference);
