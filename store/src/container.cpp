@@ -395,7 +395,14 @@ StoreFileWriter::StoreFileWriter(const std::filesystem::path& path, const StoreW
   file_ = std::fopen(temp_.c_str(), "wb");
   if (!file_) fail(path_, std::string("cannot write (") + std::strerror(errno) + ")");
   const FileHeader placeholder{};  // until the directory's place is known
-  put(&placeholder, sizeof placeholder);
+  try {
+    put(&placeholder, sizeof placeholder);
+  } catch (...) {
+    std::fclose(file_);  // no destructor runs for a constructor that throws
+    std::error_code ignored;
+    std::filesystem::remove(temp_, ignored);
+    throw;
+  }
   offset_ = sizeof placeholder;
 }
 
