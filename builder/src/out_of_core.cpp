@@ -8,7 +8,9 @@
 #include <cstring>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <mutex>
+#include <new>
 #include <stdexcept>
 #include <string>
 
@@ -47,15 +49,30 @@ struct CellFileHeader {
   std::uint32_t hasColors = 0, hasNormals = 0;
 };
 
+// XXH3-64 over several byte ranges in turn, as if they were one.
+class Hasher {
+ public:
+  Hasher() : state_(XXH3_createState()) {
+    if (!state_) throw std::bad_alloc();
+    XXH3_64bits_reset(state_.get());
+  }
+  template <class T>
+  Hasher& add(const T* data, std::size_t count) {
+    XXH3_64bits_update(state_.get(), data, count * sizeof(T));
+    return *this;
+  }
+  std::uint64_t digest() const { return XXH3_64bits_digest(state_.get()); }
+
+ private:
+  struct Free {
+    void operator()(XXH3_state_t* s) const { XXH3_freeState(s); }
+  };
+  std::unique_ptr<XXH3_state_t, Free> state_;
+};
+
 std::uint64_t cellChecksum(CellFileHeader h, const char* payload, std::size_t bytes) {
   h.checksum = 0;
-  XXH3_state_t* state = XXH3_createState();
-  XXH3_64bits_reset(state);
-  XXH3_64bits_update(state, &h, sizeof h);
-  XXH3_64bits_update(state, payload, bytes);
-  const std::uint64_t sum = XXH3_64bits_digest(state);
-  XXH3_freeState(state);
-  return sum;
+  return Hasher().add(&h, 1).add(payload, bytes).digest();
 }
 
 std::filesystem::path cellPath(const std::filesystem::path& work, glm::ivec3 c) {
@@ -137,14 +154,12 @@ VoxelTree readCell(const std::filesystem::path& path) {
 // What a resume must agree on: the input (hashed) and every option that changes the voxels or the slices.
 nlohmann::json manifestOf(const Mesh& mesh, const BuildOptions& options, const StoreWriteOptions& write,
                           int cellLevel) {
-  XXH3_state_t* state = XXH3_createState();
-  XXH3_64bits_reset(state);
-  XXH3_64bits_update(state, mesh.positions.data(), mesh.positions.size() * sizeof(mesh.positions[0]));
-  XXH3_64bits_update(state, mesh.triangles.data(), mesh.triangles.size() * sizeof(mesh.triangles[0]));
-  XXH3_64bits_update(state, mesh.colors.data(), mesh.colors.size() * sizeof(mesh.colors[0]));
-  XXH3_64bits_update(state, mesh.uvs.data(), mesh.uvs.size() * sizeof(mesh.uvs[0]));
-  const std::uint64_t hash = XXH3_64bits_digest(state);
-  XXH3_freeState(state);
+  const std::uint64_t hash = Hasher()
+                                 .add(mesh.positions.data(), mesh.positions.size())
+                                 .add(mesh.triangles.data(), mesh.triangles.size())
+                                 .add(mesh.colors.data(), mesh.colors.size())
+                                 .add(mesh.uvs.data(), mesh.uvs.size())
+                                 .digest();
   return {{"format", kWorkFormat},
           {"meshHash", std::to_string(hash)},
           {"triangles", mesh.triangles.size()},
@@ -174,18 +189,22 @@ int chooseCellLevel(const Mesh& mesh, const SceneTransform& transform, const Bui
                              sizeText(fixed) + " for " + std::to_string(mesh.triangles.size()) +
                              " triangles)");
   const double finest = std::ldexp(1.0, -options.levels);  // octree units: the scene cube is [1, 2]^3
+  // Each triangle's centroid (in [0, 1]^3) and area, once; every candidate level bins them.
+  std::vector<std::pair<glm::dvec3, double>> pieces;
+  pieces.reserve(mesh.triangles.size());
+  for (const glm::uvec3& t : mesh.triangles) {
+    const glm::dvec3 a = transform.toOctree(mesh.positions[t.x]), b = transform.toOctree(mesh.positions[t.y]),
+                     c = transform.toOctree(mesh.positions[t.z]);
+    pieces.push_back({(a + b + c) / 3.0 - 1.0, 0.5 * glm::length(glm::cross(b - a, c - a))});
+  }
   double needed = 0.0;
   for (int level = 1; level < options.levels; ++level) {
     const double cells = std::ldexp(1.0, level);
     std::map<std::int64_t, double> area;
-    for (const glm::uvec3& t : mesh.triangles) {
-      const glm::dvec3 a = transform.toOctree(mesh.positions[t.x]),
-                       b = transform.toOctree(mesh.positions[t.y]),
-                       c = transform.toOctree(mesh.positions[t.z]);
-      const glm::ivec3 cell = glm::clamp(glm::ivec3(glm::floor(((a + b + c) / 3.0 - 1.0) * cells)),
-                                         glm::ivec3(0), glm::ivec3(int(cells) - 1));
-      area[(std::int64_t(cell.z) << 42) | (std::int64_t(cell.y) << 21) | cell.x] +=
-          0.5 * glm::length(glm::cross(b - a, c - a));
+    for (const auto& [centroid, triangleArea] : pieces) {
+      const glm::ivec3 cell =
+          glm::clamp(glm::ivec3(glm::floor(centroid * cells)), glm::ivec3(0), glm::ivec3(int(cells) - 1));
+      area[(std::int64_t(cell.z) << 42) | (std::int64_t(cell.y) << 21) | cell.x] += triangleArea;
     }
     double fullest = 0.0;
     for (const auto& [key, value] : area) fullest = std::max(fullest, value);

@@ -54,7 +54,7 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
     if (hash != lastHash) lastHash = hash, sameSince = t;
     if (each) each(t, step);
     if (last) *last = std::move(step);
-    if (done) return {elapsed(), sameSince};
+    if (done) return {t, sameSince};
     if (t > timeoutSeconds) return {};
   }
 }
