@@ -46,6 +46,13 @@ const Material& Mesh::materialOf(std::size_t triangle) const {
   return index < materials.size() ? materials[index] : kWhiteMaterial;
 }
 
+bool isDegenerate(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+  const glm::dvec3 e1 = b - a, e2 = c - a;
+  const glm::dvec3 n = glm::cross(e1, e2);
+  // |e1 x e2| = |e1||e2| sin(angle): compare squared to stay exact for tiny and huge scenes alike.
+  return !(glm::dot(n, n) > kDegenerateSine * kDegenerateSine * glm::dot(e1, e1) * glm::dot(e2, e2));
+}
+
 std::size_t validateMesh(Mesh& mesh, const std::string& source) {
   const std::size_t nv = mesh.positions.size();
   for (std::size_t i = 0; i < nv; ++i) {
@@ -95,16 +102,9 @@ std::size_t validateMesh(Mesh& mesh, const std::string& source) {
                                  std::to_string(mesh.materials.size()));
       }
     }
-    bool degenerate = tri.x == tri.y || tri.y == tri.z || tri.x == tri.z;
-    if (!degenerate) {
-      const glm::dvec3 e1 = mesh.positions[tri.y] - mesh.positions[tri.x];
-      const glm::dvec3 e2 = mesh.positions[tri.z] - mesh.positions[tri.x];
-      const glm::dvec3 n = glm::cross(e1, e2);
-      const double n2 = glm::dot(n, n);
-      // |e1 x e2| = |e1||e2| sin(angle): compare squared to stay exact for tiny and huge scenes alike.
-      degenerate = !(n2 > kDegenerateSine * kDegenerateSine * glm::dot(e1, e1) * glm::dot(e2, e2));
-    }
-    if (degenerate) continue;
+    if (tri.x == tri.y || tri.y == tri.z || tri.x == tri.z ||
+        isDegenerate(mesh.positions[tri.x], mesh.positions[tri.y], mesh.positions[tri.z]))
+      continue;
     mesh.triangles[kept] = tri;
     if (!mesh.triangleMaterials.empty()) mesh.triangleMaterials[kept] = mesh.triangleMaterials[t];
     ++kept;

@@ -29,14 +29,27 @@
 
 namespace svo {
 
-namespace detail {  // defined in texture.cpp
+namespace detail {
+// Defined in texture.cpp.
 std::shared_ptr<const TextureImage> decodeTexture(const std::string& name, const void* data,
                                                   std::size_t size);
 std::shared_ptr<const TextureImage> textureFromSrgb8(int width, int height, const std::uint8_t* rgba);
+
+// 8-bit display colors (PLY, OBJ, FBX vertex colors) to linear; triangle_source.cpp decodes PLY with it too.
+float srgbToLinear(float c) {
+  c = std::clamp(c, 0.0f, 1.0f);
+  return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
+}
+
+glm::vec4 displayToLinear(glm::vec4 c) {
+  return glm::vec4(srgbToLinear(c.r), srgbToLinear(c.g), srgbToLinear(c.b), std::clamp(c.a, 0.0f, 1.0f));
+}
+
 }  // namespace detail
 
 namespace {
 
+using detail::displayToLinear;
 namespace fs = std::filesystem;
 
 // assimp's words for a file that parsed but holds nothing: those are empty meshes, not unknown formats.
@@ -60,15 +73,6 @@ std::string lowerExtension(const fs::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   return ext;
-}
-
-float srgbToLinear(float c) {
-  c = std::clamp(c, 0.0f, 1.0f);
-  return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
-}
-
-glm::vec4 displayToLinear(glm::vec4 c) {
-  return glm::vec4(srgbToLinear(c.r), srgbToLinear(c.g), srgbToLinear(c.b), std::clamp(c.a, 0.0f, 1.0f));
 }
 
 glm::vec4 clamp01(glm::vec4 c) {

@@ -1,5 +1,6 @@
-// The out-of-core build (build.hpp, buildStore): the levels above the cell level are voxelized in memory,
-// every cell's subtree is built on its own and spilled to a work folder (zstd, checksummed, renamed into
+// The out-of-core build (build.hpp, buildStore): the triangles are streamed from the source and binned per
+// cell, the levels above the cell level are voxelized in memory, every cell's subtree is built on its own
+// from its triangles and spilled to a work folder (zstd, checksummed, renamed into
 // place when complete, so an interrupted build resumes from the cells on disk), then the store is written:
 // the top tree first, each cell's slices after it, hung below the top slice that holds the cell's root.
 #include <algorithm>
@@ -11,14 +12,16 @@
 #include <memory>
 #include <mutex>
 #include <new>
+#include <span>
 #include <stdexcept>
 #include <string>
+#include <unordered_map>
 
-#include <xxhash.h>
 #include <zstd.h>
 #include <glm/geometric.hpp>
 #include <nlohmann/json.hpp>
 
+#include "hasher.hpp"
 #include "svo/builder/build.hpp"
 
 namespace svo {
@@ -31,9 +34,14 @@ constexpr double kPeakBytesPerVoxel = 72.0;
 // Voxels (all levels) per finest-voxel-face of surface area: a surface crosses ~1.5 voxels per voxel face
 // of area on average over orientations (|nx| + |ny| + |nz|), and the coarser levels add a third.
 constexpr double kVoxelsPerArea = 2.0;
-// Resident bytes per triangle besides the cells: the mesh (positions, indices, colors), the voxelizer's
-// copy in double precision (88 B) and the top levels' triangle lists.
-constexpr double kBytesPerTriangle = 200.0;
+// Resident bytes per triangle of a cell while it is built: its binned record (72-152 B) turned into a
+// mesh of its own (three corners each, ~130 B), the voxelizer's copy (88 B) and its per-level index lists.
+constexpr double kBytesPerCellTriangle = 320.0;
+// Besides the source and the cells: the partition's buffers (64 MiB, cell_partition.cpp) and the top levels.
+constexpr double kPartitionBytes = 80.0 * (1 << 20);
+// The deepest cell level --memory considers: 2^9 cells a side is 512^3 work items, far past any budget's
+// need.
+constexpr int kDeepestChosenCellLevel = 9;
 // Zstd level of the spilled cells: fast, they are read once.
 constexpr int kSpillZstdLevel = 1;
 // Work-folder format; a resume refuses a folder of another format.
@@ -47,27 +55,6 @@ struct CellFileHeader {
   VoxelRecord root;
   double weight = 0.0, color[4] = {}, normal[3] = {};
   std::uint32_t hasColors = 0, hasNormals = 0;
-};
-
-// XXH3-64 over several byte ranges in turn, as if they were one.
-class Hasher {
- public:
-  Hasher() : state_(XXH3_createState()) {
-    if (!state_) throw std::bad_alloc();
-    XXH3_64bits_reset(state_.get());
-  }
-  template <class T>
-  Hasher& add(const T* data, std::size_t count) {
-    XXH3_64bits_update(state_.get(), data, count * sizeof(T));
-    return *this;
-  }
-  std::uint64_t digest() const { return XXH3_64bits_digest(state_.get()); }
-
- private:
-  struct Free {
-    void operator()(XXH3_state_t* s) const { XXH3_freeState(s); }
-  };
-  std::unique_ptr<XXH3_state_t, Free> state_;
 };
 
 std::uint64_t cellChecksum(CellFileHeader h, const char* payload, std::size_t bytes) {
@@ -152,17 +139,11 @@ VoxelTree readCell(const std::filesystem::path& path) {
 }
 
 // What a resume must agree on: the input (hashed) and every option that changes the voxels or the slices.
-nlohmann::json manifestOf(const Mesh& mesh, const BuildOptions& options, const StoreWriteOptions& write,
-                          int cellLevel) {
-  const std::uint64_t hash = Hasher()
-                                 .add(mesh.positions.data(), mesh.positions.size())
-                                 .add(mesh.triangles.data(), mesh.triangles.size())
-                                 .add(mesh.colors.data(), mesh.colors.size())
-                                 .add(mesh.uvs.data(), mesh.uvs.size())
-                                 .digest();
+nlohmann::json manifestOf(const TriangleSource& source, const BuildOptions& options,
+                          const StoreWriteOptions& write, int cellLevel) {
   return {{"format", kWorkFormat},
-          {"meshHash", std::to_string(hash)},
-          {"triangles", mesh.triangles.size()},
+          {"meshHash", std::to_string(source.fingerprint())},
+          {"triangles", source.triangleCount()},
           {"levels", options.levels},
           {"contours", options.contours},
           {"contourMinReduction", options.contourMinReduction},
@@ -173,53 +154,70 @@ nlohmann::json manifestOf(const Mesh& mesh, const BuildOptions& options, const S
           {"sliceBytes", write.sliceBytes}};
 }
 
-// The shallowest cell level whose fullest cell, by the surface area binned to it, fits the memory left
-// after the fixed part; throws when even the deepest does not.
-int chooseCellLevel(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
-                    std::size_t memoryBytes, int concurrency) {
-  const double fixed = kBytesPerTriangle * double(mesh.triangles.size()) +
-                       double(mesh.positions.size()) * sizeof(mesh.positions[0]);
+// The shallowest cell level whose fullest cell, by the surface area and triangles binned to it, fits the
+// memory left after the source and the partition; throws when even the deepest does not.
+int chooseCellLevel(const TriangleSource& source, const SceneTransform& transform,
+                    const BuildOptions& options, std::size_t memoryBytes, int concurrency) {
+  const double fixed = double(source.residentBytes()) + kPartitionBytes;
   const double perCell = (double(memoryBytes) - fixed) / double(std::max(1, concurrency));
   const auto sizeText = [&](double bytes) {
     return bytes < double(1 << 20) ? std::to_string(std::llround(bytes / 1024.0)) + " KiB"
                                    : std::to_string(std::llround(bytes / double(1 << 20))) + " MiB";
   };
   if (perCell <= 0.0)
-    throw std::runtime_error("--memory: " + sizeText(double(memoryBytes)) + " does not hold the mesh (" +
-                             sizeText(fixed) + " for " + std::to_string(mesh.triangles.size()) +
-                             " triangles)");
+    throw std::runtime_error("--memory: " + sizeText(double(memoryBytes)) + " does not hold the input (" +
+                             sizeText(fixed) + " for " + std::to_string(source.triangleCount()) +
+                             " triangles and the partition buffers)");
   const double finest = std::ldexp(1.0, -options.levels);  // octree units: the scene cube is [1, 2]^3
-  // Each triangle's centroid (in [0, 1]^3) and area, once; every candidate level bins them.
-  std::vector<std::pair<glm::dvec3, double>> pieces;
-  pieces.reserve(mesh.triangles.size());
-  for (const glm::uvec3& t : mesh.triangles) {
-    const glm::dvec3 a = transform.toOctree(mesh.positions[t.x]), b = transform.toOctree(mesh.positions[t.y]),
-                     c = transform.toOctree(mesh.positions[t.z]);
-    pieces.push_back({(a + b + c) / 3.0 - 1.0, 0.5 * glm::length(glm::cross(b - a, c - a))});
-  }
-  double needed = 0.0;
-  for (int level = 1; level < options.levels; ++level) {
-    const double cells = std::ldexp(1.0, level);
-    std::map<std::int64_t, double> area;
-    for (const auto& [centroid, triangleArea] : pieces) {
-      const glm::ivec3 cell =
-          glm::clamp(glm::ivec3(glm::floor(centroid * cells)), glm::ivec3(0), glm::ivec3(int(cells) - 1));
-      area[(std::int64_t(cell.z) << 42) | (std::int64_t(cell.y) << 21) | cell.x] += triangleArea;
+  // Area and triangles per cell of the deepest level considered (by centroid), then summed up level by level.
+  struct Load {
+    double area = 0.0, triangles = 0.0;
+  };
+  const int deepest = std::min(options.levels - 1, kDeepestChosenCellLevel);
+  const auto key = [](glm::ivec3 c) {
+    return (std::uint64_t(c.z) << 42) | (std::uint64_t(c.y) << 21) | std::uint64_t(c.x);
+  };
+  std::unordered_map<std::uint64_t, Load> cells;
+  const double side = std::ldexp(1.0, deepest);
+  source.read([&](std::span<const SourceTriangle> batch) {
+    for (const SourceTriangle& t : batch) {
+      const glm::dvec3 a = transform.toOctree(t.positions[0]), b = transform.toOctree(t.positions[1]),
+                       c = transform.toOctree(t.positions[2]);
+      const glm::ivec3 cell = glm::clamp(glm::ivec3(glm::floor(((a + b + c) / 3.0 - 1.0) * side)),
+                                         glm::ivec3(0), glm::ivec3(int(side) - 1));
+      Load& load = cells[key(cell)];
+      load.area += 0.5 * glm::length(glm::cross(b - a, c - a));
+      load.triangles += 1.0;
     }
-    double fullest = 0.0;
-    for (const auto& [key, value] : area) fullest = std::max(fullest, value);
-    needed = kPeakBytesPerVoxel * kVoxelsPerArea * fullest / (finest * finest);
+  });
+  std::vector<std::pair<glm::ivec3, Load>> deepestCells;
+  deepestCells.reserve(cells.size());
+  for (const auto& [k, load] : cells)
+    deepestCells.push_back({glm::ivec3(int(k & 0x1FFFFF), int(k >> 21 & 0x1FFFFF), int(k >> 42)), load});
+  std::unordered_map<std::uint64_t, Load>().swap(cells);
+  double needed = 0.0;
+  for (int level = 1; level <= deepest; ++level) {
+    std::unordered_map<std::uint64_t, Load> atLevel;
+    for (const auto& [cell, load] : deepestCells) {
+      Load& l = atLevel[key(cell >> (deepest - level))];
+      l.area += load.area, l.triangles += load.triangles;
+    }
+    needed = 0.0;
+    for (const auto& [k, load] : atLevel)
+      needed = std::max(needed, kPeakBytesPerVoxel * kVoxelsPerArea * load.area / (finest * finest) +
+                                    kBytesPerCellTriangle * load.triangles);
     if (needed <= perCell) return level;
   }
   throw std::runtime_error("--memory: " + sizeText(double(memoryBytes)) + " is too small for " +
                            std::to_string(options.levels) + " levels of this mesh (a cell needs about " +
-                           sizeText(needed + fixed) + ")");
+                           sizeText(needed) + " next to " + sizeText(fixed) + " for the input)");
 }
 
 }  // namespace
 
-OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const StoreWriteOptions& write,
-                           const OutOfCoreOptions& ooc, const std::filesystem::path& store) {
+OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& options,
+                           const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
+                           const std::filesystem::path& store) {
   const auto start = std::chrono::steady_clock::now();
   const auto seconds = [](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -228,16 +226,16 @@ OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const 
     if (ooc.progress) ooc.progress(phase, f);
   };
   OutOfCoreReport report;
-  const SceneTransform transform = fitSceneCube(mesh);
+  const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
   const int concurrency = std::max(1, ooc.threads);
   report.cellLevel = ooc.cellLevel > 0
                          ? ooc.cellLevel
-                         : chooseCellLevel(mesh, transform, options, ooc.memoryBytes, concurrency);
+                         : chooseCellLevel(source, transform, options, ooc.memoryBytes, concurrency);
   const std::filesystem::path work =
       ooc.workDir.empty() ? std::filesystem::path(store.string() + ".build") : ooc.workDir;
 
   // The work folder: kept from an interrupted run with --resume (if it is this build's), else fresh.
-  const nlohmann::json manifest = manifestOf(mesh, options, write, report.cellLevel);
+  const nlohmann::json manifest = manifestOf(source, options, write, report.cellLevel);
   const std::filesystem::path manifestPath = work / "manifest.json";
   bool reuse = false;
   if (ooc.resume && std::filesystem::exists(manifestPath)) {
@@ -261,11 +259,15 @@ OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const 
       throw std::runtime_error(manifestPath.string() + ": cannot write (disk full?)");
   }
 
-  // 1. Voxels: the top in memory, cells spilled as they complete.
+  // 1. Voxels: the triangles binned per cell, the top in memory, cells spilled as they complete.
   auto phase = std::chrono::steady_clock::now();
   std::mutex mutex;
   std::size_t cellsDone = 0, cellCount = 1;
   CellCallbacks callbacks;
+  callbacks.progress = [&](const char* name, double f) {
+    progress(name, f);
+    if (f >= 1.0) report.phaseSeconds[name] = seconds(phase), phase = std::chrono::steady_clock::now();
+  };
   callbacks.planned = [&](std::size_t count) { cellCount = std::max<std::size_t>(count, 1); };
   callbacks.finished = [&](glm::ivec3 cell) -> std::optional<CellRoot> {
     if (!reuse) return std::nullopt;
@@ -285,7 +287,8 @@ OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const 
     }
     if (ooc.cellSpilled) ooc.cellSpilled(cell);
   };
-  const VoxelTree top = voxelizeCells(mesh, transform, options, report.cellLevel, callbacks, concurrency);
+  const VoxelTree top =
+      voxelizeCells(source, transform, options, report.cellLevel, callbacks, concurrency, work / "triangles");
   report.phaseSeconds["voxelize"] = seconds(phase);
 
   // 2. The store: the top, then every live cell below the top slice holding its root.
@@ -355,7 +358,7 @@ OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const 
   report.cells = cells.size();
   std::error_code ignored;
   std::filesystem::remove_all(work, ignored);
-  stats.trianglesUsed = mesh.triangles.size();
+  stats.trianglesUsed = source.triangleCount();
   stats.seconds = seconds(start);
   return report;
 }

@@ -4,6 +4,7 @@
 // voxels aggregate their children. The top levels fan out as independent oneTBB tasks whose results are
 // concatenated in slot order, so the output does not depend on scheduling.
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <bit>
 #include <chrono>
@@ -19,6 +20,7 @@
 #include <tbb/parallel_for.h>
 #include <glm/geometric.hpp>
 
+#include "cell_partition.hpp"
 #include "geometry.hpp"
 #include "svo/builder/build.hpp"
 
@@ -46,6 +48,12 @@ struct Triangle {
   dvec3 normal;  // unit
   std::uint32_t source;
 };
+
+void checkLevels(const BuildOptions& options) {
+  if (options.levels < 1 || options.levels > kMaxLevels)
+    throw std::invalid_argument("levels must be in [1, " + std::to_string(kMaxLevels) + "], got " +
+                                std::to_string(options.levels));
+}
 
 // A voxel whose exact overlap test passed but none of whose children's did (rounding on a shared face or
 // edge) has no finest descendant: it is marked dead and pruned, so every leaf sits at the finest level.
@@ -84,28 +92,319 @@ struct Piece {
   std::uint32_t triangle = 0;
 };
 
+// Frees a vector's memory (`v = {}` assigns an empty initializer list and keeps the capacity).
+template <class T>
+void release(std::vector<T>& v) {
+  std::vector<T>().swap(v);
+}
+
+// The octree-space triangle of world corners, or nullopt when it is degenerate after the transform (a
+// sub-ulp triangle); both voxelizers skip those.
+std::optional<Triangle> makeTriangle(const std::array<dvec3, 3>& world, const SceneTransform& transform,
+                                     std::uint32_t source) {
+  Triangle t;
+  for (int k = 0; k < 3; ++k) t.p[k] = transform.toOctree(world[k]);
+  const dvec3 n = glm::cross(t.p[1] - t.p[0], t.p[2] - t.p[0]);
+  const double length = glm::length(n);
+  if (!(length > 0.0)) return std::nullopt;
+  t.normal = n / length;
+  t.source = source;
+  return t;
+}
+
+geom::Cube cubeAt(int level, glm::ivec3 coord) {
+  const double size = std::ldexp(1.0, -level);
+  return {dvec3(1.0) + dvec3(coord) * size, size};
+}
+
+glm::ivec3 childCoordOf(glm::ivec3 coord, int slot) {
+  return coord * 2 + glm::ivec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1);
+}
+
+// The children of `cube` the triangle overlaps, as a slot mask: bounding-box candidates, then the exact test.
+std::uint8_t overlappedChildren(const Triangle& t, const geom::Cube& cube) {
+  const dvec3 mid = cube.centre();
+  const double half = 0.5 * cube.size;
+  const dvec3 lo = glm::min(glm::min(t.p[0], t.p[1]), t.p[2]),
+              hi = glm::max(glm::max(t.p[0], t.p[1]), t.p[2]);
+  std::uint8_t mask = 0;
+  for (int slot = 0; slot < 8; ++slot) {
+    geom::Cube child{cube.lo + dvec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1) * half, half};
+    bool candidate = true, inside = true;
+    for (int a = 0; a < 3; ++a) {
+      const bool upper = slot >> a & 1;
+      if (upper ? hi[a] < mid[a] : lo[a] > mid[a]) candidate = false;
+      if (lo[a] < child.lo[a] || hi[a] > child.lo[a] + half) inside = false;
+    }
+    if (candidate && (inside || geom::triangleOverlapsCube(t.p[0], t.p[1], t.p[2], child)))
+      mask |= std::uint8_t(1u << slot);
+  }
+  return mask;
+}
+
+Piece clipPiece(const Triangle& t, std::uint32_t index, const geom::Cube& cube) {
+  Piece p;
+  p.triangle = index;
+  p.polygon = geom::clipTriangleToCube(t.p[0], t.p[1], t.p[2], cube);
+  if (p.polygon.n == 0) {
+    // The SAT says the closed cube touches the triangle; clipping lost it to rounding. Keep the triangle's
+    // closest vertex so the voxel still has a defined piece.
+    p.polygon.n = 1;
+    p.polygon.v[0] = glm::clamp(t.p[0], cube.lo, cube.lo + cube.size);
+  }
+  p.area = geom::polygonArea(p.polygon, &p.centroid);
+  return p;
+}
+
+// A piece's weight in its voxel's averages.
+double pieceWeight(const Piece& p, const geom::Cube& cube) {
+  return p.area + kTouchWeight * cube.size * cube.size;
+}
+
+// Color of the source triangle at the piece (barycentric vertex colors), times its material and texture.
+// `colors` and `uvs` are the three corners' or null when the mesh has none.
+dvec4 pieceColor(const Piece& piece, const Triangle& t, const glm::vec4* colors, const glm::vec2* uvs,
+                 const Material& material, const std::vector<std::shared_ptr<const TextureImage>>& textures) {
+  auto barycentric = [&](const dvec3& x) {
+    const dvec3 e0 = t.p[1] - t.p[0], e1 = t.p[2] - t.p[0], r = x - t.p[0];
+    const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
+    const double d20 = glm::dot(r, e0), d21 = glm::dot(r, e1), den = d00 * d11 - d01 * d01;
+    const double v = (d11 * d20 - d01 * d21) / den, w = (d00 * d21 - d01 * d20) / den;
+    return dvec3(1.0 - v - w, v, w);
+  };
+  dvec4 color(material.baseColor);
+  if (colors) {
+    const dvec3 b = barycentric(piece.centroid);
+    color *= b.x * dvec4(colors[0]) + b.y * dvec4(colors[1]) + b.z * dvec4(colors[2]);
+  }
+  if (material.texture >= 0 && uvs) {
+    glm::vec2 uv[geom::kMaxClippedVertices + 3];
+    for (int k = 0; k < piece.polygon.n; ++k) {
+      const dvec3 b = barycentric(piece.polygon.v[k]);
+      uv[k] = glm::vec2(b.x * glm::dvec2(uvs[0]) + b.y * glm::dvec2(uvs[1]) + b.z * glm::dvec2(uvs[2]));
+    }
+    color *= dvec4(textures[material.texture]->average({uv, std::size_t(piece.polygon.n)}));
+  }
+  return color;
+}
+
+// Attribute sums and spreads (the error-driven stop's measures) over a voxel's pieces.
+void accumulate(Aggregate& a, double weight, const dvec3& normal, const dvec4* color) {
+  a.weight += weight;
+  a.normal += weight * normal;
+  if (color) a.color += weight * *color;
+}
+dvec3 meanNormal(const Aggregate& a) {
+  return glm::length(a.normal) > 0.0 ? glm::normalize(a.normal) : dvec3(0, 0, 1);
+}
+struct Spread {
+  double color = 0.0;      // 8-bit steps from the mean color, max over the pieces
+  double normalCos = 1.0;  // cosine to the mean normal, min over the pieces
+  void add(const Aggregate& sums, const dvec3& normal, const dvec4* pieceColor) {
+    if (pieceColor) {
+      const dvec4 d = glm::abs(*pieceColor - sums.color / sums.weight) * 255.0;
+      color = std::max({color, d.r, d.g, d.b, d.a});
+    }
+    normalCos = std::min(normalCos, glm::dot(meanNormal(sums), normal));
+  }
+};
+
+// A contour direction: the candidate normal and its 6-bit quantization.
+struct Direction {
+  glm::ivec3 quantized;
+  dvec3 normal;  // the quantized normal, as the slab uses it
+};
+// Where a voxel's pieces lie along a direction, in voxel units from its centre.
+struct Extent {
+  double lo = 1e300, hi = -1e300;
+};
+
+// Contour direction candidates (sec. 5.2): the area-weighted mean normal, then the normals of the largest
+// pieces, skipping near-duplicates. Fed piece by piece, so a voxel's pieces need not exist all at once.
+class ContourCandidates {
+ public:
+  void add(const Piece& p, const dvec3& normal, double weight) {
+    mean_ += normal * weight;
+    largest_.push_back({p.area, p.triangle, normal});
+    std::push_heap(largest_.begin(), largest_.end(), ranksBefore);
+    if (largest_.size() > kLargestKept) {
+      std::pop_heap(largest_.begin(), largest_.end(), ranksBefore);  // the smallest kept goes
+      largest_.pop_back();
+    }
+  }
+  std::vector<Direction> directions() const {
+    std::vector<dvec3> candidates;
+    if (glm::length(mean_) > 0.0) candidates.push_back(glm::normalize(mean_));
+    std::vector<Entry> largest = largest_;
+    std::sort_heap(largest.begin(), largest.end(), ranksBefore);  // largest first
+    for (std::size_t i = 0; i < largest.size() && int(candidates.size()) <= kMaxContourCandidates; ++i) {
+      const dvec3 n = largest[i].normal;
+      const bool seen = std::any_of(candidates.begin(), candidates.end(), [&](const dvec3& c) {
+        return std::abs(glm::dot(c, n)) > kSameDirectionCos;
+      });
+      if (!seen) candidates.push_back(n);
+    }
+    std::vector<Direction> out;
+    for (const dvec3& c : candidates) {
+      const glm::ivec3 q = quantizeContourNormal(c);
+      out.push_back({q, dvec3(q) / double(kContourNormalScale)});
+    }
+    return out;
+  }
+
+ private:
+  // Pieces whose normals may become candidates: enough to find kMaxContourCandidates distinct ones.
+  static constexpr std::size_t kLargestKept = kMaxContourCandidates * 4;
+  struct Entry {
+    double area;
+    std::uint32_t triangle;
+    dvec3 normal;
+  };
+  // Larger area first, ties by triangle order: a strict order, so the kept set is what a full sort keeps.
+  static bool ranksBefore(const Entry& a, const Entry& b) {
+    return a.area > b.area || (a.area == b.area && a.triangle < b.triangle);
+  }
+  dvec3 mean_{0.0};
+  std::vector<Entry> largest_;  // a heap with the smallest kept piece on top
+};
+
+void extendExtents(const std::vector<Direction>& directions, const Piece& p, const geom::Cube& cube,
+                   std::vector<Extent>& extents) {
+  const dvec3 centre = cube.centre();
+  for (std::size_t i = 0; i < directions.size(); ++i)
+    for (const dvec3& v : p.polygon.vertices()) {
+      const double d = glm::dot(directions[i].normal, v - centre) / cube.size;
+      extents[i].lo = std::min(extents[i].lo, d), extents[i].hi = std::max(extents[i].hi, d);
+    }
+}
+
+// The contour fit (sec. 5.2-5.3) once the candidates' extents are known: keep the slab that cuts away most of
+// the ancestor-bounded hull; store it only when the cut exceeds `minCut` voxels.
+struct ContourFit {
+  std::uint32_t bits = 0;
+  double cut = 0.0;        // voxel units removed from the hull along the normal
+  double thickness = 0.0;  // surface extent along the normal, voxel units
+};
+std::optional<ContourFit> chooseContour(const geom::Cube& cube, const std::vector<Direction>& directions,
+                                        const std::vector<Extent>& extents,
+                                        const std::vector<geom::Slab>& slabs, double minCut) {
+  const dvec3 centre = cube.centre();
+  const geom::HullVertices hull = slabs.empty() ? geom::HullVertices{} : geom::hullVertices(cube, slabs);
+  std::optional<ContourFit> best;
+  double bestScore = 0.0;
+  for (std::size_t i = 0; i < directions.size(); ++i) {
+    const dvec3 n = directions[i].normal;
+    const double lo = extents[i].lo, hi = extents[i].hi;
+    double hullLo, hullHi;
+    if (hull.empty()) {
+      hullHi = 0.5 * (std::abs(n.x) + std::abs(n.y) + std::abs(n.z));
+      hullLo = -hullHi;
+    } else {
+      hullLo = 1e300, hullHi = -1e300;
+      for (const dvec3& v : hull.vertices()) {
+        const double d = glm::dot(n, v - centre) / cube.size;
+        hullLo = std::min(hullLo, d), hullHi = std::max(hullHi, d);
+      }
+    }
+    std::uint32_t bits;
+    if (!(hullHi > hullLo) || !encodeContour(directions[i].quantized, lo, hi, bits)) continue;
+    const Contour c = decodeContour(bits);
+    const double slabLo = c.position - 0.5 * c.thickness, slabHi = c.position + 0.5 * c.thickness;
+    const double cut = std::max(0.0, slabLo - hullLo) + std::max(0.0, hullHi - slabHi);
+    const double score = cut / (hullHi - hullLo);
+    if (cut >= minCut && score > bestScore) bestScore = score, best = ContourFit{bits, cut, hi - lo};
+  }
+  return best;
+}
+
+// The error-driven stop: a voxel with a contour stops refining when its surface is within the geometry error
+// and its attributes within the color and normal errors.
+bool stopsRefining(const BuildOptions& options, int level, const ContourFit& contour, const Spread& spread) {
+  const double thicknessFinest = contour.thickness * std::ldexp(1.0, options.levels - level);
+  return thicknessFinest <= options.geometryError &&
+         (options.colorError <= 0.0f || spread.color <= options.colorError) &&
+         (options.normalError <= 0.0f ||
+          spread.normalCos >= std::cos(double(options.normalError) * std::numbers::pi / 180.0));
+}
+
+// The slab a contour adds to the ones its descendants are bounded by.
+geom::Slab slabOf(const geom::Cube& cube, std::uint32_t contourBits) {
+  const Contour c = decodeContour(contourBits);
+  const dvec3 n(c.normal);
+  const double base = glm::dot(n, cube.centre());
+  return {n, base + cube.size * (double(c.position) - 0.5 * double(c.thickness)),
+          base + cube.size * (double(c.position) + 0.5 * double(c.thickness))};
+}
+
+// The slabs among `slabs` that still cut `cube`.
+std::vector<geom::Slab> slabsCutting(const std::vector<geom::Slab>& slabs, const geom::Cube& cube) {
+  std::vector<geom::Slab> out;
+  for (const geom::Slab& s : slabs)
+    if (geom::slabCutsCube(s, cube)) out.push_back(s);
+  return out;
+}
+
+void setAttributes(VoxelRecord& r, const Aggregate& a, bool colors) {
+  if (colors) r.color = encodeColor(glm::vec4(a.color / a.weight));
+  r.normal = encodeNormal(glm::vec3(meanNormal(a)));
+}
+
+// Marks `r` dead when none of its children survived; returns whether it did.
+bool markIfDead(VoxelRecord& r, const Aggregate& sum) {
+  if (sum.weight != 0.0) return false;
+  r.childMask = 0;
+  r.firstChild = kDeadVoxel;
+  return true;
+}
+
+// Drops dead records: breadth first from the root, keeping each voxel's live children contiguous.
+std::vector<VoxelRecord> prune(const std::vector<VoxelRecord>& in) {
+  std::vector<VoxelRecord> out{in[0]};
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> queue{{0u, 0u}};  // (input index, output index)
+  for (std::size_t q = 0; q < queue.size(); ++q) {
+    const auto [i, o] = queue[q];
+    const VoxelRecord& r = in[i];
+    if (r.childMask == 0) continue;
+    std::uint8_t mask = 0;
+    const std::uint32_t first = std::uint32_t(out.size());
+    for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
+      if (!(r.childMask >> slot & 1u)) continue;
+      if (in[c].firstChild != kDeadVoxel) {
+        mask |= std::uint8_t(1u << slot);
+        queue.push_back({c, std::uint32_t(out.size())});
+        out.push_back(in[c]);
+      }
+      ++c;
+    }
+    out[o].childMask = mask;
+    out[o].firstChild = first;
+  }
+  return out;
+}
+
+std::vector<VoxelRecord> pruneIfDead(std::vector<VoxelRecord>&& records) {
+  const bool dead = std::any_of(records.begin(), records.end(),
+                                [](const VoxelRecord& r) { return r.firstChild == kDeadVoxel; });
+  return dead ? prune(records) : std::move(records);
+}
+
+// The in-core voxelizer: every triangle of `mesh` in memory. The out-of-core build runs one per cell, over
+// the cell's triangles.
 class Voxelizer {
  public:
-  Voxelizer(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options)
-      : mesh_(mesh), options_(options), colors_(mesh.hasColor()) {
-    if (options.levels < 1 || options.levels > kMaxLevels)
-      throw std::invalid_argument("levels must be in [1, " + std::to_string(kMaxLevels) + "], got " +
-                                  std::to_string(options.levels));
+  Voxelizer(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options, bool colors)
+      : mesh_(mesh), options_(options), colors_(colors) {
     triangles_.reserve(mesh.triangles.size());
     for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
-      Triangle t;
-      for (int k = 0; k < 3; ++k) t.p[k] = transform.toOctree(mesh.positions[mesh.triangles[i][k]]);
-      const dvec3 n = glm::cross(t.p[1] - t.p[0], t.p[2] - t.p[0]);
-      const double length = glm::length(n);
-      if (!(length > 0.0)) continue;  // degenerate after the transform (sub-ulp triangle)
-      t.normal = n / length;
-      t.source = std::uint32_t(i);
-      triangles_.push_back(t);
+      const glm::uvec3 t = mesh.triangles[i];
+      if (const auto triangle = makeTriangle({mesh.positions[t.x], mesh.positions[t.y], mesh.positions[t.z]},
+                                             transform, std::uint32_t(i)))
+        triangles_.push_back(*triangle);
     }
-    if (triangles_.empty()) throw std::runtime_error("mesh has no non-degenerate triangles");
   }
 
   VoxelTree run(BuildStats* stats) {
+    if (triangles_.empty()) throw std::runtime_error("mesh has no non-degenerate triangles");
     Node root;
     root.triangles.resize(triangles_.size());
     for (std::uint32_t i = 0; i < root.triangles.size(); ++i) root.triangles[i] = i;
@@ -123,48 +422,22 @@ class Voxelizer {
     return tree;
   }
 
-  // The levels above `cellLevel` as voxelize() builds them, each cell (a voxel of cellLevel) built on its own
-  // and handed to `callbacks.built`, up to `concurrency` cells at a time. Returns the tree down to cellLevel
-  // with the cells' roots as leaves.
-  VoxelTree runCells(int cellLevel, const CellCallbacks& callbacks, int concurrency) {
-    // 1. Top down to the cells, exactly as buildParallel prepares these levels.
-    std::vector<TopVoxel> top;
-    std::vector<Node> cellNodes;
-    Node root;
-    root.triangles.resize(triangles_.size());
-    for (std::uint32_t i = 0; i < root.triangles.size(); ++i) root.triangles[i] = i;
-    prepareTop(std::move(root), cellLevel, top, cellNodes);
-    if (callbacks.planned) callbacks.planned(cellNodes.size());
-
-    // 2. The cells: built (or taken from an earlier run) and handed on; only their roots stay here.
-    std::vector<CellRoot> cells(cellNodes.size());
-    std::atomic<std::size_t> next{0};
-    std::mutex failedMutex;
-    std::exception_ptr failed;  // the first error stops the rest and is rethrown here
-    const auto work = [&] {
-      try {
-        buildCells(next, cellNodes, cells, callbacks);
-      } catch (...) {
-        std::lock_guard lock(failedMutex);
-        if (!failed) failed = std::current_exception();
-        next = cellNodes.size();
-      }
-    };
-    {
-      std::vector<std::jthread> workers;
-      for (int t = 1; t < std::max(1, concurrency); ++t) workers.emplace_back(work);
-      work();
-    }
-    if (failed) std::rethrow_exception(failed);
-
-    // 3. The top's attributes from the cells' sums, bottom up in slot order as buildParallel adds them.
+  // One cell: the voxel of `level` at `coord` bounded by its ancestors' `slabs`, over all of the mesh's
+  // triangles (the ones that reach the cell; at least one), depth first on this thread. Its root first, dead
+  // voxels pruned.
+  VoxelTree runCell(int level, glm::ivec3 coord, std::vector<geom::Slab> slabs, Aggregate& sums) const {
+    Node node;
+    node.level = level;
+    node.coord = coord;
+    node.slabs = std::move(slabs);
+    node.triangles.resize(triangles_.size());
+    for (std::uint32_t i = 0; i < node.triangles.size(); ++i) node.triangles[i] = i;
+    std::vector<VoxelRecord> records(1);
+    sums = buildInto(node, records, 0);
     VoxelTree tree;
+    tree.voxels = pruneIfDead(std::move(records));
     tree.hasColors = colors_;
     tree.hasNormals = true;
-    tree.voxels.resize(1);
-    const Aggregate all = assembleTop(top, 0, cells, tree.voxels, 0);
-    if (all.weight == 0.0) throw std::runtime_error("mesh produced no voxels");
-    tree.voxels = prune(tree.voxels);
     return tree;
   }
 
@@ -174,254 +447,53 @@ class Voxelizer {
     Aggregate attributes;
   };
 
-  void buildCells(std::atomic<std::size_t>& next, std::vector<Node>& cellNodes, std::vector<CellRoot>& cells,
-                  const CellCallbacks& callbacks) const {
-    for (std::size_t i; (i = next.fetch_add(1)) < cellNodes.size();) {
-      Node& node = cellNodes[i];
-      const glm::ivec3 coord = node.coord;
-      if (callbacks.finished)
-        if (std::optional<CellRoot> done = callbacks.finished(coord)) {
-          cells[i] = *done;
-          node = Node{};
-          continue;
-        }
-      Subtree cell;
-      cell.records.resize(1);
-      cell.attributes = buildInto(node, cell.records, 0);
-      node = Node{};
-      VoxelTree tree;
-      const bool dead = std::any_of(cell.records.begin(), cell.records.end(),
-                                    [](const VoxelRecord& r) { return r.firstChild == kDeadVoxel; });
-      tree.voxels = dead ? prune(cell.records) : std::move(cell.records);
-      cell.records = {};
-      tree.hasColors = colors_;
-      tree.hasNormals = true;
-      cells[i] = {tree.voxels[0], {cell.attributes.weight, cell.attributes.color, cell.attributes.normal}};
-      callbacks.built(coord, std::move(tree), cells[i]);
-    }
-  }
-
-  // A voxel above the cells: its prepared record, and its children (top voxels or cells) in slot order.
-  struct TopVoxel {
-    VoxelRecord record;
-    bool leaf = false;
-    Aggregate leafAttributes;
-    std::vector<std::int64_t> children;  // >= 0: a top voxel; < 0: cell ~index
-  };
-
-  void prepareTop(Node node, int cellLevel, std::vector<TopVoxel>& top, std::vector<Node>& cellNodes) const {
-    const std::size_t self = top.size();
-    top.emplace_back();
-    Prepared p = prepare(node);
-    node.triangles = {};
-    top[self].record = p.record;
-    if (p.leaf) {
-      top[self].leaf = true;
-      top[self].leafAttributes = p.leafAttributes;
-      return;
-    }
-    for (Node& child : p.children) {
-      if (child.level == cellLevel) {
-        top[self].children.push_back(~std::int64_t(cellNodes.size()));
-        cellNodes.push_back(std::move(child));
-      } else {
-        top[self].children.push_back(std::int64_t(top.size()));
-        prepareTop(std::move(child), cellLevel, top, cellNodes);
-      }
-    }
-  }
-
-  // Writes top voxel `t` at out[self] and its children's records after it, depth first like buildInto;
-  // cells become leaves carrying their roots' contour and attributes. Returns the voxel's sums.
-  Aggregate assembleTop(const std::vector<TopVoxel>& top, std::size_t t, const std::vector<CellRoot>& cells,
-                        std::vector<VoxelRecord>& out, std::size_t self) const {
-    const TopVoxel& v = top[t];
-    if (v.leaf) {
-      out[self] = v.record;
-      return v.leafAttributes;
-    }
-    const std::size_t first = out.size();
-    out[self] = v.record;
-    out[self].firstChild = std::uint32_t(first);
-    out.resize(first + v.children.size());
-    Aggregate sum;
-    for (std::size_t k = 0; k < v.children.size(); ++k) {
-      const std::int64_t c = v.children[k];
-      if (c >= 0) {
-        sum.add(assembleTop(top, std::size_t(c), cells, out, first + k));
-        continue;
-      }
-      const CellRoot& cell = cells[std::size_t(~c)];
-      VoxelRecord leaf = cell.record;
-      leaf.childMask = 0;
-      if (cell.sums.weight == 0.0) {
-        leaf.firstChild = kDeadVoxel;  // the cell's voxels all died: pruned like any dead voxel
-        deadFound_ = true;
-      } else {
-        leaf.firstChild = 0;
-      }
-      out[first + k] = leaf;
-      sum.add(Aggregate{cell.sums.weight, cell.sums.color, cell.sums.normal});
-    }
-    if (!markIfDead(out[self], sum)) setAttributes(out[self], sum);
-    return sum;
-  }
-
-  geom::Cube cubeOf(const Node& node) const {
-    const double size = std::ldexp(1.0, -node.level);
-    return {dvec3(1.0) + dvec3(node.coord) * size, size};
-  }
-
-  // Color of the source triangle at a point of its plane, times its material and texture over the piece.
-  dvec4 pieceColor(const Piece& piece) const {
-    const glm::uvec3 idx = mesh_.triangles[triangles_[piece.triangle].source];
+  dvec4 colorOf(const Piece& piece) const {
     const Triangle& t = triangles_[piece.triangle];
-    auto barycentric = [&](const dvec3& x) {
-      const dvec3 e0 = t.p[1] - t.p[0], e1 = t.p[2] - t.p[0], r = x - t.p[0];
-      const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
-      const double d20 = glm::dot(r, e0), d21 = glm::dot(r, e1), den = d00 * d11 - d01 * d01;
-      const double v = (d11 * d20 - d01 * d21) / den, w = (d00 * d21 - d01 * d20) / den;
-      return dvec3(1.0 - v - w, v, w);
-    };
-    const Material& material = mesh_.materialOf(t.source);
-    dvec4 color(material.baseColor);
-    if (!mesh_.colors.empty()) {
-      const dvec3 b = barycentric(piece.centroid);
-      color *= b.x * dvec4(mesh_.colors[idx.x]) + b.y * dvec4(mesh_.colors[idx.y]) +
-               b.z * dvec4(mesh_.colors[idx.z]);
+    const glm::uvec3 idx = mesh_.triangles[t.source];
+    glm::vec4 colors[3];
+    glm::vec2 uvs[3];
+    for (int k = 0; k < 3; ++k) {
+      if (!mesh_.colors.empty()) colors[k] = mesh_.colors[idx[k]];
+      if (!mesh_.uvs.empty()) uvs[k] = mesh_.uvs[idx[k]];
     }
-    if (material.texture >= 0 && !mesh_.uvs.empty()) {
-      glm::vec2 uv[geom::kMaxClippedVertices + 3];
-      for (int k = 0; k < piece.polygon.n; ++k) {
-        const dvec3 b = barycentric(piece.polygon.v[k]);
-        uv[k] = glm::vec2(b.x * glm::dvec2(mesh_.uvs[idx.x]) + b.y * glm::dvec2(mesh_.uvs[idx.y]) +
-                          b.z * glm::dvec2(mesh_.uvs[idx.z]));
-      }
-      color *= dvec4(mesh_.textures[material.texture]->average({uv, std::size_t(piece.polygon.n)}));
-    }
-    return color;
+    return pieceColor(piece, t, mesh_.colors.empty() ? nullptr : colors, mesh_.uvs.empty() ? nullptr : uvs,
+                      mesh_.materialOf(t.source), mesh_.textures);
   }
 
-  // Contour fit (sec. 5.2-5.3): among the candidate normals keep the slab that cuts away most of the
-  // ancestor-bounded hull; store it only when the cut exceeds contourMinReduction voxels.
-  struct ContourFit {
-    std::uint32_t bits = 0;
-    double cut = 0.0;        // voxel units removed from the hull along the normal
-    double thickness = 0.0;  // surface extent along the normal, voxel units
-  };
   std::optional<ContourFit> fitContour(const geom::Cube& cube, const std::vector<Piece>& pieces,
-                                       const std::vector<geom::Slab>& slabs, double minCut) const {
-    std::vector<dvec3> candidates;
-    dvec3 mean(0.0);
-    for (const Piece& p : pieces)
-      mean += triangles_[p.triangle].normal * (p.area + kTouchWeight * cube.size * cube.size);
-    if (glm::length(mean) > 0.0) candidates.push_back(glm::normalize(mean));
-    std::vector<const Piece*> largest;
-    for (const Piece& p : pieces) largest.push_back(&p);
-    const std::size_t keep = std::min<std::size_t>(largest.size(), kMaxContourCandidates * 4);
-    std::partial_sort(largest.begin(), largest.begin() + keep, largest.end(),
-                      [](const Piece* a, const Piece* b) {
-                        return a->area > b->area || (a->area == b->area && a->triangle < b->triangle);
-                      });
-    for (std::size_t i = 0; i < keep && int(candidates.size()) <= kMaxContourCandidates; ++i) {
-      const dvec3 n = triangles_[largest[i]->triangle].normal;
-      const bool seen = std::any_of(candidates.begin(), candidates.end(), [&](const dvec3& c) {
-        return std::abs(glm::dot(c, n)) > kSameDirectionCos;
-      });
-      if (!seen) candidates.push_back(n);
-    }
-
-    const dvec3 centre = cube.centre();
-    const geom::HullVertices hull = slabs.empty() ? geom::HullVertices{} : geom::hullVertices(cube, slabs);
-    std::optional<ContourFit> best;
-    double bestScore = 0.0;
-    for (const dvec3& candidate : candidates) {
-      const glm::ivec3 qn = quantizeContourNormal(candidate);
-      const dvec3 n = dvec3(qn) / double(kContourNormalScale);
-      double lo = 1e300, hi = -1e300;
-      for (const Piece& p : pieces)
-        for (const dvec3& v : p.polygon.vertices()) {
-          const double d = glm::dot(n, v - centre) / cube.size;
-          lo = std::min(lo, d), hi = std::max(hi, d);
-        }
-      double hullLo, hullHi;
-      if (hull.empty()) {
-        hullHi = 0.5 * (std::abs(n.x) + std::abs(n.y) + std::abs(n.z));
-        hullLo = -hullHi;
-      } else {
-        hullLo = 1e300, hullHi = -1e300;
-        for (const dvec3& v : hull.vertices()) {
-          const double d = glm::dot(n, v - centre) / cube.size;
-          hullLo = std::min(hullLo, d), hullHi = std::max(hullHi, d);
-        }
-      }
-      std::uint32_t bits;
-      if (!(hullHi > hullLo) || !encodeContour(qn, lo, hi, bits)) continue;
-      const Contour c = decodeContour(bits);
-      const double slabLo = c.position - 0.5 * c.thickness, slabHi = c.position + 0.5 * c.thickness;
-      const double cut = std::max(0.0, slabLo - hullLo) + std::max(0.0, hullHi - slabHi);
-      const double score = cut / (hullHi - hullLo);
-      if (cut >= minCut && score > bestScore) bestScore = score, best = ContourFit{bits, cut, hi - lo};
-    }
-    return best;
+                                       const std::vector<geom::Slab>& slabs) const {
+    ContourCandidates candidates;
+    for (const Piece& p : pieces) candidates.add(p, triangles_[p.triangle].normal, pieceWeight(p, cube));
+    const std::vector<Direction> directions = candidates.directions();
+    std::vector<Extent> extents(directions.size());
+    for (const Piece& p : pieces) extendExtents(directions, p, cube, extents);
+    return chooseContour(cube, directions, extents, slabs, options_.contourMinReduction);
   }
 
   std::vector<Piece> clipPieces(const Node& node, const geom::Cube& cube) const {
     std::vector<Piece> pieces;
     pieces.reserve(node.triangles.size());
-    for (std::uint32_t ti : node.triangles) {
-      const Triangle& t = triangles_[ti];
-      Piece p;
-      p.triangle = ti;
-      p.polygon = geom::clipTriangleToCube(t.p[0], t.p[1], t.p[2], cube);
-      if (p.polygon.n == 0) {
-        // The SAT says the closed cube touches the triangle; clipping lost it to rounding. Keep the
-        // triangle's closest vertex so the voxel still has a defined piece.
-        p.polygon.n = 1;
-        p.polygon.v[0] = glm::clamp(t.p[0], cube.lo, cube.lo + cube.size);
-      }
-      p.area = geom::polygonArea(p.polygon, &p.centroid);
-      pieces.push_back(p);
-    }
+    for (std::uint32_t ti : node.triangles) pieces.push_back(clipPiece(triangles_[ti], ti, cube));
     return pieces;
   }
 
-  Aggregate attributesOf(const std::vector<Piece>& pieces, const geom::Cube& cube, double* colorSpread,
-                         double* normalSpreadCos) const {
+  Aggregate attributesOf(const std::vector<Piece>& pieces, const geom::Cube& cube, Spread* spread) const {
     Aggregate a;
     std::vector<dvec4> colors(colors_ ? pieces.size() : 0);
     for (std::size_t i = 0; i < pieces.size(); ++i) {
-      const double w = pieces[i].area + kTouchWeight * cube.size * cube.size;
-      a.weight += w;
-      a.normal += w * triangles_[pieces[i].triangle].normal;
-      if (colors_) colors[i] = pieceColor(pieces[i]), a.color += w * colors[i];
+      if (colors_) colors[i] = colorOf(pieces[i]);
+      accumulate(a, pieceWeight(pieces[i], cube), triangles_[pieces[i].triangle].normal,
+                 colors_ ? &colors[i] : nullptr);
     }
-    if (colorSpread) {
-      *colorSpread = 0.0;
-      const dvec4 mean = a.color / a.weight;
-      for (const dvec4& c : colors) {
-        const dvec4 d = glm::abs(c - mean) * 255.0;
-        *colorSpread = std::max({*colorSpread, d.r, d.g, d.b, d.a});
-      }
-    }
-    if (normalSpreadCos) {
-      *normalSpreadCos = 1.0;
-      const dvec3 mean = glm::length(a.normal) > 0.0 ? glm::normalize(a.normal) : dvec3(0, 0, 1);
-      for (const Piece& p : pieces)
-        *normalSpreadCos = std::min(*normalSpreadCos, glm::dot(mean, triangles_[p.triangle].normal));
-    }
+    if (spread)
+      for (std::size_t i = 0; i < pieces.size(); ++i)
+        spread->add(a, triangles_[pieces[i].triangle].normal, colors_ ? &colors[i] : nullptr);
     return a;
-  }
-
-  void setAttributes(VoxelRecord& r, const Aggregate& a) const {
-    if (colors_) r.color = encodeColor(glm::vec4(a.color / a.weight));
-    r.normal =
-        encodeNormal(glm::length(a.normal) > 0.0 ? glm::vec3(glm::normalize(a.normal)) : glm::vec3(0, 0, 1));
   }
 
   Prepared prepare(Node& node) const {
     Prepared out;
-    const geom::Cube cube = cubeOf(node);
+    const geom::Cube cube = cubeAt(node.level, node.coord);
     const bool finest = node.level == options_.levels;
     // Clipped pieces feed the contour fit and a leaf's attributes. The root needs neither (it has no contour
     // and is never a leaf), which spares holding every triangle of the scene clipped at once (~340 B each).
@@ -429,110 +501,53 @@ class Voxelizer {
     const std::vector<Piece> pieces = needPieces ? clipPieces(node, cube) : std::vector<Piece>{};
     // The root has no parent descriptor to hold a contour.
     std::optional<ContourFit> contour;
-    if (options_.contours && node.level > 0)
-      contour = fitContour(cube, pieces, node.slabs, options_.contourMinReduction);
+    if (options_.contours && node.level > 0) contour = fitContour(cube, pieces, node.slabs);
     if (contour) out.record.hasContour = true, out.record.contour = contour->bits;
 
     bool stop = finest;
     std::optional<Aggregate> attributes;
     if (!finest && node.level > 0 && options_.geometryError > 0.0f && contour) {
-      double colorSpread = 0.0, normalCos = 1.0;
-      attributes = attributesOf(pieces, cube, &colorSpread, &normalCos);
-      const double thicknessFinest = contour->thickness * std::ldexp(1.0, options_.levels - node.level);
-      stop = thicknessFinest <= options_.geometryError &&
-             (options_.colorError <= 0.0f || colorSpread <= options_.colorError) &&
-             (options_.normalError <= 0.0f ||
-              normalCos >= std::cos(double(options_.normalError) * std::numbers::pi / 180.0));
+      Spread spread;
+      attributes = attributesOf(pieces, cube, &spread);
+      stop = stopsRefining(options_, node.level, *contour, spread);
     }
     if (stop) {
       out.leaf = true;
-      out.leafAttributes = attributes ? *attributes : attributesOf(pieces, cube, nullptr, nullptr);
-      setAttributes(out.record, out.leafAttributes);
+      out.leafAttributes = attributes ? *attributes : attributesOf(pieces, cube, nullptr);
+      setAttributes(out.record, out.leafAttributes, colors_);
       return out;
     }
 
     // Slabs the children inherit: ours and our ancestors', each kept only where it still cuts the child.
     std::vector<geom::Slab> slabs = node.slabs;
-    if (contour) {
-      const Contour c = decodeContour(contour->bits);
-      const dvec3 n(c.normal);
-      const double base = glm::dot(n, cube.centre());
-      slabs.push_back({n, base + cube.size * (double(c.position) - 0.5 * double(c.thickness)),
-                       base + cube.size * (double(c.position) + 0.5 * double(c.thickness))});
-    }
-    // Classify triangles into the 8 children: bounding-box candidates, then the exact overlap test.
+    if (contour) slabs.push_back(slabOf(cube, contour->bits));
     std::vector<std::uint32_t> lists[8];
-    const dvec3 mid = cube.centre();
-    const double half = 0.5 * cube.size;
-    for (std::uint32_t ti : node.triangles) {
-      const Triangle& t = triangles_[ti];
-      const dvec3 lo = glm::min(glm::min(t.p[0], t.p[1]), t.p[2]),
-                  hi = glm::max(glm::max(t.p[0], t.p[1]), t.p[2]);
-      for (int slot = 0; slot < 8; ++slot) {
-        geom::Cube child{cube.lo + dvec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1) * half, half};
-        bool candidate = true, inside = true;
-        for (int a = 0; a < 3; ++a) {
-          const bool upper = slot >> a & 1;
-          if (upper ? hi[a] < mid[a] : lo[a] > mid[a]) candidate = false;
-          if (lo[a] < child.lo[a] || hi[a] > child.lo[a] + half) inside = false;
-        }
-        if (candidate && (inside || geom::triangleOverlapsCube(t.p[0], t.p[1], t.p[2], child)))
-          lists[slot].push_back(ti);
-      }
-    }
+    for (std::uint32_t ti : node.triangles)
+      for (std::uint8_t mask = overlappedChildren(triangles_[ti], cube); mask; mask &= std::uint8_t(mask - 1))
+        lists[std::countr_zero(unsigned(mask))].push_back(ti);
     for (int slot = 0; slot < 8; ++slot) {
       if (lists[slot].empty()) continue;
       Node child;
       child.level = node.level + 1;
-      child.coord = node.coord * 2 + glm::ivec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1);
+      child.coord = childCoordOf(node.coord, slot);
       child.triangles = std::move(lists[slot]);
-      const geom::Cube childCube = cubeOf(child);
-      for (const geom::Slab& s : slabs)
-        if (geom::slabCutsCube(s, childCube)) child.slabs.push_back(s);
+      child.slabs = slabsCutting(slabs, cubeAt(child.level, child.coord));
       out.record.childMask |= std::uint8_t(1u << slot);
       out.children.push_back(std::move(child));
     }
     return out;
   }
 
-  // Marks `r` dead when none of its children survived; returns whether it did.
-  bool markIfDead(VoxelRecord& r, const Aggregate& sum) const {
-    if (sum.weight != 0.0) return false;
-    r.childMask = 0;
-    r.firstChild = kDeadVoxel;
+  bool markDead(VoxelRecord& r, const Aggregate& sum) const {
+    if (!markIfDead(r, sum)) return false;
     deadFound_ = true;
     return true;
-  }
-
-  // Drops dead records: breadth first from the root, keeping each voxel's live children contiguous.
-  static std::vector<VoxelRecord> prune(const std::vector<VoxelRecord>& in) {
-    std::vector<VoxelRecord> out{in[0]};
-    std::vector<std::pair<std::uint32_t, std::uint32_t>> queue{{0u, 0u}};  // (input index, output index)
-    for (std::size_t q = 0; q < queue.size(); ++q) {
-      const auto [i, o] = queue[q];
-      const VoxelRecord& r = in[i];
-      if (r.childMask == 0) continue;
-      std::uint8_t mask = 0;
-      const std::uint32_t first = std::uint32_t(out.size());
-      for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
-        if (!(r.childMask >> slot & 1u)) continue;
-        if (in[c].firstChild != kDeadVoxel) {
-          mask |= std::uint8_t(1u << slot);
-          queue.push_back({c, std::uint32_t(out.size())});
-          out.push_back(in[c]);
-        }
-        ++c;
-      }
-      out[o].childMask = mask;
-      out[o].firstChild = first;
-    }
-    return out;
   }
 
   // Depth-first into one vector: a voxel's children get consecutive records, then each child's subtree.
   Aggregate buildInto(Node& node, std::vector<VoxelRecord>& out, std::size_t self) const {
     Prepared p = prepare(node);
-    node.triangles = {};  // free early: the children hold what they need
+    release(node.triangles);  // free early: the children hold what they need
     if (p.leaf) {
       out[self] = p.record;
       return p.leafAttributes;
@@ -543,7 +558,7 @@ class Voxelizer {
     out.resize(first + p.children.size());
     Aggregate sum;
     for (std::size_t i = 0; i < p.children.size(); ++i) sum.add(buildInto(p.children[i], out, first + i));
-    if (!markIfDead(out[self], sum)) setAttributes(out[self], sum);
+    if (!markDead(out[self], sum)) setAttributes(out[self], sum, colors_);
     return sum;
   }
 
@@ -556,7 +571,7 @@ class Voxelizer {
       return s;
     }
     Prepared p = prepare(node);
-    node.triangles = {};
+    release(node.triangles);
     if (p.leaf) {
       s.records.push_back(p.record);
       s.attributes = p.leafAttributes;
@@ -592,7 +607,7 @@ class Voxelizer {
       for (std::size_t j = 0; j + 1 < parts[i].records.size(); ++j) fix(s.records[base[i] + j]);
       s.attributes.add(parts[i].attributes);
     }
-    if (!markIfDead(s.records[0], s.attributes)) setAttributes(s.records[0], s.attributes);
+    if (!markDead(s.records[0], s.attributes)) setAttributes(s.records[0], s.attributes, colors_);
     return s;
   }
 
@@ -610,7 +625,302 @@ class Voxelizer {
   mutable std::atomic<bool> deadFound_{false};
 };
 
+// The out-of-core voxelizer: the levels above the cell level are computed from two streaming passes over
+// the source, cells are built one by one from their binned triangles. Equal to Voxelizer's tree: the same
+// triangles reach each voxel in the same order, and the contour fit and the attributes see the same pieces.
+class CellVoxelizer {
+ public:
+  CellVoxelizer(const TriangleSource& source, const SceneTransform& transform, const BuildOptions& options,
+                int cellLevel, const CellCallbacks& callbacks)
+      : source_(source),
+        transform_(transform),
+        options_(options),
+        cellLevel_(cellLevel),
+        callbacks_(callbacks),
+        colors_(source.hasColor()),
+        errorStop_(options.geometryError > 0.0f && options.contours) {}
+
+  VoxelTree run(const std::filesystem::path& scratch, int concurrency) {
+    CellPartition partition(scratch, source_.hasVertexColors(), source_.hasUvs(),
+                            source_.materials().size() > 1);
+    partition_ = &partition;
+    nodes_.push_back(TopNode{});  // the root
+    // 1. Bin every triangle into its cells, and gather the top voxels' contour candidates and sums.
+    streamThroughTop("partition", [&](std::uint32_t node, const Triangle& t, std::uint32_t index,
+                                      const SourceTriangle& s) {
+      TopNode& n = nodes_[node];
+      if (n.level == cellLevel_) {
+        if (!n.done) partition.append(n.bucket, s);
+        return;
+      }
+      if (!hasPieces(n)) return;
+      const geom::Cube cube = cubeAt(n.level, n.coord);
+      const Piece piece = clipPiece(t, index, cube);
+      n.candidates.add(piece, t.normal, pieceWeight(piece, cube));
+      if (errorStop_) {
+        const std::optional<dvec4> color = colorOf(piece, t, s);
+        accumulate(n.sums, pieceWeight(piece, cube), t.normal, color ? &*color : nullptr);
+      }
+    });
+    partition.flush();
+    // 2. Where the pieces lie along each candidate direction (and how far they spread from the sums).
+    if (options_.contours && cellLevel_ > 1) {
+      for (TopNode& n : nodes_)
+        if (hasPieces(n)) n.directions = n.candidates.directions(), n.extents.resize(n.directions.size());
+      streamThroughTop("contours", [&](std::uint32_t node, const Triangle& t, std::uint32_t index,
+                                       const SourceTriangle& s) {
+        TopNode& n = nodes_[node];
+        if (!hasPieces(n)) return;
+        const geom::Cube cube = cubeAt(n.level, n.coord);
+        const Piece piece = clipPiece(t, index, cube);
+        extendExtents(n.directions, piece, cube, n.extents);
+        if (errorStop_) {
+          const std::optional<dvec4> color = colorOf(piece, t, s);
+          n.spread.add(n.sums, t.normal, color ? &*color : nullptr);
+        }
+      });
+    }
+    // 3. Contours and stops top down, which hands each cell the slabs of its ancestors.
+    decide(0, {});
+    if (callbacks_.planned) callbacks_.planned(cells_.size());
+    // 4. The cells, `concurrency` at a time.
+    std::atomic<std::size_t> next{0};
+    std::mutex failedMutex;
+    std::exception_ptr failed;  // the first error stops the rest and is rethrown here
+    const auto work = [&] {
+      try {
+        for (std::size_t i; (i = next.fetch_add(1)) < cells_.size();) buildCell(cells_[i]);
+      } catch (...) {
+        std::lock_guard lock(failedMutex);
+        if (!failed) failed = std::current_exception();
+        next = cells_.size();
+      }
+    };
+    {
+      std::vector<std::jthread> workers;
+      for (int t = 1; t < std::max(1, concurrency); ++t) workers.emplace_back(work);
+      work();
+    }
+    if (failed) std::rethrow_exception(failed);
+
+    // 5. The top's attributes from the cells' sums, bottom up in slot order as the in-core build adds them.
+    VoxelTree tree;
+    tree.hasColors = colors_;
+    tree.hasNormals = true;
+    tree.voxels.resize(1);
+    const Aggregate all = assembleTop(0, tree.voxels, 0);
+    if (all.weight == 0.0) throw std::runtime_error("mesh produced no voxels");
+    tree.voxels = prune(tree.voxels);
+    return tree;
+  }
+
+ private:
+  // A voxel of the levels down to the cell level that some triangle overlaps.
+  struct TopNode {
+    int level = 0;
+    glm::ivec3 coord{0};
+    std::array<std::int32_t, 8> children{-1, -1, -1, -1, -1, -1, -1, -1};
+    // Above the cells: the contour fit's and the error-driven stop's gatherings.
+    ContourCandidates candidates;
+    std::vector<Direction> directions;
+    std::vector<Extent> extents;
+    Aggregate sums;
+    Spread spread;
+    // Cells: where their triangles are binned, and the root of one an earlier run finished.
+    std::uint32_t bucket = 0;
+    std::optional<CellRoot> done;
+  };
+  // Decided: a voxel above the cells and its children (top voxels, or cells as ~index) in slot order.
+  struct TopVoxel {
+    VoxelRecord record;
+    bool leaf = false;
+    Aggregate leafAttributes;
+    std::vector<std::int64_t> children;
+  };
+  struct Cell {
+    glm::ivec3 coord;
+    std::vector<geom::Slab> slabs;
+    std::uint32_t bucket;
+    bool done;  // by an earlier run: `root` is known
+    CellRoot root;
+  };
+
+  bool hasPieces(const TopNode& n) const { return options_.contours && n.level > 0 && n.level < cellLevel_; }
+
+  std::optional<dvec4> colorOf(const Piece& piece, const Triangle& t, const SourceTriangle& s) const {
+    if (!colors_) return std::nullopt;
+    const std::vector<Material>& materials = source_.materials();
+    static const Material kWhite{};
+    return pieceColor(piece, t, source_.hasVertexColors() ? s.colors.data() : nullptr,
+                      source_.hasUvs() ? s.uvs.data() : nullptr,
+                      s.material < materials.size() ? materials[s.material] : kWhite, source_.textures());
+  }
+
+  // Streams the source once; every triangle visits the top voxels it overlaps, parents before children and
+  // children in slot order, down to the cells (created as triangles reach them).
+  template <class Visit>
+  void streamThroughTop(const char* phase, Visit&& visit) {
+    std::uint32_t index = 0;  // among the triangles not degenerate after the transform, as Voxelizer counts
+    std::uint64_t read = 0;
+    source_.read([&](std::span<const SourceTriangle> batch) {
+      for (const SourceTriangle& s : batch)
+        if (const std::optional<Triangle> t = makeTriangle(s.positions, transform_, index))
+          descend(0, *t, index++, s, visit);
+      read += batch.size();
+      if (callbacks_.progress)
+        callbacks_.progress(phase,
+                            double(read) / double(std::max<std::uint64_t>(source_.triangleCount(), 1)));
+    });
+  }
+
+  template <class Visit>
+  void descend(std::uint32_t node, const Triangle& t, std::uint32_t index, const SourceTriangle& s,
+               Visit& visit) {
+    visit(node, t, index, s);
+    const int level = nodes_[node].level;
+    if (level == cellLevel_) return;
+    const glm::ivec3 coord = nodes_[node].coord;
+    for (std::uint8_t mask = overlappedChildren(t, cubeAt(level, coord)); mask;
+         mask &= std::uint8_t(mask - 1)) {
+      const int slot = std::countr_zero(unsigned(mask));
+      std::int32_t child = nodes_[node].children[std::size_t(slot)];
+      if (child < 0) {
+        child = std::int32_t(nodes_.size());
+        nodes_[node].children[std::size_t(slot)] = child;
+        TopNode& c = nodes_.emplace_back();
+        c.level = level + 1;
+        c.coord = childCoordOf(coord, slot);
+        if (c.level == cellLevel_) {
+          c.bucket = partition_->addCell();
+          if (callbacks_.finished) c.done = callbacks_.finished(c.coord);
+        }
+      }
+      descend(std::uint32_t(child), t, index, s, visit);
+    }
+  }
+
+  // Voxelizer::prepare for a top voxel, from the gathered candidates, extents and sums.
+  std::size_t decide(std::uint32_t node, std::vector<geom::Slab> slabs) {
+    const std::size_t self = top_.size();
+    top_.emplace_back();
+    const TopNode& n = nodes_[node];
+    const geom::Cube cube = cubeAt(n.level, n.coord);
+    VoxelRecord record;
+    std::optional<ContourFit> contour;
+    if (hasPieces(n))
+      contour = chooseContour(cube, n.directions, n.extents, slabs, options_.contourMinReduction);
+    if (contour) record.hasContour = true, record.contour = contour->bits;
+    if (errorStop_ && contour && stopsRefining(options_, n.level, *contour, n.spread)) {
+      setAttributes(record, n.sums, colors_);
+      top_[self].record = record;
+      top_[self].leaf = true;
+      top_[self].leafAttributes = n.sums;
+      return self;
+    }
+    if (contour) slabs.push_back(slabOf(cube, contour->bits));
+    std::vector<std::int64_t> children;
+    for (int slot = 0; slot < 8; ++slot) {
+      const std::int32_t child = n.children[std::size_t(slot)];
+      if (child < 0) continue;
+      record.childMask |= std::uint8_t(1u << slot);
+      const TopNode& c = nodes_[std::size_t(child)];
+      std::vector<geom::Slab> childSlabs = slabsCutting(slabs, cubeAt(c.level, c.coord));
+      if (c.level == cellLevel_) {
+        children.push_back(~std::int64_t(cells_.size()));
+        cells_.push_back(
+            {c.coord, std::move(childSlabs), c.bucket, c.done.has_value(), c.done.value_or(CellRoot{})});
+      } else {
+        children.push_back(std::int64_t(decide(std::uint32_t(child), std::move(childSlabs))));
+      }
+    }
+    top_[self].record = record;
+    top_[self].children = std::move(children);
+    return self;
+  }
+
+  void buildCell(Cell& cell) const {
+    if (cell.done) return;
+    // The cell's triangles as a mesh of their own: three corners each, in input order.
+    Mesh mesh;
+    {
+      const std::vector<SourceTriangle> binned = partition_->read(cell.bucket);
+      mesh.positions.reserve(3 * binned.size());
+      mesh.triangles.reserve(binned.size());
+      if (source_.hasVertexColors()) mesh.colors.reserve(3 * binned.size());
+      if (source_.hasUvs()) mesh.uvs.reserve(3 * binned.size());
+      for (const SourceTriangle& s : binned) {
+        const std::uint32_t base = std::uint32_t(mesh.positions.size());
+        mesh.triangles.emplace_back(base, base + 1, base + 2);
+        mesh.positions.insert(mesh.positions.end(), s.positions.begin(), s.positions.end());
+        if (source_.hasVertexColors())
+          mesh.colors.insert(mesh.colors.end(), s.colors.begin(), s.colors.end());
+        if (source_.hasUvs()) mesh.uvs.insert(mesh.uvs.end(), s.uvs.begin(), s.uvs.end());
+        if (source_.materials().size() > 1) mesh.triangleMaterials.push_back(s.material);
+      }
+    }
+    partition_->remove(cell.bucket);
+    mesh.materials = source_.materials();
+    mesh.textures = source_.textures();
+    Aggregate sums;
+    VoxelTree tree =
+        Voxelizer(mesh, transform_, options_, colors_).runCell(cellLevel_, cell.coord, cell.slabs, sums);
+    mesh = Mesh{};
+    cell.root = {tree.voxels[0], {sums.weight, sums.color, sums.normal}};
+    callbacks_.built(cell.coord, std::move(tree), cell.root);
+  }
+
+  // Writes top voxel `t` at out[self] and its children's records after it, depth first like buildInto;
+  // cells become leaves carrying their roots' contour and attributes. Returns the voxel's sums.
+  Aggregate assembleTop(std::size_t t, std::vector<VoxelRecord>& out, std::size_t self) const {
+    const TopVoxel& v = top_[t];
+    if (v.leaf) {
+      out[self] = v.record;
+      return v.leafAttributes;
+    }
+    const std::size_t first = out.size();
+    out[self] = v.record;
+    out[self].firstChild = std::uint32_t(first);
+    out.resize(first + v.children.size());
+    Aggregate sum;
+    for (std::size_t k = 0; k < v.children.size(); ++k) {
+      const std::int64_t c = v.children[k];
+      if (c >= 0) {
+        sum.add(assembleTop(std::size_t(c), out, first + k));
+        continue;
+      }
+      const CellRoot& cell = cells_[std::size_t(~c)].root;
+      VoxelRecord leaf = cell.record;
+      leaf.childMask = 0;
+      leaf.firstChild = cell.sums.weight == 0.0 ? kDeadVoxel : 0;  // a cell whose voxels all died is pruned
+      out[first + k] = leaf;
+      sum.add(Aggregate{cell.sums.weight, cell.sums.color, cell.sums.normal});
+    }
+    if (!markIfDead(out[self], sum)) setAttributes(out[self], sum, colors_);
+    return sum;
+  }
+
+  const TriangleSource& source_;
+  const SceneTransform transform_;
+  const BuildOptions& options_;
+  const int cellLevel_;
+  const CellCallbacks& callbacks_;
+  const bool colors_, errorStop_;
+  std::vector<TopNode> nodes_;
+  CellPartition* partition_ = nullptr;  // during run()
+  std::vector<TopVoxel> top_;
+  std::vector<Cell> cells_;
+};
+
 }  // namespace
+
+SceneTransform fitSceneCube(glm::dvec3 lower, glm::dvec3 upper) {
+  const double extent = std::max({upper.x - lower.x, upper.y - lower.y, upper.z - lower.z});
+  if (!(extent > 0.0)) throw std::runtime_error("mesh has no extent: all vertices coincide");
+  SceneTransform t;
+  t.size = extent * (1.0 + 2.0 * kSceneMargin);
+  t.origin = 0.5 * (lower + upper) - 0.5 * t.size;
+  return t;
+}
 
 SceneTransform fitSceneCube(const Mesh& mesh) {
   if (mesh.triangles.empty()) throw std::runtime_error("mesh has no triangles");
@@ -618,29 +928,27 @@ SceneTransform fitSceneCube(const Mesh& mesh) {
   for (const glm::uvec3& t : mesh.triangles)
     for (int k = 0; k < 3; ++k)
       lo = glm::min(lo, mesh.positions[t[k]]), hi = glm::max(hi, mesh.positions[t[k]]);
-  const double extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z});
-  if (!(extent > 0.0)) throw std::runtime_error("mesh has no extent: all vertices coincide");
-  SceneTransform t;
-  t.size = extent * (1.0 + 2.0 * kSceneMargin);
-  t.origin = 0.5 * (lo + hi) - 0.5 * t.size;
-  return t;
+  return fitSceneCube(lo, hi);
 }
 
 VoxelTree voxelize(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
                    BuildStats* stats) {
+  checkLevels(options);
   const auto start = std::chrono::steady_clock::now();
-  VoxelTree tree = Voxelizer(mesh, transform, options).run(stats);
+  VoxelTree tree = Voxelizer(mesh, transform, options, mesh.hasColor()).run(stats);
   if (stats) stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return tree;
 }
 
-VoxelTree voxelizeCells(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
-                        int cellLevel, const CellCallbacks& callbacks, int concurrency) {
+VoxelTree voxelizeCells(const TriangleSource& source, const SceneTransform& transform,
+                        const BuildOptions& options, int cellLevel, const CellCallbacks& callbacks,
+                        int concurrency, const std::filesystem::path& scratch) {
+  checkLevels(options);
   if (cellLevel < 1 || cellLevel >= options.levels)
     throw std::invalid_argument("cell level must be in [1, levels - 1] = [1, " +
                                 std::to_string(options.levels - 1) + "], got " + std::to_string(cellLevel));
   if (!callbacks.built) throw std::invalid_argument("voxelizeCells: no callback for built cells");
-  return Voxelizer(mesh, transform, options).runCells(cellLevel, callbacks, concurrency);
+  return CellVoxelizer(source, transform, options, cellLevel, callbacks).run(scratch, concurrency);
 }
 
 void addTreeStats(const VoxelTree& tree, int rootLevel, BuildStats& stats) {

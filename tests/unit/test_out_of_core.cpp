@@ -13,6 +13,7 @@
 
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
+#include "svo/builder/gen.hpp"
 
 namespace fs = std::filesystem;
 
@@ -61,7 +62,8 @@ TEST(OutOfCore, EqualsTheInCoreBuildAtEveryCellLevel) {
       svo::OutOfCoreOptions ooc;
       ooc.cellLevel = cellLevel;
       ooc.threads = cellLevel == 2 ? 2 : 1;
-      const svo::OutOfCoreReport report = svo::buildStore(mesh, options, smallSlices(), ooc, store.path);
+      const svo::OutOfCoreReport report =
+          svo::buildStore(*svo::meshTriangleSource(mesh), options, smallSlices(), ooc, store.path);
       EXPECT_GT(report.cells, 1u);
       EXPECT_FALSE(fs::exists(store.path.string() + ".build"));  // the work folder goes with success
       const svo::StoreReader reader(store.path);
@@ -72,6 +74,25 @@ TEST(OutOfCore, EqualsTheInCoreBuildAtEveryCellLevel) {
       EXPECT_EQ(voxels, reference.voxels.size());
     }
   }
+}
+
+TEST(OutOfCore, AStreamedPlyBuildsTheOctreeOfTheLoadedMesh) {
+  // The PLY is streamed (never loaded whole); the reference is assimp's load of the same file, in core.
+  const svotest::TempFile ply("svo_ooc_stream", ".ply");
+  svo::writePly(ply.path, testMesh());
+  const svo::Mesh loaded = svo::loadMesh(ply.path);
+  svo::BuildOptions options;
+  options.levels = 7;
+  const svo::VoxelTree reference = inCoreTree(loaded, options);
+  const auto source = svo::openTriangleSource(ply.path);
+  ASSERT_NE(source->format().find("streamed"), std::string::npos);
+  const svotest::TempFile store("svo_ooc_stream", ".svo");
+  svo::OutOfCoreOptions ooc;
+  ooc.cellLevel = 3;
+  ooc.threads = 2;
+  const svo::OutOfCoreReport report = svo::buildStore(*source, options, smallSlices(), ooc, store.path);
+  EXPECT_GT(report.cells, 8u);
+  expectSameTree(svo::StoreReader(store.path).loadTree(), reference);
 }
 
 TEST(OutOfCore, AnInterruptedBuildResumesFromTheSpilledCells) {
@@ -87,7 +108,8 @@ TEST(OutOfCore, AnInterruptedBuildResumesFromTheSpilledCells) {
   ooc.cellSpilled = [&](glm::ivec3) {
     if (++spilled == 5) throw std::runtime_error("interrupted");
   };
-  EXPECT_THROW(svo::buildStore(mesh, options, smallSlices(), ooc, store.path), std::runtime_error);
+  EXPECT_THROW(svo::buildStore(*svo::meshTriangleSource(mesh), options, smallSlices(), ooc, store.path),
+               std::runtime_error);
   EXPECT_FALSE(fs::exists(store.path));  // nothing half-written at the target
   ASSERT_TRUE(fs::exists(work / "manifest.json"));
 
@@ -110,7 +132,8 @@ TEST(OutOfCore, AnInterruptedBuildResumesFromTheSpilledCells) {
   ooc.cellSpilled = [&](glm::ivec3 c) {
     rebuilt.insert(std::to_string(c.x) + std::to_string(c.y) + std::to_string(c.z));
   };
-  const svo::OutOfCoreReport report = svo::buildStore(mesh, options, smallSlices(), ooc, store.path);
+  const svo::OutOfCoreReport report =
+      svo::buildStore(*svo::meshTriangleSource(mesh), options, smallSlices(), ooc, store.path);
   EXPECT_EQ(report.cellsReused, 4u);
   // Every cell of this mesh holds surface, so the reused and the rebuilt ones are all of them, once each.
   EXPECT_EQ(rebuilt.size() + report.cellsReused, report.cells);
@@ -126,12 +149,13 @@ TEST(OutOfCore, ResumeRefusesTheWorkFolderOfAnotherBuildAndSmallMemoryIsClear) {
   svo::OutOfCoreOptions ooc;
   ooc.cellLevel = 2;
   ooc.cellSpilled = [](glm::ivec3) { throw std::runtime_error("interrupted"); };
-  EXPECT_THROW(svo::buildStore(mesh, options, smallSlices(), ooc, store.path), std::runtime_error);
+  EXPECT_THROW(svo::buildStore(*svo::meshTriangleSource(mesh), options, smallSlices(), ooc, store.path),
+               std::runtime_error);
   options.levels = 7;
   ooc.resume = true;
   ooc.cellSpilled = nullptr;
   try {
-    svo::buildStore(mesh, options, smallSlices(), ooc, store.path);
+    svo::buildStore(*svo::meshTriangleSource(mesh), options, smallSlices(), ooc, store.path);
     ADD_FAILURE() << "a resume accepted another build's cells";
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("levels"), std::string::npos) << e.what();
@@ -141,7 +165,7 @@ TEST(OutOfCore, ResumeRefusesTheWorkFolderOfAnotherBuildAndSmallMemoryIsClear) {
   svo::OutOfCoreOptions tiny;
   tiny.memoryBytes = 1024;
   try {
-    svo::buildStore(mesh, options, smallSlices(), tiny, store.path);
+    svo::buildStore(*svo::meshTriangleSource(mesh), options, smallSlices(), tiny, store.path);
     ADD_FAILURE() << "1 KiB of memory was accepted";
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("--memory"), std::string::npos) << e.what();

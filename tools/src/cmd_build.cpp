@@ -83,15 +83,10 @@ void runBuild(const BuildArgs& args) {
   nlohmann::json phases = nlohmann::json::object();
 
   auto phaseStart = std::chrono::steady_clock::now();
-  MeshLoadReport loadReport;
-  const Mesh mesh = loadMesh(args.mesh, &loadReport);
-  phases["load"] = secondsSince(phaseStart);
-  spdlog::info("{}: {} triangles, {} vertices ({}){}", args.mesh, mesh.triangles.size(),
-               mesh.positions.size(), loadReport.format,
-               loadReport.droppedDegenerate
-                   ? fmt::format(", dropped {} degenerate", loadReport.droppedDegenerate)
-                   : "");
-
+  const auto logInput = [&](std::uint64_t triangles, const std::string& format, std::size_t dropped) {
+    spdlog::info("{}: {} triangles ({}){}", args.mesh, triangles, format,
+                 dropped ? fmt::format(", dropped {} degenerate", dropped) : "");
+  };
   BuildOptions options = args.options;
   options.contours = !args.noContours;
   BuildStats stats;
@@ -99,8 +94,15 @@ void runBuild(const BuildArgs& args) {
   storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
   storeOptions.inheritance = options.layout;
   std::vector<SliceInfo> slices;
-  const bool hasColors = mesh.hasColor();
+  bool hasColors = false;
+  std::uint64_t triangles = 0;
   if (args.memory > 0 || args.cellLevel > 0 || args.resume) {
+    // Out of core: the mesh is streamed (binary PLY) or loaded once and streamed from memory.
+    const std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
+    phases["load"] = secondsSince(phaseStart);
+    logInput(source->triangleCount(), source->format(), source->droppedDegenerate());
+    hasColors = source->hasColor();
+    triangles = source->triangleCount();
     OutOfCoreOptions ooc;
     ooc.memoryBytes = args.memory;
     ooc.cellLevel = args.cellLevel;
@@ -112,7 +114,7 @@ void runBuild(const BuildArgs& args) {
       if (current != phase) bar = std::make_unique<ProgressBar>(current = phase);
       bar->update(f);
     };
-    const OutOfCoreReport built = buildStore(mesh, options, storeOptions, ooc, args.out);
+    const OutOfCoreReport built = buildStore(*source, options, storeOptions, ooc, args.out);
     bar.reset();
     for (const auto& [phase, seconds] : built.phaseSeconds) phases[phase] = seconds;
     stats = built.stats;
@@ -120,6 +122,12 @@ void runBuild(const BuildArgs& args) {
     spdlog::info("out of core: {} cells of level {}, {} reused from an interrupted run", built.cells,
                  built.cellLevel, built.cellsReused);
   } else {
+    MeshLoadReport loadReport;
+    const Mesh mesh = loadMesh(args.mesh, &loadReport);
+    phases["load"] = secondsSince(phaseStart);
+    logInput(mesh.triangles.size(), loadReport.format, loadReport.droppedDegenerate);
+    hasColors = mesh.hasColor();
+    triangles = mesh.triangles.size();
     phaseStart = std::chrono::steady_clock::now();
     const SceneTransform transform = fitSceneCube(mesh);
     VoxelTree tree;
@@ -157,7 +165,7 @@ void runBuild(const BuildArgs& args) {
   nlohmann::json report;
   report["input"] = args.mesh;
   report["output"] = args.out;
-  report["triangles"] = mesh.triangles.size();
+  report["triangles"] = triangles;
   report["levels"] = options.levels;
   report["seconds"] = secondsSince(start);
   report["phaseSeconds"] = phases;
@@ -178,9 +186,10 @@ void runBuild(const BuildArgs& args) {
 
   spdlog::info("{} levels, {} voxels ({} leaves), {} contours; {} slices", options.levels, voxels,
                stats.leafVoxels, stats.contours, slices.size());
-  spdlog::info("load {:.2f} s, voxelize {:.2f} s, write {:.2f} s; peak resident {:.0f} MiB",
-               phases["load"].get<double>(), phases["voxelize"].get<double>(), phases["write"].get<double>(),
-               double(peakResidentBytes()) / (1 << 20));
+  std::string phaseTimes;
+  for (const auto& [phase, seconds] : phases.items())
+    phaseTimes += fmt::format("{}{} {:.2f} s", phaseTimes.empty() ? "" : ", ", phase, seconds.get<double>());
+  spdlog::info("{}; peak resident {:.0f} MiB", phaseTimes, double(peakResidentBytes()) / (1 << 20));
   std::printf("wrote %s (%.1f MiB, %.2f B per leaf voxel) and %s\n", args.out.c_str(),
               double(fileBytes) / (1 << 20), double(fileBytes) / leaves, reportPath.c_str());
 }

@@ -44,6 +44,7 @@ struct BuildStats {
 // Scene cube: the mesh bounds' centre, widened to a cube with a small margin so no triangle lies on the
 // outer boundary. Throws when the mesh has no extent at all.
 SceneTransform fitSceneCube(const Mesh& mesh);
+SceneTransform fitSceneCube(glm::dvec3 lower, glm::dvec3 upper);  // of the triangles' vertex bounds
 
 // Builds the voxel tree in the octree's [1,2]^3 frame given by `transform`. Deterministic for a given input
 // and options, whatever the thread count.
@@ -60,20 +61,28 @@ struct CellRoot {
   } sums;
 };
 struct CellCallbacks {
+  // The streaming passes' progress ("partition", "contours"), fraction of the triangles read.
+  std::function<void(const char* phase, double fraction)> progress;
+  // A cell an earlier run finished (resume): its root, or nullopt to build it. Asked once per cell while the
+  // triangles are binned.
+  std::function<std::optional<CellRoot>(glm::ivec3 cell)> finished;
   // How many cells the top levels found (once, before any cell is built).
   std::function<void(std::size_t cells)> planned;
-  // A cell an earlier run finished (resume): its root, or nullopt to build it. From worker threads.
-  std::function<std::optional<CellRoot>(glm::ivec3 cell)> finished;
   // A cell's subtree (root first), pruned, with its root; from worker threads.
   std::function<void(glm::ivec3 cell, VoxelTree&& subtree, const CellRoot& root)> built;
 };
 
-// voxelize() cell by cell below `cellLevel` (in [1, levels - 1]), `concurrency` cells at a time: the levels
-// above are built as voxelize() builds them, each cell's subtree goes to `callbacks.built` and is dropped.
+// voxelize() cell by cell below `cellLevel` (in [1, levels - 1]), never holding the whole mesh:
+// 1. one pass over the source bins each triangle into the cells it overlaps (in `scratch`, a folder that is
+//    created and removed) and gathers the contour candidates of the voxels above;
+// 2. a second pass finds those candidates' extents, which settles the top voxels' contours;
+// 3. each cell is built from its binned triangles, `concurrency` at a time, handed to `callbacks.built` and
+//    dropped.
 // Returns the tree down to the cell level, the cells' roots as leaves. The top tree plus the cells' subtrees
-// are exactly voxelize()'s tree.
-VoxelTree voxelizeCells(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options,
-                        int cellLevel, const CellCallbacks& callbacks, int concurrency);
+// are exactly voxelize()'s tree of the same triangles.
+VoxelTree voxelizeCells(const TriangleSource& source, const SceneTransform& transform,
+                        const BuildOptions& options, int cellLevel, const CellCallbacks& callbacks,
+                        int concurrency, const std::filesystem::path& scratch);
 
 // Adds a tree's voxels per level, leaves and contours to `stats`; its root is a voxel of `rootLevel`.
 void addTreeStats(const VoxelTree& tree, int rootLevel, BuildStats& stats);
@@ -99,10 +108,11 @@ struct OutOfCoreReport {
   BuildStats stats;
   std::map<std::string, double> phaseSeconds;
 };
-// Writes `store` from the mesh with voxelizeCells: its octree (StoreReader::loadTree) is exactly the in-core
-// build's. Like writeStore, the target is written only complete.
-OutOfCoreReport buildStore(const Mesh& mesh, const BuildOptions& options, const StoreWriteOptions& write,
-                           const OutOfCoreOptions& ooc, const std::filesystem::path& store);
+// Writes `store` from the source with voxelizeCells: its octree (StoreReader::loadTree) is exactly the
+// in-core build's. Like writeStore, the target is written only complete.
+OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& options,
+                           const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
+                           const std::filesystem::path& store);
 
 // voxelize + layoutBlock: the whole in-core build.
 Octree buildOctree(const Mesh& mesh, const BuildOptions& options, BuildStats* stats = nullptr);

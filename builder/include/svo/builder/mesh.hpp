@@ -1,8 +1,10 @@
 // Triangle meshes as the builder sees them, and their loading from files (assimp, Draco, OpenImageIO).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -60,5 +62,46 @@ Mesh loadMesh(const std::filesystem::path& path, MeshLoadReport* report = nullpt
 // Checks positions are finite and indices in range, and drops degenerate triangles; throws on the first
 // non-finite vertex or bad index. Returns the number of dropped triangles. loadMesh calls it.
 std::size_t validateMesh(Mesh& mesh, const std::string& source);
+// The rule validateMesh drops triangles by: edges from the first corner parallel to within a tiny sine.
+bool isDegenerate(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c);
+
+// One triangle as the out-of-core build streams it: what voxelizing it needs, nothing shared with others.
+struct SourceTriangle {
+  std::array<glm::dvec3, 3> positions;
+  std::array<glm::vec4, 3> colors{glm::vec4(1.0f), glm::vec4(1.0f), glm::vec4(1.0f)};  // linear RGBA
+  std::array<glm::vec2, 3> uvs{};
+  std::uint32_t material = 0;
+};
+
+// Triangles read in order, batch by batch, as often as asked, so that the out-of-core build never holds the
+// whole mesh. Validated as loadMesh validates: degenerate triangles are dropped, a non-finite vertex or a bad
+// index is an error naming the source.
+class TriangleSource {
+ public:
+  virtual ~TriangleSource() = default;
+  virtual const std::string& name() const = 0;
+  virtual std::uint64_t triangleCount() const = 0;  // after dropping degenerate ones
+  virtual std::size_t droppedDegenerate() const = 0;
+  virtual const std::string& format() const = 0;
+  // Bounds of the triangles' vertices (what fitSceneCube needs).
+  virtual glm::dvec3 lower() const = 0;
+  virtual glm::dvec3 upper() const = 0;
+  virtual bool hasColor() const = 0;         // as Mesh::hasColor
+  virtual bool hasVertexColors() const = 0;  // SourceTriangle::colors carry the file's colors
+  virtual bool hasUvs() const = 0;           // SourceTriangle::uvs matter (some material has a texture)
+  virtual const std::vector<Material>& materials() const = 0;
+  virtual const std::vector<std::shared_ptr<const TextureImage>>& textures() const = 0;
+  // XXH3-64 of the content: an interrupted build resumes only on the same input.
+  virtual std::uint64_t fingerprint() const = 0;
+  virtual std::size_t residentBytes() const = 0;  // what the source holds in memory
+  // Calls `batch` with consecutive triangles, first to last.
+  virtual void read(const std::function<void(std::span<const SourceTriangle>)>& batch) const = 0;
+};
+
+// Binary PLY is streamed from the file, holding only its vertices (positions in the file's precision and
+// 8-bit colors); other formats are loaded whole with loadMesh. Errors as loadMesh's.
+std::unique_ptr<TriangleSource> openTriangleSource(const std::filesystem::path& path);
+// A mesh already in memory (validated), which must outlive the source.
+std::unique_ptr<TriangleSource> meshTriangleSource(const Mesh& mesh, std::string name = "mesh");
 
 }  // namespace svo

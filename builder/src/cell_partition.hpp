@@ -1,0 +1,40 @@
+// The out-of-core build's triangles binned per cell on disk: each cell's triangles in input order, in
+// zstd frames, read back when the cell is built. Records keep only what the source has.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <vector>
+
+#include "svo/builder/mesh.hpp"
+
+namespace svo {
+
+class CellPartition {
+ public:
+  // `folder` is created empty. Records hold positions, and vertex colors, UVs and materials when asked.
+  CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials);
+  CellPartition(const CellPartition&) = delete;
+  CellPartition& operator=(const CellPartition&) = delete;
+  ~CellPartition();  // removes the folder
+
+  std::uint32_t addCell();  // a new empty cell's id
+  // Buffered; all buffers go to disk together once they hold kBufferedBytes.
+  void append(std::uint32_t cell, const SourceTriangle& t);
+  void flush();
+  // A cell's triangles, in the order appended (flush() first). Thread-safe once appending is over.
+  std::vector<SourceTriangle> read(std::uint32_t cell) const;
+  void remove(std::uint32_t cell);  // frees the cell's disk space
+  std::uint64_t bytesOnDisk() const { return bytesOnDisk_; }
+
+ private:
+  std::filesystem::path fileOf(std::uint32_t cell) const;
+  std::filesystem::path folder_;
+  bool colors_, uvs_, materials_;
+  std::size_t recordBytes_;
+  std::vector<std::vector<char>> buffers_;  // per cell, packed records not yet written
+  std::size_t buffered_ = 0;
+  std::uint64_t bytesOnDisk_ = 0;
+};
+
+}  // namespace svo

@@ -1,0 +1,542 @@
+// TriangleSource (mesh.hpp): triangles streamed in order for the out-of-core build. Binary little-endian PLY
+// (what `svo gen` writes and what scanners export) is read straight from the file, holding only its vertex
+// table; assimp loads a whole scene at once, so every other format goes through loadMesh.
+//
+// No Debian package offers a streaming PLY reader (assimp, and the header-only ones, load everything), so the
+// binary layout is decoded here: a header of elements and typed properties, then the records. Anything the
+// streaming reader does not cover (ASCII or big-endian files, lists in the vertex element, a face element
+// before the vertices) is handed to loadMesh, which reads every PLY assimp can.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <glm/common.hpp>
+#include <glm/gtc/type_precision.hpp>
+
+#include "hasher.hpp"
+#include "svo/builder/mesh.hpp"
+
+namespace svo {
+
+namespace detail {  // mesh_io.cpp
+glm::vec4 displayToLinear(glm::vec4 c);
+}  // namespace detail
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// Triangles handed over per call of the batch callback: ~2.5 MB of SourceTriangles.
+constexpr std::size_t kBatchTriangles = std::size_t(1) << 14;
+// Bytes read from the file at a time.
+constexpr std::size_t kReadChunk = std::size_t(4) << 20;
+// A PLY header longer than this is not a mesh header.
+constexpr std::size_t kMaxPlyHeader = std::size_t(1) << 16;
+
+[[noreturn]] void fail(const fs::path& path, const std::string& what) {
+  throw std::runtime_error(path.string() + ": " + what);
+}
+
+// What every source reports besides its triangles.
+struct Summary {
+  std::string name, format;
+  std::uint64_t triangles = 0;
+  std::size_t dropped = 0;
+  glm::dvec3 lower{std::numeric_limits<double>::max()}, upper{-std::numeric_limits<double>::max()};
+  bool color = false, vertexColors = false, uvs = false;
+  std::vector<Material> materials;
+  std::vector<std::shared_ptr<const TextureImage>> textures;
+  std::uint64_t fingerprint = 0;
+  std::size_t residentBytes = 0;
+};
+
+template <class T>
+std::size_t bytesOf(const std::vector<T>& v) {
+  return v.capacity() * sizeof(T);
+}
+
+class SummarizedSource : public TriangleSource {
+ public:
+  const std::string& name() const override { return summary_.name; }
+  std::uint64_t triangleCount() const override { return summary_.triangles; }
+  std::size_t droppedDegenerate() const override { return summary_.dropped; }
+  const std::string& format() const override { return summary_.format; }
+  glm::dvec3 lower() const override { return summary_.lower; }
+  glm::dvec3 upper() const override { return summary_.upper; }
+  bool hasColor() const override { return summary_.color; }
+  bool hasVertexColors() const override { return summary_.vertexColors; }
+  bool hasUvs() const override { return summary_.uvs; }
+  const std::vector<Material>& materials() const override { return summary_.materials; }
+  const std::vector<std::shared_ptr<const TextureImage>>& textures() const override {
+    return summary_.textures;
+  }
+  std::uint64_t fingerprint() const override { return summary_.fingerprint; }
+  std::size_t residentBytes() const override { return summary_.residentBytes; }
+
+ protected:
+  Summary summary_;
+};
+
+// ----- a mesh in memory ------------------------------------------------------------------------------------
+
+class MeshSource : public SummarizedSource {
+ public:
+  MeshSource(const Mesh& mesh, std::string name, std::unique_ptr<Mesh> owned = nullptr,
+             std::string format = "", std::size_t dropped = 0)
+      : owned_(std::move(owned)), mesh_(mesh) {
+    summary_.name = std::move(name);
+    summary_.format = format.empty() ? "mesh in memory" : std::move(format);
+    summary_.triangles = mesh.triangles.size();
+    summary_.dropped = dropped;
+    for (const glm::uvec3& t : mesh.triangles)
+      for (int k = 0; k < 3; ++k)
+        summary_.lower = glm::min(summary_.lower, mesh.positions[t[k]]),
+        summary_.upper = glm::max(summary_.upper, mesh.positions[t[k]]);
+    summary_.color = mesh.hasColor();
+    summary_.vertexColors = !mesh.colors.empty();
+    summary_.uvs = !mesh.uvs.empty();
+    summary_.materials = mesh.materials;
+    summary_.textures = mesh.textures;
+    Hasher f;
+    const auto add = [&f](const auto& v) { f.add(v.data(), v.size()); };
+    add(mesh.positions), add(mesh.triangles), add(mesh.colors), add(mesh.uvs), add(mesh.triangleMaterials);
+    summary_.fingerprint = f.digest();
+    summary_.residentBytes = bytesOf(mesh.positions) + bytesOf(mesh.colors) + bytesOf(mesh.uvs) +
+                             bytesOf(mesh.triangles) + bytesOf(mesh.triangleMaterials);
+  }
+
+  void read(const std::function<void(std::span<const SourceTriangle>)>& batch) const override {
+    std::vector<SourceTriangle> out;
+    out.reserve(std::min<std::size_t>(kBatchTriangles, mesh_.triangles.size()));
+    for (std::size_t i = 0; i < mesh_.triangles.size(); ++i) {
+      const glm::uvec3 t = mesh_.triangles[i];
+      SourceTriangle s;
+      for (int k = 0; k < 3; ++k) {
+        s.positions[k] = mesh_.positions[t[k]];
+        if (!mesh_.colors.empty()) s.colors[k] = mesh_.colors[t[k]];
+        if (!mesh_.uvs.empty()) s.uvs[k] = mesh_.uvs[t[k]];
+      }
+      s.material = mesh_.triangleMaterials.empty() ? 0 : mesh_.triangleMaterials[i];
+      out.push_back(s);
+      if (out.size() == kBatchTriangles) batch(out), out.clear();
+    }
+    if (!out.empty()) batch(out);
+  }
+
+ private:
+  std::unique_ptr<Mesh> owned_;
+  const Mesh& mesh_;
+};
+
+// ----- binary little-endian PLY ----------------------------------------------------------------------------
+
+enum class PlyType { Int8, UInt8, Int16, UInt16, Int32, UInt32, Float32, Float64 };
+
+std::optional<PlyType> parsePlyType(const std::string& name) {
+  static const std::pair<const char*, PlyType> kNames[] = {
+      {"char", PlyType::Int8},      {"int8", PlyType::Int8},       {"uchar", PlyType::UInt8},
+      {"uint8", PlyType::UInt8},    {"short", PlyType::Int16},     {"int16", PlyType::Int16},
+      {"ushort", PlyType::UInt16},  {"uint16", PlyType::UInt16},   {"int", PlyType::Int32},
+      {"int32", PlyType::Int32},    {"uint", PlyType::UInt32},     {"uint32", PlyType::UInt32},
+      {"float", PlyType::Float32},  {"float32", PlyType::Float32}, {"double", PlyType::Float64},
+      {"float64", PlyType::Float64}};
+  for (const auto& [text, type] : kNames)
+    if (name == text) return type;
+  return std::nullopt;
+}
+
+std::size_t sizeOf(PlyType t) {
+  switch (t) {
+    case PlyType::Int8:
+    case PlyType::UInt8:
+      return 1;
+    case PlyType::Int16:
+    case PlyType::UInt16:
+      return 2;
+    case PlyType::Int32:
+    case PlyType::UInt32:
+    case PlyType::Float32:
+      return 4;
+    case PlyType::Float64:
+      return 8;
+  }
+  return 0;
+}
+
+// The value at `p` as a double (exact for every PLY type).
+double valueAt(const char* p, PlyType t) {
+  const auto get = [p]<class T>(T) {
+    T v;
+    std::memcpy(&v, p, sizeof v);
+    return double(v);
+  };
+  switch (t) {
+    case PlyType::Int8:
+      return get(std::int8_t{});
+    case PlyType::UInt8:
+      return get(std::uint8_t{});
+    case PlyType::Int16:
+      return get(std::int16_t{});
+    case PlyType::UInt16:
+      return get(std::uint16_t{});
+    case PlyType::Int32:
+      return get(std::int32_t{});
+    case PlyType::UInt32:
+      return get(std::uint32_t{});
+    case PlyType::Float32:
+      return get(float{});
+    case PlyType::Float64:
+      return get(double{});
+  }
+  return 0.0;
+}
+
+struct PlyProperty {
+  std::string name;
+  PlyType type = PlyType::UInt8;
+  bool list = false;
+  PlyType countType = PlyType::UInt8;
+};
+struct PlyElement {
+  std::string name;
+  std::uint64_t count = 0;
+  std::vector<PlyProperty> properties;
+  std::size_t fixedBytes() const {  // record size without lists
+    std::size_t n = 0;
+    for (const PlyProperty& p : properties) n += p.list ? 0 : sizeOf(p.type);
+    return n;
+  }
+  bool hasList() const {
+    return std::any_of(properties.begin(), properties.end(), [](const PlyProperty& p) { return p.list; });
+  }
+};
+
+// The layout the streaming reader handles: vertices (fixed-size records with x, y, z) before the faces (one
+// index list, other properties fixed-size), elements between them fixed-size. nullopt for anything else.
+struct PlyLayout {
+  std::uint64_t headerBytes = 0, vertexOffset = 0, faceOffset = 0;
+  PlyElement vertex, face;
+};
+
+std::optional<PlyLayout> parsePlyHeader(std::FILE* file, std::string& header) {
+  header.clear();
+  for (int c; header.size() < kMaxPlyHeader && (c = std::fgetc(file)) != EOF;) {
+    header += char(c);
+    if (header.size() >= 11 && header.compare(header.size() - 11, 11, "end_header\n") == 0) break;
+  }
+  if (header.rfind("ply\n", 0) != 0 || header.size() < 11 ||
+      header.compare(header.size() - 11, 11, "end_header\n") != 0)
+    return std::nullopt;
+  std::istringstream lines(header);
+  std::vector<PlyElement> elements;
+  bool binaryLittleEndian = false;
+  for (std::string line; std::getline(lines, line);) {
+    std::istringstream words(line);
+    std::string word;
+    words >> word;
+    if (word == "format") {
+      std::string kind;
+      words >> kind;
+      binaryLittleEndian = kind == "binary_little_endian";
+    } else if (word == "element") {
+      PlyElement e;
+      if (!(words >> e.name >> e.count)) return std::nullopt;
+      elements.push_back(e);
+    } else if (word == "property") {
+      if (elements.empty()) return std::nullopt;
+      PlyProperty p;
+      std::string type;
+      words >> type;
+      if (type == "list") {
+        std::string countType, itemType;
+        words >> countType >> itemType;
+        const auto c = parsePlyType(countType), i = parsePlyType(itemType);
+        if (!c || !i) return std::nullopt;
+        p.list = true, p.countType = *c, p.type = *i;
+      } else {
+        const auto t = parsePlyType(type);
+        if (!t) return std::nullopt;
+        p.type = *t;
+      }
+      if (!(words >> p.name)) return std::nullopt;
+      elements.back().properties.push_back(p);
+    }
+  }
+  if (!binaryLittleEndian) return std::nullopt;
+  PlyLayout layout;
+  layout.headerBytes = header.size();
+  std::uint64_t offset = header.size();
+  bool vertexSeen = false, faceSeen = false;
+  for (const PlyElement& e : elements) {
+    if (e.name == "vertex" && !vertexSeen && !e.hasList()) {
+      layout.vertex = e, layout.vertexOffset = offset, vertexSeen = true;
+    } else if (e.name == "face" && vertexSeen && !faceSeen) {
+      if (std::count_if(e.properties.begin(), e.properties.end(),
+                        [](const PlyProperty& p) {
+                          return p.list && (p.name == "vertex_indices" || p.name == "vertex_index");
+                        }) != 1 ||
+          std::count_if(e.properties.begin(), e.properties.end(),
+                        [](const PlyProperty& p) { return p.list; }) != 1)
+        return std::nullopt;
+      layout.face = e, layout.faceOffset = offset, faceSeen = true;
+      break;  // what follows the faces is not read
+    } else if (e.hasList()) {
+      return std::nullopt;
+    }
+    offset += e.count * e.fixedBytes();
+  }
+  if (!vertexSeen || !faceSeen) return std::nullopt;
+  return layout;
+}
+
+// Sequential reads through a chunk buffer; `need` makes `n` bytes available at `data()`.
+class ChunkReader {
+ public:
+  ChunkReader(std::FILE* file, Hasher* fingerprint) : file_(file), fingerprint_(fingerprint) {
+    buffer_.resize(kReadChunk);
+  }
+  bool need(std::size_t n) {
+    if (end_ - pos_ >= n) return true;
+    std::memmove(buffer_.data(), buffer_.data() + pos_, end_ - pos_);
+    end_ -= pos_, pos_ = 0;
+    if (buffer_.size() < n) buffer_.resize(n);
+    while (end_ < n) {
+      const std::size_t got = std::fread(buffer_.data() + end_, 1, buffer_.size() - end_, file_);
+      if (got == 0) return false;
+      if (fingerprint_) fingerprint_->add(buffer_.data() + end_, got);
+      end_ += got;
+    }
+    return true;
+  }
+  const char* data() const { return buffer_.data() + pos_; }
+  void skip(std::size_t n) { pos_ += n; }
+
+ private:
+  std::FILE* file_;
+  Hasher* fingerprint_;
+  std::vector<char> buffer_;
+  std::size_t pos_ = 0, end_ = 0;
+};
+
+struct FileCloser {
+  void operator()(std::FILE* f) const { std::fclose(f); }
+};
+using File = std::unique_ptr<std::FILE, FileCloser>;
+
+class PlySource : public SummarizedSource {
+ public:
+  PlySource(const fs::path& path, PlyLayout layout, File file, const std::string& header)
+      : path_(path), layout_(std::move(layout)) {
+    summary_.name = path.string();
+    summary_.format = "PLY (binary, streamed)";
+    Hasher fingerprint;
+    fingerprint.add(header.data(), header.size());
+    ChunkReader reader(file.get(), &fingerprint);
+    readVertices(reader);
+    // Everything but the vertex table is read again per pass; this first pass counts, bounds and hashes.
+    summary_.dropped = scanFaces(reader, [&](const SourceTriangle& t) {
+      ++summary_.triangles;
+      for (int k = 0; k < 3; ++k) {
+        summary_.lower = glm::min(summary_.lower, t.positions[k]);
+        summary_.upper = glm::max(summary_.upper, t.positions[k]);
+        summary_.color |= t.colors[k] != glm::vec4(1.0f);
+      }
+    });
+    while (reader.need(1)) reader.skip(1);  // the fingerprint covers the whole file
+    summary_.fingerprint = fingerprint.digest();
+    summary_.residentBytes = bytesOf(floatPositions_) + bytesOf(doublePositions_) + bytesOf(colors_);
+    if (summary_.triangles == 0)
+      fail(path_, "mesh has no triangles" +
+                      (summary_.dropped ? " (all " + std::to_string(summary_.dropped) + " are degenerate)"
+                                        : std::string()));
+  }
+
+  void read(const std::function<void(std::span<const SourceTriangle>)>& batch) const override {
+    File file(std::fopen(path_.c_str(), "rb"));
+    if (!file || std::fseek(file.get(), long(layout_.faceOffset), SEEK_SET) != 0)
+      fail(path_, "cannot read the file again");
+    ChunkReader reader(file.get(), nullptr);
+    std::vector<SourceTriangle> out;
+    out.reserve(kBatchTriangles);
+    scanFaces(reader, [&](const SourceTriangle& t) {
+      out.push_back(t);
+      if (out.size() == kBatchTriangles) batch(out), out.clear();
+    });
+    if (!out.empty()) batch(out);
+  }
+
+ private:
+  struct Channel {
+    std::size_t offset = 0;
+    PlyType type = PlyType::UInt8;
+  };
+
+  void readVertices(ChunkReader& reader) {
+    const PlyElement& v = layout_.vertex;
+    std::optional<Channel> xyz[3], rgba[4];
+    std::size_t offset = 0;
+    for (const PlyProperty& p : v.properties) {
+      static const char* const kPosition[] = {"x", "y", "z"};
+      static const char* const kColor[][2] = {
+          {"red", "diffuse_red"}, {"green", "diffuse_green"}, {"blue", "diffuse_blue"}, {"alpha", "alpha"}};
+      for (int k = 0; k < 3; ++k)
+        if (p.name == kPosition[k]) xyz[k] = Channel{offset, p.type};
+      for (int k = 0; k < 4; ++k)
+        if ((p.name == kColor[k][0] || p.name == kColor[k][1]) && p.type == PlyType::UInt8)
+          rgba[k] = Channel{offset, p.type};
+      offset += sizeOf(p.type);
+    }
+    if (!xyz[0] || !xyz[1] || !xyz[2]) fail(path_, "the vertex element has no x, y and z");
+    const bool floats = xyz[0]->type == PlyType::Float32 && xyz[1]->type == PlyType::Float32 &&
+                        xyz[2]->type == PlyType::Float32;
+    summary_.vertexColors = rgba[0] && rgba[1] && rgba[2];
+    const std::size_t record = v.fixedBytes();
+    if (v.count > 0xffffffffull) fail(path_, "more than 2^32 vertices");
+    // Room for what the file can hold, not what a damaged header claims.
+    std::error_code ec;
+    const std::uint64_t fileBytes = fs::file_size(path_, ec);
+    const std::size_t expected = std::size_t(std::min<std::uint64_t>(
+        v.count, ec || record == 0 ? 0 : (fileBytes - std::min(fileBytes, layout_.vertexOffset)) / record));
+    if (floats)
+      floatPositions_.reserve(expected);
+    else
+      doublePositions_.reserve(expected);
+    if (summary_.vertexColors) colors_.reserve(expected);
+    for (std::uint64_t i = 0; i < v.count; ++i) {
+      if (!reader.need(record))
+        fail(path_,
+             "truncated: vertex " + std::to_string(i) + " of " + std::to_string(v.count) + " is missing");
+      const char* r = reader.data();
+      const glm::dvec3 p(valueAt(r + xyz[0]->offset, xyz[0]->type), valueAt(r + xyz[1]->offset, xyz[1]->type),
+                         valueAt(r + xyz[2]->offset, xyz[2]->type));
+      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+        fail(path_, "vertex " + std::to_string(i) + " has a non-finite coordinate");
+      if (floats)
+        floatPositions_.emplace_back(p);
+      else
+        doublePositions_.push_back(p);
+      if (summary_.vertexColors) {
+        glm::u8vec4 c(255);
+        for (int k = 0; k < 4; ++k)
+          if (rgba[k]) c[k] = std::uint8_t(r[rgba[k]->offset]);
+        colors_.push_back(c);
+      }
+      reader.skip(record);
+    }
+    // Elements between the vertices and the faces are skipped.
+    for (std::uint64_t skip = layout_.faceOffset - layout_.vertexOffset - v.count * record; skip > 0;) {
+      const std::size_t n = std::size_t(std::min<std::uint64_t>(skip, kReadChunk));
+      if (!reader.need(n)) fail(path_, "truncated before the faces");
+      reader.skip(n), skip -= n;
+    }
+  }
+
+  glm::dvec3 position(std::uint32_t i) const {
+    return floatPositions_.empty() ? doublePositions_[i] : glm::dvec3(floatPositions_[i]);
+  }
+  std::size_t vertexCount() const { return floatPositions_.size() + doublePositions_.size(); }
+
+  // Linear colors as loadMesh decodes a PLY's 8-bit ones (assimp divides by 255 in float).
+  glm::vec4 color(std::uint32_t i) const {
+    const glm::u8vec4 c = colors_[i];
+    return detail::displayToLinear(
+        glm::vec4(float(c.r) / 255.0f, float(c.g) / 255.0f, float(c.b) / 255.0f, float(c.a) / 255.0f));
+  }
+
+  // Visits every non-degenerate triangle in file order (polygons fanned from their first corner); returns
+  // how many degenerate ones it dropped.
+  template <class Visit>
+  std::size_t scanFaces(ChunkReader& reader, Visit&& visit) const {
+    std::size_t dropped = 0;
+    const PlyElement& f = layout_.face;
+    const std::size_t nv = vertexCount();
+    std::vector<std::uint32_t> corners;
+    for (std::uint64_t face = 0; face < f.count; ++face) {
+      corners.clear();
+      for (const PlyProperty& p : f.properties) {
+        const auto truncated = [&] {
+          fail(path_,
+               "truncated: face " + std::to_string(face) + " of " + std::to_string(f.count) + " is missing");
+        };
+        if (!p.list) {
+          if (!reader.need(sizeOf(p.type))) truncated();
+          reader.skip(sizeOf(p.type));
+          continue;
+        }
+        if (!reader.need(sizeOf(p.countType))) truncated();
+        const double count = valueAt(reader.data(), p.countType);
+        reader.skip(sizeOf(p.countType));
+        if (count < 0 || count > double(kReadChunk / 8))
+          fail(path_,
+               "face " + std::to_string(face) + " has " + std::to_string(std::llround(count)) + " corners");
+        const std::size_t n = std::size_t(count), bytes = n * sizeOf(p.type);
+        if (!reader.need(bytes)) truncated();
+        for (std::size_t k = 0; k < n; ++k) {  // the header check left one list: the indices
+          const double index = valueAt(reader.data() + k * sizeOf(p.type), p.type);
+          if (!(index >= 0 && index < double(nv)))
+            fail(path_, "face " + std::to_string(face) + " uses vertex " +
+                            std::to_string(std::llround(index)) + ", but there are only " +
+                            std::to_string(nv));
+          corners.push_back(std::uint32_t(index));
+        }
+        reader.skip(bytes);
+      }
+      for (std::size_t k = 2; k < corners.size(); ++k) {  // points and lines carry no surface
+        const std::uint32_t a = corners[0], b = corners[k - 1], c = corners[k];
+        SourceTriangle t;
+        t.positions = {position(a), position(b), position(c)};
+        if (a == b || b == c || a == c || isDegenerate(t.positions[0], t.positions[1], t.positions[2])) {
+          ++dropped;
+          continue;
+        }
+        if (!colors_.empty()) t.colors = {color(a), color(b), color(c)};
+        visit(t);
+      }
+    }
+    return dropped;
+  }
+
+  fs::path path_;
+  PlyLayout layout_;
+  std::vector<glm::vec3> floatPositions_;    // when x, y, z are floats
+  std::vector<glm::dvec3> doublePositions_;  // otherwise
+  std::vector<glm::u8vec4> colors_;
+};
+
+}  // namespace
+
+std::unique_ptr<TriangleSource> meshTriangleSource(const Mesh& mesh, std::string name) {
+  if (mesh.triangles.empty()) throw std::runtime_error(name + ": mesh has no triangles");
+  return std::make_unique<MeshSource>(mesh, std::move(name));
+}
+
+std::unique_ptr<TriangleSource> openTriangleSource(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) fail(path, "no such file");
+  if (!fs::is_regular_file(path, ec)) fail(path, "not a regular file");
+  std::string extension = path.extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
+  if (extension == ".ply") {
+    File file(std::fopen(path.c_str(), "rb"));
+    if (!file) fail(path, "cannot open");
+    std::string header;
+    if (std::optional<PlyLayout> layout = parsePlyHeader(file.get(), header))
+      return std::make_unique<PlySource>(path, std::move(*layout), std::move(file), header);
+  }
+  MeshLoadReport report;
+  auto mesh = std::make_unique<Mesh>(loadMesh(path, &report));
+  const Mesh& view = *mesh;
+  return std::make_unique<MeshSource>(view, path.string(), std::move(mesh), report.format,
+                                      report.droppedDegenerate);
+}
+
+}  // namespace svo
