@@ -414,6 +414,31 @@ TEST_F(Cli, BenchStoreOnAStoreAndOnAMesh) {
   EXPECT_EQ(svo("bench store " + store.string() + " --runs 0").exitCode, 2);
 }
 
+TEST_F(Cli, BenchBuildMeasuresInCoreAndOutOfCorePerThreadCount) {
+  const fs::path store = dir_ / "tet.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + store.string() + " --levels 5").exitCode, 0);
+  const std::uint64_t voxels = svo::StoreReader(store).loadTree().voxels.size();
+  const CommandResult r =
+      svo("bench build " + tetrahedron().string() + " --resolutions 32 --runs 1 --threads 1,2");
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  // One row per thread count, each with the octree's voxel count (the in-core and out-of-core builds agree).
+  std::istringstream lines(r.out);
+  std::vector<std::string> rows;
+  for (std::string line; std::getline(lines, line);)
+    if (line.rfind("32^3", 0) == 0) rows.push_back(line + " ");
+  ASSERT_EQ(rows.size(), 2u) << r.out;
+  std::string count = std::to_string(voxels);  // as the table writes it: 12,345
+  for (int i = int(count.size()) - 3; i > 0; i -= 3) count.insert(std::size_t(i), ",");
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    EXPECT_NE(rows[i].find(" " + count + " "), std::string::npos) << rows[i];
+    std::istringstream tokens(rows[i]);
+    std::string resolution, threads;
+    tokens >> resolution >> threads;
+    EXPECT_EQ(threads, std::to_string(i + 1)) << rows[i];
+  }
+  EXPECT_EQ(svo("bench build " + tetrahedron().string() + " --threads -1").exitCode, 2);
+}
+
 }  // namespace
 
 TEST_F(Cli, StreamingRenderStressAndTheirBadInput) {

@@ -2,6 +2,7 @@
 // same resolutions, same triangles, all threads, measured in the same run. OpenVDB stays in this file only:
 // its headers make a translation unit take ~30 s and ~1.2 GB to compile.
 #include <cstdint>
+#include <filesystem>
 #include <memory>
 #include <numeric>
 #include <optional>
@@ -10,7 +11,9 @@
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
+#include <tbb/global_control.h>
 #include <tbb/info.h>
+#include <unistd.h>
 
 #ifdef SVO_BENCH_PEERS
 #include <openvdb/openvdb.h>
@@ -27,6 +30,7 @@ namespace {
 struct BuildArgs {
   std::string mesh;
   std::string resolutions = "256,512,1024";
+  std::vector<int> threads{1, 2};
   int runs = 3;
 };
 
@@ -72,58 +76,96 @@ std::string megabytes(std::uint64_t bytes) {
   return fmt::format("{:.1f}", double(bytes) / (1 << 20));
 }
 
+// Cell level of the out-of-core column: 8^3 cells, enough to spread over any thread count measured here.
+constexpr int kBenchCellLevel = 3;
+
+std::string rate(double count, double seconds) {
+  return fmt::format("{:.2f}", count / seconds / 1e6);
+}
+
 void runBuildBench(const BuildArgs& args) {
   const std::vector<std::int64_t> resolutions = parseResolutions(args.resolutions, "--resolutions");
   requireRuns(args.runs);
+  std::vector<int> threadCounts;
+  for (const int t : args.threads) threadCounts.push_back(resolveThreads(t));
   const Mesh mesh = loadBenchMesh(args.mesh);
   const SceneTransform scene = fitSceneCube(mesh);
-  const int threads = tbb::info::default_concurrency();
+  // The out-of-core build reads the file itself, streamed when it is binary PLY.
+  const std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
+  const std::filesystem::path scratch =
+      std::filesystem::temp_directory_path() / fmt::format("svo_bench_build_{}.svo", ::getpid());
 
-  Table table({"resolution", "ESVO time", "ESVO leaves", "ESVO voxels", "ESVO MB", "VDB time", "VDB active",
-               "VDB MB", "ESVO/VDB"});
+  Table table({"resolution", "threads", "ESVO time", "OOC time", "VDB time", "ESVO Mtri/s", "ESVO Mvox/s",
+               "OOC Mvox/s", "ESVO leaves", "ESVO voxels", "ESVO MB", "VDB active", "VDB MB", "ESVO/VDB",
+               "OOC/VDB"});
   for (const std::int64_t resolution : resolutions) {
     const int levels = levelsOfResolution(resolution, "--resolutions");
     BuildOptions options;
     options.levels = levels;
     options.contours = true;
-    BuildStats stats;
-    std::uint64_t blockBytes = 0;
-    std::vector<double> samples;
-    spdlog::info("{}^3: ESVO buildOctree, {} runs ...", resolution, args.runs);
-    for (int i = 0; i < args.runs; ++i) {
-      Octree octree;
-      stats = {};
-      samples.push_back(timeSeconds([&] { octree = buildOctree(mesh, options, &stats); }));
-      blockBytes = octree.block.bytes().size();
-    }
-    const Summary esvo = summarize(std::move(samples));
-    const std::uint64_t totalVoxels =
-        std::accumulate(stats.voxelsPerLevel.begin(), stats.voxelsPerLevel.end(), std::uint64_t(0));
+    for (const int threads : threadCounts) {
+      const tbb::global_control limit(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
+      BuildStats stats;
+      std::uint64_t blockBytes = 0;
+      std::vector<double> samples;
+      spdlog::info("{}^3, {} threads: ESVO buildOctree, {} runs ...", resolution, threads, args.runs);
+      for (int i = 0; i < args.runs; ++i) {
+        Octree octree;
+        stats = {};
+        samples.push_back(timeSeconds([&] { octree = buildOctree(mesh, options, &stats); }));
+        blockBytes = octree.block.bytes().size();
+      }
+      const Summary esvo = summarize(std::move(samples));
+      const double voxels =
+          double(std::accumulate(stats.voxelsPerLevel.begin(), stats.voxelsPerLevel.end(), std::uint64_t(0)));
 
-    spdlog::info("{}^3: OpenVDB meshToLevelSet, {} runs ...", resolution, args.runs);
-    const std::optional<LevelSetResult> peer =
-        openVdbLevelSet(mesh, scene.origin, scene.size / double(resolution), args.runs);
-    // Without the peer its columns show a dash and the ratio says why.
-    const std::string none = "-";
-    table.addRow(
-        {fmt::format("{}^3", resolution), formatSeconds(esvo.median), formatCount(stats.leafVoxels),
-         formatCount(totalVoxels), megabytes(blockBytes), peer ? formatSeconds(peer->seconds.median) : none,
-         peer ? formatCount(peer->activeVoxels) : none, peer ? megabytes(peer->memoryBytes) : none,
-         peer ? fmt::format("{:.2f}x", esvo.median / peer->seconds.median) : std::string(kPeerNotBuilt)});
+      std::optional<Summary> outOfCore;
+      if (levels > 1) {
+        spdlog::info("{}^3, {} threads: ESVO out-of-core buildStore, {} runs ...", resolution, threads,
+                     args.runs);
+        OutOfCoreOptions ooc;
+        ooc.cellLevel = std::min(kBenchCellLevel, levels - 1);
+        ooc.threads = threads;
+        for (int i = 0; i < args.runs; ++i)
+          samples.push_back(timeSeconds([&] { buildStore(*source, options, {}, ooc, scratch); }));
+        std::filesystem::remove(scratch);
+        outOfCore = summarize(std::move(samples));
+      }
+
+      spdlog::info("{}^3, {} threads: OpenVDB meshToLevelSet, {} runs ...", resolution, threads, args.runs);
+      const std::optional<LevelSetResult> peer =
+          openVdbLevelSet(mesh, scene.origin, scene.size / double(resolution), args.runs);
+      // Without the peer its columns show a dash and the ratio says why.
+      const std::string none = "-";
+      table.addRow(
+          {fmt::format("{}^3", resolution), std::to_string(threads), formatSeconds(esvo.median),
+           outOfCore ? formatSeconds(outOfCore->median) : none,
+           peer ? formatSeconds(peer->seconds.median) : none,
+           rate(double(mesh.triangles.size()), esvo.median), rate(voxels, esvo.median),
+           outOfCore ? rate(voxels, outOfCore->median) : none, formatCount(stats.leafVoxels),
+           formatCount(std::uint64_t(voxels)), megabytes(blockBytes),
+           peer ? formatCount(peer->activeVoxels) : none, peer ? megabytes(peer->memoryBytes) : none,
+           peer ? fmt::format("{:.2f}x", esvo.median / peer->seconds.median) : std::string(kPeerNotBuilt),
+           peer && outOfCore ? fmt::format("{:.2f}x", outOfCore->median / peer->seconds.median) : none});
+    }
   }
 
-  printTitle("Building: ESVO octree vs OpenVDB level set, same triangles");
-  fmt::print("{}: {} triangles; scene cube {:.4g}; {} threads; median of {} runs\n", args.mesh,
-             formatCount(mesh.triangles.size()), scene.size, threads, args.runs);
+  printTitle("Building: ESVO octree (in core and out of core) vs OpenVDB level set, same triangles");
+  fmt::print("{}: {} triangles; scene cube {:.4g}; median of {} runs\n", args.mesh,
+             formatCount(mesh.triangles.size()), scene.size, args.runs);
   table.print();
   fmt::print(
       "ESVO: svo::buildOctree (voxelize with contours, colors, normals + block layout), levels = log2 "
-      "resolution;\n  leaves = leaf voxels, voxels = voxels of all levels, MB = block bytes.\n"
+      "resolution;\n  leaves = leaf voxels, voxels = voxels of all levels, MB = block bytes; Mtri/s and "
+      "Mvox/s = triangles and voxels (all levels) per second.\n"
+      "OOC: svo::buildStore, the out-of-core build from the file ({}) with cell level {}, spilled cells and "
+      "a "
+      "store written to {};\n  the same octree as ESVO's, plus zstd store writing.\n"
       "VDB: OpenVDB tools::meshToLevelSet<FloatGrid>, voxel size = scene cube / resolution, half width "
-      "{:.0f} "
-      "voxels;\n  active = active voxels of the narrow band, MB = Grid::memUsage.\n"
-      "ESVO/VDB: ratio of median times (< 1: ESVO faster).\n",
-      kLevelSetHalfWidth);
+      "{:.0f} voxels;\n  active = active voxels of the narrow band, MB = Grid::memUsage.\n"
+      "threads: oneTBB's limit for all three (the out-of-core build also builds that many cells at once).\n"
+      "ESVO/VDB, OOC/VDB: ratios of median times (< 1: ESVO faster).\n",
+      source->format(), kBenchCellLevel, scratch.parent_path().string(), kLevelSetHalfWidth);
 }
 
 }  // namespace
@@ -146,6 +188,9 @@ void addBuildBench(CLI::App& bench) {
   cmd->add_option("--resolutions", args->resolutions, "comma-separated powers of two (voxels per cube edge)")
       ->capture_default_str();
   cmd->add_option("--runs", args->runs, "timed runs per method; the median is reported")
+      ->capture_default_str();
+  cmd->add_option("--threads", args->threads, "thread counts, e.g. 1,2 (0 = all cores)")
+      ->delimiter(',')
       ->capture_default_str();
   cmd->callback([args] { runBuildBench(*args); });
 }
