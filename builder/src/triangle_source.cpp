@@ -380,6 +380,7 @@ class PlySource : public SummarizedSource {
   };
 
   void readVertices(ChunkReader& reader) {
+    skipElements(reader, layout_.vertexOffset - layout_.headerBytes, "vertices");
     const PlyElement& v = layout_.vertex;
     std::optional<Channel> xyz[3], rgba[4];
     std::size_t offset = 0;
@@ -431,11 +432,15 @@ class PlySource : public SummarizedSource {
       }
       reader.skip(record);
     }
-    // Elements between the vertices and the faces are skipped.
-    for (std::uint64_t skip = layout_.faceOffset - layout_.vertexOffset - v.count * record; skip > 0;) {
-      const std::size_t n = std::size_t(std::min<std::uint64_t>(skip, kReadChunk));
-      if (!reader.need(n)) fail(path_, "truncated before the faces");
-      reader.skip(n), skip -= n;
+    skipElements(reader, layout_.faceOffset - layout_.vertexOffset - v.count * record, "faces");
+  }
+
+  // Skips the records of elements the reader does not use.
+  void skipElements(ChunkReader& reader, std::uint64_t bytes, const char* before) const {
+    while (bytes > 0) {
+      const std::size_t n = std::size_t(std::min<std::uint64_t>(bytes, kReadChunk));
+      if (!reader.need(n)) fail(path_, std::string("truncated before the ") + before);
+      reader.skip(n), bytes -= n;
     }
   }
 

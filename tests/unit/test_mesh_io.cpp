@@ -740,14 +740,17 @@ TEST(TriangleSource, BinaryPlyStreamsExactlyWhatLoadMeshLoads) {
 TEST(TriangleSource, BinaryPlyFansPolygonsSkipsUnknownPropertiesAndDecodesColors) {
   TempDir dir;
   // Vertices with an extra double property between position and color; faces with a ushort count, a quad,
-  // a degenerate triangle and a scalar after the index list; an element between vertices and faces.
+  // a degenerate triangle and a scalar after the index list; elements before the vertices and between the
+  // vertices and the faces.
   const std::string header =
-      "ply\nformat binary_little_endian 1.0\ncomment hand-made\nelement vertex 5\nproperty float x\n"
+      "ply\nformat binary_little_endian 1.0\ncomment hand-made\nelement extra 3\nproperty short s\n"
+      "element vertex 5\nproperty float x\n"
       "property float y\nproperty float z\nproperty double quality\nproperty uchar red\nproperty uchar "
       "green\n"
       "property uchar blue\nproperty uchar alpha\nelement material 2\nproperty int id\n"
       "element face 3\nproperty list ushort uint vertex_indices\nproperty uchar flags\nend_header\n";
   PlyBytes b;
+  b.put(std::int16_t(-1)).put(std::int16_t(2)).put(std::int16_t(3));
   const float xyz[5][3] = {{0, 0, 0}, {2, 0, 0}, {2, 3, 0}, {0, 3, 0}, {1, 1, 5}};
   const std::uint8_t rgba[5][4] = {
       {255, 0, 0, 255}, {0, 128, 0, 255}, {0, 0, 64, 128}, {10, 20, 30, 40}, {1, 2, 3, 4}};
