@@ -157,7 +157,8 @@ nlohmann::json manifestOf(const TriangleSource& source, const BuildOptions& opti
 // The shallowest cell level whose fullest cell, by the surface area and triangles binned to it, fits the
 // memory left after the source and the partition; throws when even the deepest does not.
 int chooseCellLevel(const TriangleSource& source, const SceneTransform& transform,
-                    const BuildOptions& options, std::size_t memoryBytes, int concurrency) {
+                    const BuildOptions& options, std::size_t memoryBytes, int concurrency,
+                    const std::function<void(double)>& progress) {
   const double fixed = double(source.residentBytes()) + kPartitionBytes;
   const double perCell = (double(memoryBytes) - fixed) / double(std::max(1, concurrency));
   const auto sizeText = [&](double bytes) {
@@ -178,6 +179,7 @@ int chooseCellLevel(const TriangleSource& source, const SceneTransform& transfor
     return (std::uint64_t(c.z) << 42) | (std::uint64_t(c.y) << 21) | std::uint64_t(c.x);
   };
   std::unordered_map<std::uint64_t, Load> cells;
+  std::uint64_t read = 0;
   const double side = std::ldexp(1.0, deepest);
   source.read([&](std::span<const SourceTriangle> batch) {
     for (const SourceTriangle& t : batch) {
@@ -189,6 +191,8 @@ int chooseCellLevel(const TriangleSource& source, const SceneTransform& transfor
       load.area += 0.5 * glm::length(glm::cross(b - a, c - a));
       load.triangles += 1.0;
     }
+    read += batch.size();
+    progress(double(read) / double(std::max<std::uint64_t>(source.triangleCount(), 1)));
   });
   std::vector<std::pair<glm::ivec3, Load>> deepestCells;
   deepestCells.reserve(cells.size());
@@ -228,9 +232,14 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   OutOfCoreReport report;
   const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
   const int concurrency = std::max(1, ooc.threads);
-  report.cellLevel = ooc.cellLevel > 0
-                         ? ooc.cellLevel
-                         : chooseCellLevel(source, transform, options, ooc.memoryBytes, concurrency);
+  if (ooc.cellLevel > 0) {
+    report.cellLevel = ooc.cellLevel;
+  } else {
+    const auto planStart = std::chrono::steady_clock::now();
+    report.cellLevel = chooseCellLevel(source, transform, options, ooc.memoryBytes, concurrency,
+                                       [&](double f) { progress("plan", f); });
+    report.phaseSeconds["plan"] = seconds(planStart);
+  }
   const std::filesystem::path work =
       ooc.workDir.empty() ? std::filesystem::path(store.string() + ".build") : ooc.workDir;
 
