@@ -2,16 +2,14 @@
 // Any bytes given as a .ply file must end in a clean exception or triangles that read twice alike: never a
 // crash, a hang or a sanitizer report. Files the streaming reader declines go to loadMesh, stubbed here to
 // throw, so that the target needs neither assimp nor the rest of the builder.
-#include <unistd.h>
-
 #include <cstddef>
 #include <cstdint>
-#include <cstdio>
 #include <exception>
 #include <filesystem>
 #include <stdexcept>
 #include <string>
 
+#include "scratch_file.hpp"
 #include "svo/builder/mesh.hpp"
 
 namespace svo {
@@ -26,18 +24,8 @@ glm::vec4 displayToLinear(glm::vec4 c) {
 }  // namespace svo
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  // The reader takes a path: one scratch file per fuzzing process, in memory where /dev/shm exists.
-  static const std::filesystem::path path =
-      (std::filesystem::is_directory("/dev/shm") ? std::filesystem::path("/dev/shm")
-                                                 : std::filesystem::temp_directory_path()) /
-      ("svo_fuzz_ply_" + std::to_string(::getpid()) + ".ply");
-  if (std::FILE* f = std::fopen(path.c_str(), "wb")) {
-    const bool written = size == 0 || std::fwrite(data, 1, size, f) == size;
-    std::fclose(f);
-    if (!written) return 0;
-  } else {
-    return 0;
-  }
+  static const std::filesystem::path path = svofuzz::scratchPath("svo_fuzz_ply_", ".ply");
+  if (!svofuzz::writeScratch(path, data, size)) return 0;
   try {
     const auto source = svo::openTriangleSource(path);
     std::uint64_t read = 0;
