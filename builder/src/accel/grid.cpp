@@ -325,6 +325,9 @@ class GridAccel final : public Accel {
     if (!clipRay(r, g.box, fat, t0, t1)) return false;
     glm::ivec3 idx = g.clampIndex(r.o + r.d * t0), step(0);
     dvec3 tNext(kInfinity), tDelta(kInfinity);
+    // The cell's index follows the steps: one add per step instead of the full product per cell.
+    std::size_t cell = g.cellIndex(idx.x, idx.y, idx.z);
+    std::ptrdiff_t indexStep[3] = {0, 0, 0};
     for (int a = 0; a < 3; ++a) {
       if (r.d[a] > 0.0) {
         step[a] = 1;
@@ -336,11 +339,13 @@ class GridAccel final : public Accel {
         tDelta[a] = -g.cell[a] * r.inv[a];
       }
       if (g.res[a] == 1) tNext[a] = kInfinity;  // one cell along this axis: never step
+      const std::ptrdiff_t stride = a == 0 ? 1 : (a == 1 ? g.res.x : std::ptrdiff_t(g.res.x) * g.res.y);
+      indexStep[a] = step[a] * stride;
     }
     for (;;) {
       const int a = tNext.x <= tNext.y && tNext.x <= tNext.z ? 0 : (tNext.y <= tNext.z ? 1 : 2);
       const double cellExit = std::min(tNext[a], t1);
-      const Cell& c = cells_[g.cellIndex(idx.x, idx.y, idx.z)];
+      const Cell& c = cells_[cell];
       if (c.count == kSubGrid) {
         if (traverse(r, c.first, best, visit)) return true;
       } else {
@@ -350,6 +355,7 @@ class GridAccel final : public Accel {
       if (best.t <= cellExit || tNext[a] > t1) return false;
       idx[a] += step[a];
       if (idx[a] < 0 || idx[a] >= g.res[a]) return false;
+      cell = std::size_t(std::ptrdiff_t(cell) + indexStep[a]);
       tNext[a] += tDelta[a];
     }
   }
