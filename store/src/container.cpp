@@ -682,14 +682,14 @@ std::span<SliceVoxel> StoreReader::claimParents(std::uint32_t id, std::vector<Sl
   return {lo, hi};
 }
 
-std::uint64_t StoreReader::verify(const std::function<void(double)>& progress) const {
+std::uint64_t StoreReader::verify(const std::function<void(double)>& progress, std::uint64_t* leaves) const {
   std::vector<std::vector<std::uint32_t>> childSlices(slices_.size());
   std::vector<std::uint32_t> roots;
   for (std::uint32_t i = 0; i < slices_.size(); ++i)
     (slices_[i].parentSlice == SliceInfo::kNoSlice ? roots : childSlices[slices_[i].parentSlice])
         .push_back(i);
   if (roots.size() != 1) fail(path_, std::to_string(roots.size()) + " slices start the hierarchy (one must)");
-  std::uint64_t voxels = 1, visited = 0;
+  std::uint64_t voxels = 1, leafVoxels = 0, visited = 0;
   // Depth first: a slice's voxels stay decoded while the slices below it are checked.
   const auto visit = [&](auto&& self, std::uint32_t id, std::span<SliceVoxel> parents) -> void {
     const SliceInfo& s = slices_[id];
@@ -706,11 +706,15 @@ std::uint64_t StoreReader::verify(const std::function<void(double)>& progress) c
         throw sliceError(child, "its cube does not lie one level below its parent slice's");
       self(self, child, claimParents(child, decoded, covered));
     }
+    // Every slice below has set its parents' child masks by now.
+    leafVoxels += std::uint64_t(
+        std::count_if(decoded.begin(), decoded.end(), [](const SliceVoxel& v) { return v.childMask == 0; }));
   };
   SliceVoxel root{glm::ivec3(0), 0, false, 0, header_.rootColor, header_.rootNormal};
   visit(visit, roots[0], std::span<SliceVoxel>(&root, 1));
   if (visited != slices_.size())
     fail(path_, std::to_string(slices_.size() - visited) + " slices are not reachable from the first");
+  if (leaves) *leaves = leafVoxels;
   return voxels;
 }
 

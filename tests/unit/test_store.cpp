@@ -8,6 +8,7 @@
 //    directory or slice named), never decoded; wrong magic, version, a directory past the end, zero length.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -115,6 +116,13 @@ TEST(Store, WritingTheBuilderTreeDirectlyGivesTheSameOctree) {
   store.sliceBytes = 1024;
   svo::writeStore(path, tree, inCore.transform, inCore.parameters, store);
   EXPECT_TRUE(sameBlock(inCore, svo::readOctree(path)));
+  // svo verify's depth-first walk counts what the builder made: every voxel, and the leaves.
+  std::uint64_t leaves = 0;
+  const svo::StoreReader reader(path);
+  ASSERT_GT(reader.slices().size(), 4u);
+  EXPECT_EQ(reader.verify(nullptr, &leaves), tree.voxels.size());
+  EXPECT_EQ(leaves, std::uint64_t(std::count_if(tree.voxels.begin(), tree.voxels.end(),
+                                                [](const svo::VoxelRecord& v) { return v.childMask == 0; })));
   fs::remove(path);
 }
 

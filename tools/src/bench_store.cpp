@@ -325,13 +325,9 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
   for (const SliceInfo& s : slices) add(total, summarizeSlice(s, h));
 
   // Bytes per leaf voxel, per part: raw bytes exactly, disk bytes by each slice's compression ratio.
-  spdlog::info("{}: loading the tree to count leaf voxels ...", path.string());
+  spdlog::info("{}: counting leaf voxels (svo verify's walk, one slice chain in memory) ...", path.string());
   std::uint64_t leaves = 0;
-  {
-    const VoxelTree tree = reader.loadTree();
-    leaves = std::uint64_t(std::count_if(tree.voxels.begin(), tree.voxels.end(),
-                                         [](const VoxelRecord& v) { return v.childMask == 0; }));
-  }
+  reader.verify(nullptr, &leaves);
   double diskHierarchy = 0, diskContours = 0, diskColors = 0, diskNormals = 0;
   for (const SliceInfo& s : slices) {
     const LevelSummary l = summarizeSlice(s, h);

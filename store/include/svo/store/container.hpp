@@ -195,8 +195,10 @@ class StoreReader {
   // Reads, checks and decodes every slice onto its parents, depth first over the slice hierarchy (one chain
   // of slices in memory at a time, so any size of store): checksums, heads against the directory, sections,
   // each slice's cube within its parent slice's cube one level down, no two slices over one parent voxel,
-  // every slice reachable from the root. Throws like loadTree; returns the voxels counted.
-  std::uint64_t verify(const std::function<void(double)>& progress = nullptr) const;
+  // every slice reachable from the root. Throws like loadTree; returns the voxels counted, and the leaf
+  // voxels (no children) in `leaves` when given.
+  std::uint64_t verify(const std::function<void(double)>& progress = nullptr,
+                       std::uint64_t* leaves = nullptr) const;
   // Decodes slice `slice` (its bytes from readSlice) onto its parents: the voxels of the level above in its
   // cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
   // Throws SliceError when the bytes disagree with the directory or the parents.
