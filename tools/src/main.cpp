@@ -1,6 +1,7 @@
 // `svo`: one binary, subcommands. Errors from bad input reach the user as one line and a non-zero exit.
 #include <cstdio>
 #include <exception>
+#include <new>
 
 #include <spdlog/spdlog.h>
 
@@ -29,6 +30,9 @@ int main(int argc, char** argv) {
   } catch (const svo::tools::UsageError& e) {
     std::fprintf(stderr, "svo: %s\n", e.what());
     return 2;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "svo: out of memory (an allocation failed; try a smaller input or budget)\n");
+    return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "svo: %s\n", e.what());
     return 1;
