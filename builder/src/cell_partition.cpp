@@ -84,7 +84,6 @@ void CellPartition::flush() {
     if (!file || std::fwrite(&header, sizeof header, 1, file.get()) != 1 ||
         std::fwrite(packed.data(), 1, n, file.get()) != n || std::fflush(file.get()) != 0)
       throw std::runtime_error(fileOf(cell).string() + ": cannot write (disk full?)");
-    bytesOnDisk_ += sizeof header + n;
     std::vector<char>().swap(b);  // frees (`b = {}` would keep the capacity)
   }
   buffered_ = 0;

@@ -25,7 +25,6 @@ class CellPartition {
   // A cell's triangles, in the order appended (flush() first). Thread-safe once appending is over.
   std::vector<SourceTriangle> read(std::uint32_t cell) const;
   void remove(std::uint32_t cell);  // frees the cell's disk space
-  std::uint64_t bytesOnDisk() const { return bytesOnDisk_; }
 
  private:
   std::filesystem::path fileOf(std::uint32_t cell) const;
@@ -34,7 +33,6 @@ class CellPartition {
   std::size_t recordBytes_;
   std::vector<std::vector<char>> buffers_;  // per cell, packed records not yet written
   std::size_t buffered_ = 0;
-  std::uint64_t bytesOnDisk_ = 0;
 };
 
 }  // namespace svo

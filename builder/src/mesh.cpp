@@ -41,9 +41,13 @@ bool Mesh::hasColor() const {
   return false;
 }
 
+const Material& materialAt(const std::vector<Material>& materials, std::size_t index) {
+  return index < materials.size() ? materials[index] : kWhiteMaterial;
+}
+
 const Material& Mesh::materialOf(std::size_t triangle) const {
   const std::size_t index = triangleMaterials.empty() ? 0 : triangleMaterials.at(triangle);
-  return index < materials.size() ? materials[index] : kWhiteMaterial;
+  return materialAt(materials, index);
 }
 
 bool isDegenerate(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {

@@ -7,6 +7,7 @@
 // streaming reader does not cover (ASCII or big-endian files, lists in the vertex element, a face element
 // before the vertices) is handed to loadMesh, which reads every PLY assimp can.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -47,7 +48,7 @@ constexpr std::size_t kMaxPlyHeader = std::size_t(1) << 16;
 
 // What every source reports besides its triangles.
 struct Summary {
-  std::string name, format;
+  std::string format;
   std::uint64_t triangles = 0;
   std::size_t dropped = 0;
   glm::dvec3 lower{std::numeric_limits<double>::max()}, upper{-std::numeric_limits<double>::max()};
@@ -65,7 +66,6 @@ std::size_t bytesOf(const std::vector<T>& v) {
 
 class SummarizedSource : public TriangleSource {
  public:
-  const std::string& name() const override { return summary_.name; }
   std::uint64_t triangleCount() const override { return summary_.triangles; }
   std::size_t droppedDegenerate() const override { return summary_.dropped; }
   const std::string& format() const override { return summary_.format; }
@@ -89,10 +89,9 @@ class SummarizedSource : public TriangleSource {
 
 class MeshSource : public SummarizedSource {
  public:
-  MeshSource(const Mesh& mesh, std::string name, std::unique_ptr<Mesh> owned = nullptr,
-             std::string format = "", std::size_t dropped = 0)
+  MeshSource(const Mesh& mesh, std::unique_ptr<Mesh> owned = nullptr, std::string format = "",
+             std::size_t dropped = 0)
       : owned_(std::move(owned)), mesh_(mesh) {
-    summary_.name = std::move(name);
     summary_.format = format.empty() ? "mesh in memory" : std::move(format);
     summary_.triangles = mesh.triangles.size();
     summary_.dropped = dropped;
@@ -335,7 +334,6 @@ class PlySource : public SummarizedSource {
  public:
   PlySource(const fs::path& path, PlyLayout layout, File file, const std::string& header)
       : path_(path), layout_(std::move(layout)) {
-    summary_.name = path.string();
     summary_.format = "PLY (binary, streamed)";
     Hasher fingerprint;
     fingerprint.add(header.data(), header.size());
@@ -399,6 +397,10 @@ class PlySource : public SummarizedSource {
     const bool floats = xyz[0]->type == PlyType::Float32 && xyz[1]->type == PlyType::Float32 &&
                         xyz[2]->type == PlyType::Float32;
     summary_.vertexColors = rgba[0] && rgba[1] && rgba[2];
+    // Each 8-bit value decoded once, as loadMesh decodes it (assimp divides by 255 in float); the channels
+    // decode independently, so one table serves them all.
+    for (int v = 0; v < 256; ++v)
+      linear_[std::size_t(v)] = detail::displayToLinear(glm::vec4(float(v) / 255.0f));
     const std::size_t record = v.fixedBytes();
     if (v.count > 0xffffffffull) fail(path_, "more than 2^32 vertices");
     // Room for what the file can hold, not what a damaged header claims.
@@ -449,11 +451,10 @@ class PlySource : public SummarizedSource {
   }
   std::size_t vertexCount() const { return floatPositions_.size() + doublePositions_.size(); }
 
-  // Linear colors as loadMesh decodes a PLY's 8-bit ones (assimp divides by 255 in float).
+  // Linear colors as loadMesh decodes a PLY's 8-bit ones, from the table (every pass reads every corner).
   glm::vec4 color(std::uint32_t i) const {
     const glm::u8vec4 c = colors_[i];
-    return detail::displayToLinear(
-        glm::vec4(float(c.r) / 255.0f, float(c.g) / 255.0f, float(c.b) / 255.0f, float(c.a) / 255.0f));
+    return {linear_[c.r].r, linear_[c.g].g, linear_[c.b].b, linear_[c.a].a};
   }
 
   // Visits every non-degenerate triangle in file order (polygons fanned from their first corner); returns
@@ -514,13 +515,14 @@ class PlySource : public SummarizedSource {
   std::vector<glm::vec3> floatPositions_;    // when x, y, z are floats
   std::vector<glm::dvec3> doublePositions_;  // otherwise
   std::vector<glm::u8vec4> colors_;
+  std::array<glm::vec4, 256> linear_;  // 8-bit value -> linear, per channel (alpha is linear already)
 };
 
 }  // namespace
 
 std::unique_ptr<TriangleSource> meshTriangleSource(const Mesh& mesh, std::string name) {
   if (mesh.triangles.empty()) throw std::runtime_error(name + ": mesh has no triangles");
-  return std::make_unique<MeshSource>(mesh, std::move(name));
+  return std::make_unique<MeshSource>(mesh);
 }
 
 std::unique_ptr<TriangleSource> openTriangleSource(const fs::path& path) {
@@ -540,8 +542,7 @@ std::unique_ptr<TriangleSource> openTriangleSource(const fs::path& path) {
   MeshLoadReport report;
   auto mesh = std::make_unique<Mesh>(loadMesh(path, &report));
   const Mesh& view = *mesh;
-  return std::make_unique<MeshSource>(view, path.string(), std::move(mesh), report.format,
-                                      report.droppedDegenerate);
+  return std::make_unique<MeshSource>(view, std::move(mesh), report.format, report.droppedDegenerate);
 }
 
 }  // namespace svo

@@ -749,11 +749,9 @@ class CellVoxelizer {
 
   std::optional<dvec4> colorOf(const Piece& piece, const Triangle& t, const SourceTriangle& s) const {
     if (!colors_) return std::nullopt;
-    const std::vector<Material>& materials = source_.materials();
-    static const Material kWhite{};
     return pieceColor(piece, t, source_.hasVertexColors() ? s.colors.data() : nullptr,
-                      source_.hasUvs() ? s.uvs.data() : nullptr,
-                      s.material < materials.size() ? materials[s.material] : kWhite, source_.textures());
+                      source_.hasUvs() ? s.uvs.data() : nullptr, materialAt(source_.materials(), s.material),
+                      source_.textures());
   }
 
   // Streams the source once; every triangle visits the top voxels it overlaps, parents before children and

@@ -126,10 +126,11 @@ void runBuildBench(const BuildArgs& args) {
         OutOfCoreOptions ooc;
         ooc.cellLevel = std::min(kBenchCellLevel, levels - 1);
         ooc.threads = threads;
+        std::vector<double> oocSamples;
         for (int i = 0; i < args.runs; ++i)
-          samples.push_back(timeSeconds([&] { buildStore(*source, options, {}, ooc, scratch); }));
+          oocSamples.push_back(timeSeconds([&] { buildStore(*source, options, {}, ooc, scratch); }));
         std::filesystem::remove(scratch);
-        outOfCore = summarize(std::move(samples));
+        outOfCore = summarize(std::move(oocSamples));
       }
 
       spdlog::info("{}^3, {} threads: OpenVDB meshToLevelSet, {} runs ...", resolution, threads, args.runs);

@@ -183,7 +183,7 @@ void compare(const Image& reference, const Image& voxels, double finestVoxel, Me
   m.psnr = r.PSNR;
   const auto onEdge = [&](int x, int y) {
     const float d = reference.depth[std::size_t(y) * std::size_t(reference.width) + std::size_t(x)];
-    for (const auto [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+    for (const auto& [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
       const int nx = x + dx, ny = y + dy;
       if (nx < 0 || ny < 0 || nx >= reference.width || ny >= reference.height) continue;
       const float n = reference.depth[std::size_t(ny) * std::size_t(reference.width) + std::size_t(nx)];

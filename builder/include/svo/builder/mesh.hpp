@@ -49,6 +49,9 @@ struct Mesh {
   const Material& materialOf(std::size_t triangle) const;
 };
 
+// Material `index` of `materials`, white where there is none (a mesh without materials).
+const Material& materialAt(const std::vector<Material>& materials, std::size_t index);
+
 struct MeshLoadReport {
   std::size_t droppedDegenerate = 0;  // zero-area or repeated-vertex triangles removed
   std::string format;                 // what the file was read as
@@ -79,7 +82,6 @@ struct SourceTriangle {
 class TriangleSource {
  public:
   virtual ~TriangleSource() = default;
-  virtual const std::string& name() const = 0;
   virtual std::uint64_t triangleCount() const = 0;  // after dropping degenerate ones
   virtual std::size_t droppedDegenerate() const = 0;
   virtual const std::string& format() const = 0;
