@@ -10,6 +10,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 
 #include <glm/common.hpp>
 #include <glm/geometric.hpp>
@@ -40,14 +41,31 @@ int slotToward(const glm::ivec3& coord, int shift) {
   return b.x | b.y << 1 | b.z << 2;
 }
 
+bool wholeCube(std::uint8_t firstSlot, std::uint8_t lastSlot) {
+  return firstSlot == 0 && lastSlot == 7;
+}
+
+// Where a region is entered from its parent's block: the cube's voxel, or each sub-cube's voxel of a run
+// (present or not), in Morton order, and their level.
+std::pair<std::vector<glm::ivec3>, int> entryVoxels(int cubeLevel, glm::ivec3 cube, std::uint8_t firstSlot,
+                                                    std::uint8_t lastSlot) {
+  if (wholeCube(firstSlot, lastSlot)) return {{cube}, cubeLevel};
+  std::vector<glm::ivec3> out;
+  for (int slot = firstSlot; slot <= lastSlot; ++slot) out.push_back(childCoord(cube, slot));
+  return {out, cubeLevel + 1};
+}
+
 std::uint32_t rootValue(const BlockView& block, AttachmentType type) {
   const AttachmentEntry* e = block.attachment(type);
   return e ? e->rootValue : 0;
 }
 
-// The subtree below `start` as far as the blocks hold it, level by level in Morton order. `descriptor` is the
-// start voxel's (nullptr when it has no children here). Stubs read as voxels without children.
-VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& start) {
+// The subtree below `start` as far as the blocks hold it, level by level in Morton order, through the
+// start's children in slots [firstSlot, lastSlot] only (a run's region; its siblings may be linked to other
+// blocks). `descriptor` is the start voxel's (nullptr when it has no children here). Stubs read as voxels
+// without children.
+VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& start,
+                        std::uint8_t firstSlot = 0, std::uint8_t lastSlot = 7) {
   VoxelLevels levels{{start}};
   std::vector<const ChildDescriptor*> descriptors{descriptor};
   while (true) {
@@ -58,9 +76,13 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
       const ChildDescriptor* d = descriptors[i];
       if (!d || d->isStub()) continue;
       SliceVoxel& parent = level[i];
-      parent.childMask = d->validMask();
+      std::uint8_t mask = d->validMask();
+      if (levels.size() == 1)
+        for (int slot = 0; slot < 8; ++slot)
+          if (slot < firstSlot || slot > lastSlot) mask &= std::uint8_t(~(1u << slot));
+      parent.childMask = mask;
       for (int slot = 0; slot < 8; ++slot) {
-        if (!(d->validMask() >> slot & 1u)) continue;
+        if (!(mask >> slot & 1u)) continue;
         SliceVoxel c{childCoord(parent.coord, slot), 0, false, 0, parent.color, parent.normal};
         if (auto contour = BlockView::contour(d, slot)) c.hasContour = true, c.contour = *contour;
         if (auto v = BlockView::attribute(d, slot, AttachmentType::Color)) c.color = *v;
@@ -114,26 +136,28 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
   regionOf_.assign(n, 0), indexInRegion_.assign(n, 0), failed_.assign(n, 0), inFlight_.assign(n, 0);
   wantedPriority_.assign(n, 0.0), viewPriority_.assign(n, 0.0), denied_.assign(n, 0);
   cubeLevelsOf_.resize(std::size_t(kMaxLevels) + 2);
-  std::map<std::uint64_t, std::uint32_t> regionAt;  // (cube level, cube) -> region
+  std::map<std::tuple<int, int, int, int, int, int>, std::uint32_t> regionAt;  // (level, cube, run) -> region
   const auto fail = [&](std::uint32_t s, const std::string& what) {
     throw std::runtime_error(path.string() + ": slice " + std::to_string(s) + " " + what);
   };
   for (std::uint32_t s = 0; s < n; ++s) {
     const SliceInfo& info = slices[s];
-    const std::uint64_t key = sliceKey(0, info.cubeLevel, info.cubeCoord);
-    auto [it, fresh] = regionAt.try_emplace(key, std::uint32_t(regions_.size()));
+    auto [it, fresh] = regionAt.try_emplace(
+        {info.cubeLevel, info.cubeCoord.x, info.cubeCoord.y, info.cubeCoord.z, info.firstSlot, info.lastSlot},
+        std::uint32_t(regions_.size()));
     if (fresh) {
       Region r;
       r.cubeLevel = info.cubeLevel;
       r.cubeCoord = info.cubeCoord;
+      r.firstSlot = info.firstSlot, r.lastSlot = info.lastSlot;
       if (info.parentSlice == SliceInfo::kNoSlice) {
         if (!regions_.empty()) fail(s, "starts a second root region");
       } else {
         if (info.parentSlice >= s) fail(s, "comes before its parent slice");
         r.parent = std::int32_t(regionOf_[info.parentSlice]);
         const Region& p = regions_[std::size_t(r.parent)];
-        if (p.slices.back() != info.parentSlice || p.cubeLevel >= r.cubeLevel)
-          fail(s, "does not continue its parent cube's last slice");
+        if (p.slices.back() != info.parentSlice || !sliceWithin(info, slices[info.parentSlice]))
+          fail(s, "does not continue its parent region's last slice");
         regions_[std::size_t(r.parent)].children.push_back(std::uint32_t(regions_.size()));
       }
       if (regions_.empty() && info.parentSlice != SliceInfo::kNoSlice) fail(s, "has no root region");
@@ -146,11 +170,11 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
     regionOf_[s] = it->second;
     indexInRegion_[s] = std::uint32_t(r.slices.size());
     r.slices.push_back(s);
-    if (info.cubeLevel <= kMaxKeyedCubeLevel && info.voxelLevel <= kMaxLevels) {
-      sliceAt_[sliceKey(info.voxelLevel, info.cubeLevel, info.cubeCoord)] = s;
+    const auto [keys, keyLevel] = entryVoxels(info.cubeLevel, info.cubeCoord, info.firstSlot, info.lastSlot);
+    if (keyLevel <= kMaxKeyedCubeLevel && info.voxelLevel <= kMaxLevels) {
+      for (const glm::ivec3& key : keys) sliceAt_[sliceKey(info.voxelLevel, keyLevel, key)] = s;
       auto& levels = cubeLevelsOf_[std::size_t(info.voxelLevel)];
-      if (std::find(levels.begin(), levels.end(), info.cubeLevel) == levels.end())
-        levels.push_back(info.cubeLevel);
+      if (std::find(levels.begin(), levels.end(), keyLevel) == levels.end()) levels.push_back(keyLevel);
     }
   }
   if (regions_.empty()) throw std::runtime_error(path.string() + ": the store has no slices");
@@ -277,7 +301,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
         if (auto v = BlockView::attribute(d, slot, AttachmentType::Normal)) voxel.normal = *v;
         d = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
       }
-      levels = readSubtree(d, voxel);
+      levels = readSubtree(d, voxel, region.firstSlot, region.lastSlot);
     }
   } catch (const std::exception& e) {
     fail(request.slice, e.what());
@@ -303,31 +327,49 @@ Pager::Prepared Pager::prepare(const Request& request) {
 
   try {
     VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
-    // Completing the region: its child regions' cube voxels get descriptors to link them by (stubs where the
-    // voxel has no children here).
-    std::map<std::uint32_t, std::size_t> recordOf;
+    std::vector<std::size_t> levelStart{0};
+    for (const auto& l : levels) levelStart.push_back(levelStart.back() + l.size());
+    // The record of voxel `coord` at `depth` below the cube, or nullopt.
+    const auto recordAt = [&](std::size_t depth, const glm::ivec3& coord) -> std::optional<std::size_t> {
+      if (depth >= levels.size()) return std::nullopt;
+      const auto& level = levels[depth];
+      const auto it =
+          std::lower_bound(level.begin(), level.end(), coord,
+                           [](const SliceVoxel& v, const glm::ivec3& k) { return mortonLess(v.coord, k); });
+      if (it == level.end() || it->coord != coord) return std::nullopt;
+      return levelStart[depth] + std::size_t(it - level.begin());
+    };
+    // Completing the region: its child regions' entry voxels get descriptors to link them by (stubs where
+    // the voxel has no children here).
+    std::map<std::uint32_t, std::vector<std::pair<glm::ivec3, std::size_t>>> childRecords;
     if (resident + out.added == region.slices.size()) {
-      std::vector<std::size_t> levelStart{0};
-      for (const auto& l : levels) levelStart.push_back(levelStart.back() + l.size());
       for (const std::uint32_t child : region.children) {
         const Region& c = regions_[child];
-        const std::size_t depth = std::size_t(c.cubeLevel - region.cubeLevel);
-        if (depth >= levels.size()) throw std::runtime_error("a child region's cube lies below its levels");
-        const auto& level = levels[depth];
-        const auto it =
-            std::lower_bound(level.begin(), level.end(), c.cubeCoord,
-                             [](const SliceVoxel& v, const glm::ivec3& k) { return mortonLess(v.coord, k); });
-        if (it == level.end() || it->coord != c.cubeCoord)
-          throw std::runtime_error("a child region's cube voxel is missing");
-        const std::size_t record = levelStart[depth] + std::size_t(it - level.begin());
-        if (tree.voxels[record].childMask == 0) tree.voxels[record].stub = true;
-        recordOf[child] = record;
+        const auto [coords, level] = entryVoxels(c.cubeLevel, c.cubeCoord, c.firstSlot, c.lastSlot);
+        auto& records = childRecords[child];
+        for (const glm::ivec3& coord : coords) {
+          const auto record = recordAt(std::size_t(level - region.cubeLevel), coord);
+          if (!record) continue;  // a sub-cube of the run without voxels
+          if (tree.voxels[*record].childMask == 0) tree.voxels[*record].stub = true;
+          records.push_back({coord, *record});
+        }
+        if (records.empty()) throw std::runtime_error("a child region's voxels are missing");
       }
     }
+    // Its own entry voxels that have children, which the parent's links lead to.
+    std::vector<std::pair<glm::ivec3, std::size_t>> entryRecords;
+    const auto [coords, level] =
+        entryVoxels(region.cubeLevel, region.cubeCoord, region.firstSlot, region.lastSlot);
+    for (const glm::ivec3& coord : coords)
+      if (const auto record = recordAt(std::size_t(level - region.cubeLevel), coord);
+          record && tree.voxels[*record].childMask != 0)
+        entryRecords.push_back({coord, *record});
     std::vector<std::uint32_t> slotOf;
     out.block = layoutBlock(tree, LayoutOptions{}, nullptr, &slotOf);
     out.rootSlot = out.block.view().info().rootSlot;
-    for (const auto& [child, record] : recordOf) out.childSlot[child] = slotOf[record];
+    for (const auto& [coord, record] : entryRecords) out.entries.push_back({coord, slotOf[record]});
+    for (const auto& [child, records] : childRecords)
+      for (const auto& [coord, record] : records) out.childSlots[child].push_back({coord, slotOf[record]});
   } catch (const std::exception& e) {
     fail(region.slices[first + out.added - 1], e.what());
     out.added = 0;
@@ -339,15 +381,25 @@ Pager::Prepared Pager::prepare(const Request& request) {
 // ---------------------------------------------------------------------------------------------------------
 // Commits, links and eviction (render thread, exclusive lock).
 
+// The parent's slot of `coord`, one of a child region's entry voxels.
+std::uint32_t Pager::parentSlotOf(const Region& parent, std::uint32_t child, const glm::ivec3& coord) const {
+  const auto slots = parent.childSlots.find(child);
+  if (slots != parent.childSlots.end())
+    for (const auto& [c, slot] : slots->second)
+      if (c == coord) return slot;
+  throw std::logic_error("pager: a region's entry voxel has no slot in its parent");
+}
+
 void Pager::link(std::uint32_t index) {
   const Region& region = regions_[index];
   Region& parent = regions_[std::size_t(region.parent)];
-  const auto it = parent.childSlot.find(index);
-  if (it == parent.childSlot.end()) throw std::logic_error("pager: a region has no slot in its parent");
-  ChildDescriptor* at = descriptorAt(parent, it->second);
-  parent.unlinked.try_emplace(it->second, *at);
-  const ChildDescriptor* target = descriptorAt(region, region.rootSlot);
-  *at = ChildDescriptor::link(std::int32_t(target - at));
+  for (const auto& [coord, slot] : region.entries) {
+    const std::uint32_t parentSlot = parentSlotOf(parent, index, coord);
+    ChildDescriptor* at = descriptorAt(parent, parentSlot);
+    parent.unlinked.try_emplace(parentSlot, *at);
+    const ChildDescriptor* target = descriptorAt(region, slot);
+    *at = ChildDescriptor::link(std::int32_t(target - at));
+  }
 }
 
 void Pager::relinkAll() {
@@ -358,9 +410,11 @@ void Pager::relinkAll() {
 void Pager::evict(std::uint32_t index, PagerStats& stats) {
   Region& region = regions_[index];
   Region& parent = regions_[std::size_t(region.parent)];
-  const std::uint32_t slot = parent.childSlot.at(index);
-  *descriptorAt(parent, slot) = parent.unlinked.at(slot);
-  parent.unlinked.erase(slot);
+  for (const auto& [coord, slot] : region.entries) {
+    const std::uint32_t parentSlot = parentSlotOf(parent, index, coord);
+    *descriptorAt(parent, parentSlot) = parent.unlinked.at(parentSlot);
+    parent.unlinked.erase(parentSlot);
+  }
   pool_.erase(region.block);
   stats.evicted += region.resident;
   region.resident = 0;
@@ -423,7 +477,8 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
   if (!id) throw std::logic_error("pager: the pool refused a block that fits");
   region.block = *id;
   region.rootSlot = prepared.rootSlot;
-  region.childSlot = std::move(prepared.childSlot);
+  region.entries = std::move(prepared.entries);
+  region.childSlots = std::move(prepared.childSlots);
   region.unlinked.clear();
   for (std::uint32_t k = 0; k < prepared.added; ++k) denied_[region.slices[first + k]] = 0;
   region.resident += prepared.added;
@@ -661,19 +716,23 @@ void Pager::checkInvariants() const {
         fail(name + ": page header " + std::to_string(page) + " does not lead to the info section");
     const ChildDescriptor* root = descriptorAt(region, region.rootSlot);
     if (root->validMask() == 0) fail(name + ": its root descriptor is a stub or link");
+    if (region.entries.empty()) fail(name + " has no entry voxel");
     if (region.parent >= 0) {
       const Region& parent = regions_[std::size_t(region.parent)];
       if (parent.resident != parent.slices.size()) fail(name + " is resident below an incomplete parent");
-      const ChildDescriptor* at = descriptorAt(parent, parent.childSlot.at(r));
-      if (!at->isLink() || at + at->linkOffset() != root) fail(name + " is not linked from its parent");
+      for (const auto& [coord, slot] : region.entries) {
+        const ChildDescriptor* at = descriptorAt(parent, parentSlotOf(parent, r, coord));
+        if (!at->isLink() || at + at->linkOffset() != descriptorAt(region, slot))
+          fail(name + " is not linked from its parent");
+      }
     }
     for (const std::uint32_t c : region.children) {
-      const auto slot = region.childSlot.find(c);
-      if (region.resident == region.slices.size() && slot == region.childSlot.end())
+      const auto slots = region.childSlots.find(c);
+      if (region.resident == region.slices.size() && slots == region.childSlots.end())
         fail(name + " has no slot for child region " + std::to_string(c));
-      if (slot != region.childSlot.end() && !regions_[c].resident &&
-          descriptorAt(region, slot->second)->isLink())
-        fail(name + " links evicted region " + std::to_string(c));
+      if (slots != region.childSlots.end() && !regions_[c].resident)
+        for (const auto& [coord, slot] : slots->second)
+          if (descriptorAt(region, slot)->isLink()) fail(name + " links evicted region " + std::to_string(c));
     }
   }
   if (held != pool_.usedBytes())

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cmath>
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
@@ -14,6 +15,7 @@
 #include <unistd.h>
 #include <xxhash.h>
 #include <zstd.h>
+#include <glm/common.hpp>
 
 namespace svo {
 namespace {
@@ -62,7 +64,7 @@ struct DirectoryEntry {
   std::uint32_t compressedBytes, rawBytes;
   std::int32_t cubeCoord[3];
   std::uint8_t cubeLevel, voxelLevel;
-  std::uint16_t reserved;
+  std::uint8_t firstSlot, lastSlot;
   std::uint32_t parentCount, voxelCount, contourCount, colorCount, normalCount;
   std::uint32_t parentSlice;
 };
@@ -98,7 +100,8 @@ DirectoryEntry entryOf(const SliceInfo& s) {
           {s.cubeCoord.x, s.cubeCoord.y, s.cubeCoord.z},
           std::uint8_t(s.cubeLevel),
           std::uint8_t(s.voxelLevel),
-          0,
+          s.firstSlot,
+          s.lastSlot,
           s.parentCount,
           s.voxelCount,
           s.contourCount,
@@ -115,6 +118,8 @@ SliceInfo sliceOf(const DirectoryEntry& e) {
   s.cubeCoord = {e.cubeCoord[0], e.cubeCoord[1], e.cubeCoord[2]};
   s.cubeLevel = e.cubeLevel;
   s.voxelLevel = e.voxelLevel;
+  s.firstSlot = e.firstSlot;
+  s.lastSlot = e.lastSlot;
   s.parentCount = e.parentCount;
   s.voxelCount = e.voxelCount;
   s.contourCount = e.contourCount;
@@ -240,7 +245,7 @@ class StoreWriter {
   // cube is the first cube: a subtree's slices start one level below its root.
   template <class Emit>
   void run(Emit&& emit) {
-    plan(at_.rootLevel, at_.rootCoord, at_.rootLevel + 1, 0, 1, at_.parentSlice, emit);
+    plan({at_.rootLevel, at_.rootCoord, 0, 7}, at_.rootLevel + 1, 0, 1, at_.parentSlice, emit);
   }
   std::size_t voxelCount() const { return tree_.voxels.size(); }
   EffectiveAttributes effective() const { return {effectiveColor_, effectiveNormal_}; }
@@ -252,6 +257,12 @@ class StoreWriter {
   };
   struct Prefix {
     std::vector<std::uint32_t> children, splits, contours, colors, normals;
+  };
+  // What a slice covers: a cube and a run of its sub-cubes (SliceInfo).
+  struct Run {
+    int cubeLevel;
+    glm::ivec3 cube;
+    int firstSlot, lastSlot;
   };
 
   // Per-level data by absolute voxel level (the root sits at at_.rootLevel).
@@ -275,29 +286,21 @@ class StoreWriter {
     return h;
   }
 
-  // The slices of cube (cubeLevel, cube) from voxel level `level` on; its parents are [a, b) of level - 1.
+  // The slices of `run` from voxel level `level` on; its parents are [a, b) of level - 1.
   template <class Emit>
-  void plan(int cubeLevel, glm::ivec3 cube, int level, std::size_t a, std::size_t b,
-            std::uint32_t parentSlice, Emit& emit) {
+  void plan(const Run& run, int level, std::size_t a, std::size_t b, std::uint32_t parentSlice, Emit& emit) {
     if (level > deepestLevel()) return;
     const SliceHead head = headOf(level, a, b);
     if (head.voxelCount == 0) return;
-    if (sliceRawBytes(head) > options_.sliceBytes && cubeLevel < level - 1) {
-      // Split into the 8 sub-cubes; the parents of each are a contiguous run of the Morton-ordered level.
-      const int shift = level - 1 - (cubeLevel + 1);
-      const std::vector<Voxel>& parents = voxelsAt(level - 1);
-      for (std::size_t i = a; i < b;) {
-        const glm::ivec3 sub = parents[i].coord >> shift;
-        std::size_t j = i;
-        while (j < b && (parents[j].coord >> shift) == sub) ++j;
-        plan(cubeLevel + 1, sub, level, i, j, parentSlice, emit);
-        i = j;
-      }
+    const bool wholeCube = run.firstSlot == 0 && run.lastSlot == 7;
+    if (sliceRawBytes(head) > options_.sliceBytes && (!wholeCube || run.cubeLevel < level - 1)) {
+      split(run, level, a, b, parentSlice, emit);
       return;
     }
     SliceInfo info;
-    info.cubeLevel = cubeLevel;
-    info.cubeCoord = cube;
+    info.cubeLevel = run.cubeLevel;
+    info.cubeCoord = run.cube;
+    info.firstSlot = std::uint8_t(run.firstSlot), info.lastSlot = std::uint8_t(run.lastSlot);
     info.voxelLevel = level;
     info.parentCount = head.parentCount;
     info.voxelCount = head.voxelCount;
@@ -307,7 +310,48 @@ class StoreWriter {
     info.parentSlice = parentSlice;
     const std::uint32_t id = emit(encode(head, level, a, b), info);
     const Prefix& up = prefixAt(level - 1);
-    plan(cubeLevel, cube, level + 1, up.children[a], up.children[b], id, emit);
+    plan(run, level + 1, up.children[a], up.children[b], id, emit);
+  }
+
+  // Splits a run whose level `level` exceeds the slice size: its sub-cubes, in Morton order (their parents
+  // are contiguous runs of [a, b)), are packed into groups that each fit; a group of one sub-cube becomes
+  // that sub-cube's own run, which packs its own sub-cubes in turn where it still does not fit.
+  template <class Emit>
+  void split(const Run& run, int level, std::size_t a, std::size_t b, std::uint32_t parentSlice, Emit& emit) {
+    struct Part {
+      int slot;
+      std::size_t a, b;
+    };
+    std::vector<Part> parts;
+    const int shift = level - 1 - (run.cubeLevel + 1);
+    const std::vector<Voxel>& parents = voxelsAt(level - 1);
+    for (std::size_t i = a; i < b;) {
+      const glm::ivec3 sub = parents[i].coord >> shift;
+      std::size_t j = i;
+      while (j < b && (parents[j].coord >> shift) == sub) ++j;
+      parts.push_back({(sub.x & 1) | (sub.y & 1) << 1 | (sub.z & 1) << 2, i, j});
+      i = j;
+    }
+    // Even shares: a run of n slices' worth closes each group near 1/n of it instead of filling groups to
+    // the slice size and leaving a small last one.
+    const double total = double(sliceRawBytes(headOf(level, a, b)));
+    const double share = total / std::ceil(total / double(options_.sliceBytes));
+    for (std::size_t first = 0; first < parts.size();) {
+      std::size_t last = first;
+      while (last + 1 < parts.size()) {
+        const double now = double(sliceRawBytes(headOf(level, parts[first].a, parts[last].b)));
+        const double grown = double(sliceRawBytes(headOf(level, parts[first].a, parts[last + 1].b)));
+        if (grown > double(options_.sliceBytes) || std::abs(grown - share) > std::abs(now - share)) break;
+        ++last;
+      }
+      const Part& p = parts[first];
+      if (first == last)
+        plan({run.cubeLevel + 1, childCoord(run.cube, p.slot), 0, 7}, level, p.a, p.b, parentSlice, emit);
+      else
+        plan({run.cubeLevel, run.cube, p.slot, parts[last].slot}, level, p.a, parts[last].b, parentSlice,
+             emit);
+      first = last + 1;
+    }
   }
 
   std::vector<std::byte> encode(const SliceHead& head, int level, std::size_t a, std::size_t b) const {
@@ -373,6 +417,32 @@ SliceParts slicePartsOf(const SliceInfo& s, bool hasColors, bool hasNormals) {
   return p;
 }
 
+SliceBox sliceBox(const SliceInfo& s) {
+  const double size = std::ldexp(1.0, -s.cubeLevel);
+  const glm::dvec3 corner = glm::dvec3(1.0) + glm::dvec3(s.cubeCoord) * size;
+  if (s.firstSlot == 0 && s.lastSlot == 7) return {corner, corner + size};
+  // The union of the run's sub-cubes: the slots set a bit per axis, so the run spans an axis's upper half
+  // where any of its slots does (and likewise the lower half).
+  glm::dvec3 lower = corner + size, upper = corner;
+  for (int slot = s.firstSlot; slot <= s.lastSlot; ++slot) {
+    const glm::dvec3 sub = corner + glm::dvec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1) * (0.5 * size);
+    lower = glm::min(lower, sub), upper = glm::max(upper, sub + 0.5 * size);
+  }
+  return {lower, upper};
+}
+
+bool sliceWithin(const SliceInfo& inner, const SliceInfo& outer) {
+  if (inner.cubeLevel < outer.cubeLevel) return false;
+  if (inner.cubeLevel == outer.cubeLevel)
+    return inner.cubeCoord == outer.cubeCoord && inner.firstSlot >= outer.firstSlot &&
+           inner.lastSlot <= outer.lastSlot;
+  // A finer cube: its ancestor one level below the outer cube is one of the outer run's sub-cubes.
+  const glm::ivec3 sub = inner.cubeCoord >> (inner.cubeLevel - outer.cubeLevel - 1);
+  if ((sub >> 1) != outer.cubeCoord) return false;
+  const int slot = (sub.x & 1) | (sub.y & 1) << 1 | (sub.z & 1) << 2;
+  return slot >= outer.firstSlot && slot <= outer.lastSlot;
+}
+
 SliceError::SliceError(std::uint32_t s, const std::string& message) : std::runtime_error(message), slice(s) {}
 
 SliceError StoreReader::sliceError(std::uint32_t id, const std::string& what) const {
@@ -381,7 +451,10 @@ SliceError StoreReader::sliceError(std::uint32_t id, const std::string& what) co
     const SliceInfo& s = slices_[id];
     name += " (level " + std::to_string(s.voxelLevel) + ", cube (" + std::to_string(s.cubeCoord.x) + "," +
             std::to_string(s.cubeCoord.y) + "," + std::to_string(s.cubeCoord.z) + ") of level " +
-            std::to_string(s.cubeLevel) + ")";
+            std::to_string(s.cubeLevel);
+    if (s.firstSlot != 0 || s.lastSlot != 7)
+      name += ", sub-cubes " + std::to_string(s.firstSlot) + "-" + std::to_string(s.lastSlot);
+    name += ")";
   }
   return SliceError(id, path_.string() + ": " + name + ": " + what);
 }
@@ -582,6 +655,9 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_
     if (e.voxelLevel < 1 || e.voxelLevel > h.levels || e.cubeLevel >= e.voxelLevel) bad("invalid levels");
     for (const std::int32_t c : e.cubeCoord)
       if (c < 0 || std::int64_t(c) >= (std::int64_t(1) << e.cubeLevel)) bad("cube outside the octree");
+    if (e.firstSlot > e.lastSlot || e.lastSlot > 7 ||
+        (e.lastSlot - e.firstSlot < 7 && e.cubeLevel + 1 >= e.voxelLevel))
+      bad("invalid run of sub-cubes");
     if (e.parentSlice != SliceInfo::kNoSlice && e.parentSlice >= i) bad("parent slice does not come first");
     slices_.push_back(sliceOf(e));
   }
@@ -664,10 +740,17 @@ void StoreReader::decodeSlice(std::uint32_t id, const std::vector<std::byte>& ra
 
 std::span<SliceVoxel> StoreReader::claimParents(std::uint32_t id, std::vector<SliceVoxel>& level,
                                                 std::vector<std::uint8_t>& covered) const {
-  // The cube's voxels one level above the slice: a contiguous Morton range.
+  // The run's voxels one level above the slice: a contiguous Morton range.
   const SliceInfo& s = slices_[id];
-  const int shift = s.voxelLevel - 1 - s.cubeLevel;
-  const glm::ivec3 first = s.cubeCoord << shift, last = first + ((1 << shift) - 1);
+  glm::ivec3 first, last;
+  if (s.firstSlot == 0 && s.lastSlot == 7) {
+    const int shift = s.voxelLevel - 1 - s.cubeLevel;
+    first = s.cubeCoord << shift, last = first + ((1 << shift) - 1);
+  } else {
+    const int shift = s.voxelLevel - 1 - (s.cubeLevel + 1);  // the reader checked that the sub-cubes fit
+    first = childCoord(s.cubeCoord, s.firstSlot) << shift;
+    last = (childCoord(s.cubeCoord, s.lastSlot) << shift) + ((1 << shift) - 1);
+  }
   const auto lo =
       std::lower_bound(level.begin(), level.end(), first,
                        [](const SliceVoxel& n, const glm::ivec3& k) { return mortonLess(n.coord, k); });
@@ -676,7 +759,7 @@ std::span<SliceVoxel> StoreReader::claimParents(std::uint32_t id, std::vector<Sl
                        [](const glm::ivec3& k, const SliceVoxel& n) { return mortonLess(k, n.coord); });
   for (auto p = lo; p != hi; ++p) {
     std::uint8_t& seen = covered[std::size_t(p - level.begin())];
-    if (seen) throw sliceError(id, "overlaps another slice's cube");
+    if (seen) throw sliceError(id, "overlaps another slice's sub-cubes");
     seen = 1;
   }
   return {lo, hi};
@@ -701,9 +784,8 @@ std::uint64_t StoreReader::verify(const std::function<void(double)>& progress, s
     std::vector<std::uint8_t> covered(decoded.size(), 0);
     for (const std::uint32_t child : childSlices[id]) {
       const SliceInfo& c = slices_[child];
-      if (c.voxelLevel != s.voxelLevel + 1 || c.cubeLevel < s.cubeLevel || c.cubeLevel >= c.voxelLevel ||
-          (c.cubeCoord >> (c.cubeLevel - s.cubeLevel)) != s.cubeCoord)
-        throw sliceError(child, "its cube does not lie one level below its parent slice's");
+      if (c.voxelLevel != s.voxelLevel + 1 || !sliceWithin(c, s))
+        throw sliceError(child, "its sub-cubes do not lie one level below its parent slice's");
       self(self, child, claimParents(child, decoded, covered));
     }
     // Every slice below has set its parents' child masks by now.

@@ -6,22 +6,21 @@
 namespace svo {
 namespace {
 
-// Nearest distance from p to the axis-aligned cube [lo, lo + size].
-double distanceToCube(const glm::dvec3& p, const glm::dvec3& lo, double size) {
+// Nearest distance from p to the box.
+double distanceToBox(const glm::dvec3& p, const SliceBox& box) {
   double d2 = 0.0;
   for (int a = 0; a < 3; ++a) {
-    const double below = lo[a] - p[a], above = p[a] - (lo[a] + size);
-    const double d = std::max({below, above, 0.0});
+    const double d = std::max({box.lower[a] - p[a], p[a] - box.upper[a], 0.0});
     d2 += d * d;
   }
   return std::sqrt(d2);
 }
 
-// False when the cube lies wholly on the outer side of one plane.
-bool cubeInView(const ViewQuery& view, const glm::dvec3& lo, double size) {
+// False when the box lies wholly on the outer side of one plane.
+bool boxInView(const ViewQuery& view, const SliceBox& box) {
   for (const auto& plane : view.frustum) {
     double best = -plane[3];
-    for (int a = 0; a < 3; ++a) best += plane[a] * (plane[a] > 0.0 ? lo[a] + size : lo[a]);
+    for (int a = 0; a < 3; ++a) best += plane[a] * (plane[a] > 0.0 ? box.upper[a] : box.lower[a]);
     if (best < 0.0) return false;
   }
   return true;
@@ -34,16 +33,17 @@ std::vector<SliceRequest> scheduleSlices(const std::vector<SliceInfo>& slices, c
   std::vector<SliceRequest> wanted;
   for (std::uint32_t i = 0; i < slices.size(); ++i) {
     const SliceInfo& s = slices[i];
-    const double cubeSize = std::ldexp(1.0, -s.cubeLevel);
-    const glm::dvec3 lo = glm::dvec3(1.0) + glm::dvec3(s.cubeCoord) * cubeSize;
+    const SliceBox box = sliceBox(s);
     const double parentVoxel = std::ldexp(1.0, -(s.voxelLevel - 1));
-    // Inside the cube the nearest parent voxel is at most half a voxel away: no infinite sizes.
-    const double nearest = std::max(distanceToCube(view.eye, lo, cubeSize), 0.5 * parentVoxel);
+    // Inside the box the nearest parent voxel is at most half a voxel away: no infinite sizes.
+    const double nearest = std::max(distanceToBox(view.eye, box), 0.5 * parentVoxel);
     SliceRequest r;
     r.slice = i;
     r.parentPixels = parentVoxel / (nearest * view.pixelAngle);
-    r.inFrustum = cubeInView(view, lo, cubeSize);
-    const double pixelsAtCentre = parentVoxel / ((nearest + 0.5 * cubeSize) * view.pixelAngle);
+    r.inFrustum = boxInView(view, box);
+    const glm::dvec3 extent = box.upper - box.lower;
+    const double halfExtent = 0.5 * std::max({extent.x, extent.y, extent.z});
+    const double pixelsAtCentre = parentVoxel / ((nearest + halfExtent) * view.pixelAngle);
     priority[i] = pixelsAtCentre * (r.inFrustum ? 1.0 : view.outsideWeight);
     // Never above the slice holding the parents (the reader guarantees it comes first).
     if (s.parentSlice != SliceInfo::kNoSlice && s.parentSlice < i)

@@ -48,11 +48,20 @@ const TempStore& sphereStore() {
 // The whole store's tree cut down to the voxels whose slice is in `resident`.
 svo::VoxelTree truncatedTree(const svo::StoreReader& reader, const std::vector<std::uint32_t>& resident) {
   const svo::VoxelTree full = reader.loadTree();
-  std::map<std::tuple<int, int, int, int, int>, std::uint32_t> sliceAt;  // voxel level, cube level, cube
+  // (voxel level, cube level, cube) -> slice; a run of sub-cubes is keyed by each sub-cube.
+  std::map<std::tuple<int, int, int, int, int>, std::uint32_t> sliceAt;
   const auto& slices = reader.slices();
-  for (std::uint32_t s = 0; s < slices.size(); ++s)
-    sliceAt[{slices[s].voxelLevel, slices[s].cubeLevel, slices[s].cubeCoord.x, slices[s].cubeCoord.y,
-             slices[s].cubeCoord.z}] = s;
+  for (std::uint32_t s = 0; s < slices.size(); ++s) {
+    const svo::SliceInfo& i = slices[s];
+    if (i.firstSlot == 0 && i.lastSlot == 7) {
+      sliceAt[{i.voxelLevel, i.cubeLevel, i.cubeCoord.x, i.cubeCoord.y, i.cubeCoord.z}] = s;
+      continue;
+    }
+    for (int slot = i.firstSlot; slot <= i.lastSlot; ++slot) {
+      const glm::ivec3 sub = svo::childCoord(i.cubeCoord, slot);
+      sliceAt[{i.voxelLevel, i.cubeLevel + 1, sub.x, sub.y, sub.z}] = s;
+    }
+  }
   const std::set<std::uint32_t> have(resident.begin(), resident.end());
   const auto kept = [&](int level, glm::ivec3 c) {
     for (int cubeLevel = 0; cubeLevel < level; ++cubeLevel) {

@@ -137,29 +137,48 @@ TEST(Store, SlicesTileEachLevelWithinTheSliceSize) {
     svo::writeOctree(path, octree, options);
     const svo::StoreReader reader(path);
     std::map<int, std::uint64_t> voxels, parents;
-    std::set<std::tuple<int, int, int, int, int>> cubes;  // (voxel level, cube level, x, y, z)
-    std::size_t split = 0;
+    // What each slice covers, as cubes: its cube, or each sub-cube of its run. (voxel level, cube level,
+    // cube)
+    std::set<std::tuple<int, int, int, int, int>> cubes;
+    std::size_t split = 0, runs = 0;
+    std::vector<std::uint32_t> splittable;  // sizes of the slices that could have split further
     for (std::size_t i = 0; i < reader.slices().size(); ++i) {
       const svo::SliceInfo& s = reader.slices()[i];
       voxels[s.voxelLevel] += s.voxelCount;
       parents[s.voxelLevel] += s.parentCount;
       EXPECT_EQ(reader.readSlice(std::uint32_t(i)).size(), s.rawBytes);
-      const bool canSplit = s.cubeLevel < s.voxelLevel - 1;
-      if (canSplit) EXPECT_LE(s.rawBytes, sliceBytes) << "slice " << i;
-      split += s.cubeLevel > 0;
-      // Disjoint: no slice of the same level has this cube or one containing it.
-      for (int up = 0; up <= s.cubeLevel; ++up) {
-        const glm::ivec3 c = s.cubeCoord >> (s.cubeLevel - up);
-        EXPECT_EQ(cubes.count({s.voxelLevel, up, c.x, c.y, c.z}), 0u) << "slice " << i << " overlaps";
+      const bool whole = s.firstSlot == 0 && s.lastSlot == 7;
+      if (!whole || s.cubeLevel < s.voxelLevel - 1) {
+        EXPECT_LE(s.rawBytes, sliceBytes) << "slice " << i;
+        splittable.push_back(s.rawBytes);
       }
-      cubes.insert({s.voxelLevel, s.cubeLevel, s.cubeCoord.x, s.cubeCoord.y, s.cubeCoord.z});
+      split += s.cubeLevel > 0 || !whole;
+      runs += !whole;
+      std::vector<std::pair<int, glm::ivec3>> covered;
+      if (whole) covered.push_back({s.cubeLevel, s.cubeCoord});
+      for (int slot = s.firstSlot; !whole && slot <= s.lastSlot; ++slot)
+        covered.push_back({s.cubeLevel + 1, svo::childCoord(s.cubeCoord, slot)});
+      for (const auto& [cubeLevel, cube] : covered) {
+        // Disjoint: no slice of the same level covers this cube or one containing it.
+        for (int up = 0; up <= cubeLevel; ++up) {
+          const glm::ivec3 c = cube >> (cubeLevel - up);
+          EXPECT_EQ(cubes.count({s.voxelLevel, up, c.x, c.y, c.z}), 0u) << "slice " << i << " overlaps";
+        }
+        cubes.insert({s.voxelLevel, cubeLevel, cube.x, cube.y, cube.z});
+      }
     }
     for (std::size_t level = 1; level < expected.size(); ++level) {
       EXPECT_EQ(voxels[int(level)], expected[level]) << "level " << level << ", slice size " << sliceBytes;
       // Every voxel of the level above is some slice's parent (leaves included: their split bit is 0).
       EXPECT_EQ(parents[int(level)], expected[level - 1]) << "level " << level;
     }
-    if (sliceBytes <= 2048u) EXPECT_GT(split, 0u) << "small slices must split cubes";
+    if (sliceBytes <= 2048u) {
+      EXPECT_GT(split, 0u) << "small slices must split cubes";
+      EXPECT_GT(runs, 0u) << "split cubes pack their sub-cubes into runs";
+      // Packing keeps the slices that could split near the slice size: their median is at least half of it.
+      std::sort(splittable.begin(), splittable.end());
+      EXPECT_GE(2 * splittable[splittable.size() / 2], sliceBytes) << "median of " << splittable.size();
+    }
     fs::remove(path);
   }
 }

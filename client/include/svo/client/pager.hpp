@@ -1,14 +1,15 @@
 // The paging client (paper sec. 7, DESIGN.md): streams a store's slices into a block pool of a fixed budget
 // while frames are ray cast from what is resident.
 //
-// A *region* is one cube of the slice hierarchy with its chain of slices (one per level until the cube
-// splits). Each resident region is one block in the pool holding the cube's voxel and its subtree down to the
-// deepest resident slice; loading the region's next slice rebuilds only that block. The region of the root
-// cube is the trunk, the block a frame starts from. A region's block is reached from its parent region's
-// block through a link descriptor at the region's cube voxel (format.hpp), so the ray caster sees one octree;
-// relocating a block is a memcpy plus patching the links at its two ends. Where a child region's cube is a
-// voxel of the parent's deepest level, the parent's block holds a stub there, rendered as a leaf until
-// linked.
+// A *region* is what one slice covers (a cube, or a packed run of its sub-cubes: container.hpp) with its
+// chain of slices (one per level until it splits). Each resident region is one block in the pool holding the
+// cube's voxel and its subtree (only the run's sub-cubes for a run) down to the deepest resident slice;
+// loading the region's next slice rebuilds only that block. The region of the root cube is the trunk, the
+// block a frame starts from. A region's block is reached from its parent region's block through link
+// descriptors (format.hpp) at its *entry voxels*, the cube's voxel or each sub-cube's voxel of a run, so the
+// ray caster sees one octree; relocating a block is a memcpy plus patching the links at its ends. Where an
+// entry voxel lies on the parent's deepest level, the parent's block holds a stub there, rendered as a leaf
+// until linked.
 //
 // Threads: update() and every frame run on one render thread; background workers read and decode slices and
 // lay out the new blocks, reading the pool under a shared lock. update() commits finished blocks (memcpy and
@@ -24,6 +25,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <shared_mutex>
 #include <string>
 #include <thread>
@@ -102,16 +104,20 @@ class Pager {
   void checkInvariants() const;
 
  private:
+  // Entry voxels and their descriptors' slots in a block, in Morton order.
+  using EntrySlots = std::vector<std::pair<glm::ivec3, std::uint32_t>>;
   struct Region {
     std::int32_t cubeLevel = 0;
     glm::ivec3 cubeCoord{0};
-    std::vector<std::uint32_t> slices;  // by voxel level
+    std::uint8_t firstSlot = 0, lastSlot = 7;  // the run of sub-cubes (0-7: the whole cube)
+    std::vector<std::uint32_t> slices;         // by voxel level
     std::int32_t parent = -1;
     std::vector<std::uint32_t> children;
     std::uint32_t resident = 0;  // slices resident: a prefix of `slices`
     BlockPool::BlockId block = 0;
-    std::uint32_t rootSlot = 0;
-    std::map<std::uint32_t, std::uint32_t> childSlot;   // child region -> its cube voxel's slot in this block
+    std::uint32_t rootSlot = 0;                         // the cube's voxel in its block
+    EntrySlots entries;                                 // its entry voxels that have children, in its block
+    std::map<std::uint32_t, EntrySlots> childSlots;     // child region -> its entry voxels in this block
     std::map<std::uint32_t, ChildDescriptor> unlinked;  // slot -> descriptor before a link replaced it
     std::uint64_t version = 0;                          // bumped by every commit or eviction
     double priority = 0.0;                              // highest view priority of its resident slices
@@ -129,7 +135,8 @@ class Pager {
     std::uint64_t version = 0;    // of the region when read
     Block block;
     std::uint32_t rootSlot = 0;
-    std::map<std::uint32_t, std::uint32_t> childSlot;
+    EntrySlots entries;
+    std::map<std::uint32_t, EntrySlots> childSlots;
     std::uint32_t failedSlice = SliceInfo::kNoSlice;
     std::string error;
   };
@@ -142,6 +149,7 @@ class Pager {
   void relinkAll();
   bool requestable(std::uint32_t slice) const;
   std::uint32_t chainLength(std::uint32_t slice) const;
+  std::uint32_t parentSlotOf(const Region& parent, std::uint32_t child, const glm::ivec3& coord) const;
   bool evictable(std::uint32_t region, double priority) const;
   bool roomFor(std::size_t bytes, double priority) const;
   const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
@@ -153,7 +161,8 @@ class Pager {
   std::vector<Region> regions_;
   std::vector<std::uint32_t> regionOf_, indexInRegion_;
   std::vector<std::uint8_t> failed_;
-  // Feedback lookup: (voxel level, cube level, cube) -> slice; the cube levels each voxel level's slices use.
+  // Feedback lookup: (voxel level, cube level, cube) -> slice (a run's slices under each of its sub-cubes);
+  // the cube levels each voxel level's keys use.
   std::unordered_map<std::uint64_t, std::uint32_t> sliceAt_;
   std::vector<std::vector<std::int32_t>> cubeLevelsOf_;
   std::unordered_map<std::uint32_t, std::uint32_t> feedbackHits_;

@@ -6,7 +6,10 @@
 // A slice stores no positions or pointers: the levels above it say which voxels it holds (released code: a
 // split bit per node of the level above in its cube, a valid mask per split node, then contours and the
 // attribute values that differ from the parent's for the new voxels). When a cube's next level would exceed
-// the slice size, the cube splits into 8 sub-cubes with slices of their own. Header and directory sit at
+// the slice size, the slice splits spatially (sec. 7: "split spatially so that it has several child
+// slices"): the cube's 8 sub-cubes are packed, in Morton order, into runs that each fit the slice size, and
+// a run of one sub-cube becomes that sub-cube's own slice. Packing keeps slices near the slice size where
+// one slice per sub-cube would leave most of them a fraction of it. Header and directory sit at
 // known offsets, so the file can be read with range requests from a static server. Written to a temporary
 // name and renamed only when complete.
 #pragma once
@@ -28,7 +31,8 @@
 namespace svo {
 
 inline constexpr char kFileMagic[8] = {'S', 'V', 'O', 'S', 'T', 'R', 'M', '\0'};
-inline constexpr std::uint32_t kFileVersion = 2;
+// 3: slices cover a run of their cube's sub-cubes (firstSlot, lastSlot).
+inline constexpr std::uint32_t kFileVersion = 3;
 // Default slice size: "about 1 MB at most" (sec. 7); a cube whose next level would exceed it splits.
 inline constexpr std::uint32_t kDefaultSliceBytes = 1u << 20;
 
@@ -62,8 +66,11 @@ struct SliceInfo {
   std::uint64_t checksum = 0;         // XXH3-64 of the compressed bytes
   glm::ivec3 cubeCoord{0};            // the cube, at cubeLevel
   std::int32_t cubeLevel = 0;
+  // The run of the cube's sub-cubes (child slots, Morton order) the slice covers: 0-7 is the whole cube; a
+  // shorter run is a packed group of sub-cubes, and needs cubeLevel + 1 < voxelLevel.
+  std::uint8_t firstSlot = 0, lastSlot = 7;
   std::int32_t voxelLevel = 0;    // the level of the voxels the slice adds (their parents are one above)
-  std::uint32_t parentCount = 0;  // voxels of level voxelLevel - 1 in the cube
+  std::uint32_t parentCount = 0;  // voxels of level voxelLevel - 1 in the cube's run
   std::uint32_t voxelCount = 0;   // voxels the slice adds
   std::uint32_t contourCount = 0;
   std::uint32_t colorCount = 0, normalCount = 0;  // attribute values stored (the rest inherit)
@@ -77,6 +84,14 @@ struct SliceParts {
   std::uint64_t hierarchy = 0, contours = 0, colors = 0, normals = 0;
 };
 SliceParts slicePartsOf(const SliceInfo& slice, bool hasColors, bool hasNormals);
+
+// The octree-space box ([1, 2]^3 is the scene) of the sub-cubes a slice covers.
+struct SliceBox {
+  glm::dvec3 lower{1.0}, upper{2.0};
+};
+SliceBox sliceBox(const SliceInfo& slice);
+// Whether every voxel slice `inner` covers lies in what `outer` covers (cube and run of sub-cubes).
+bool sliceWithin(const SliceInfo& inner, const SliceInfo& outer);
 
 // Morton order of cube coordinates at one level (slot bits: x = bit 0, y = 1, z = 2): depth-first order of
 // the octree, in which a cube's voxels at any finer level form one contiguous run.
@@ -206,8 +221,8 @@ class StoreReader {
                    std::vector<SliceVoxel>& children) const;
 
  private:
-  // Slice `id`'s parents: the voxels of `level` (Morton order, one level above the slice) inside its cube,
-  // each marked in `covered`; one marked before means two slices claim it.
+  // Slice `id`'s parents: the voxels of `level` (Morton order, one level above the slice) inside its run of
+  // sub-cubes, each marked in `covered`; one marked before means two slices claim it.
   std::span<SliceVoxel> claimParents(std::uint32_t id, std::vector<SliceVoxel>& level,
                                      std::vector<std::uint8_t>& covered) const;
   SliceError sliceError(std::uint32_t slice, const std::string& what) const;

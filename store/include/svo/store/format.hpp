@@ -56,9 +56,11 @@ struct ChildDescriptor {
 };
 static_assert(sizeof(ChildDescriptor) == kSlotBytes);
 
-// The descriptor a link leads to (itself when it is not a link). Links never chain.
+// The descriptor a link leads to (itself when it is not a link). Links chain where a region's entry voxel
+// is also its parent region's (the pager: a run of sub-cubes, then one of those sub-cubes on its own).
 inline const ChildDescriptor* followLink(const ChildDescriptor* d) {
-  return d->isLink() ? d + d->linkOffset() : d;
+  while (d->isLink()) d += d->linkOffset();
+  return d;
 }
 
 // Index of a child among the set bits of `mask` below it: the k-th stored child (paper sec. 5.1).
