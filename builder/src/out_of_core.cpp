@@ -1,14 +1,13 @@
 // The out-of-core build (build.hpp, buildStore): the triangles are streamed from the source and binned per
 // cell, the levels above the cell level are voxelized in memory, every cell's subtree is built on its own
 // from its triangles and spilled to a work folder (zstd, checksummed, renamed into
-// place when complete, so an interrupted build resumes from the cells on disk), then the store is written:
-// the top tree first, each cell's slices after it, hung below the top slice that holds the cell's root.
+// place when complete, so an interrupted build resumes from the cells on disk), then the store is written
+// (StoreFileWriter::appendForest): the same slices as an in-core build's, cell by cell.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
 #include <fstream>
-#include <map>
 #include <memory>
 #include <mutex>
 #include <new>
@@ -300,61 +299,26 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
       voxelizeCells(source, transform, options, report.cellLevel, callbacks, concurrency, work / "triangles");
   report.phaseSeconds["voxelize"] = seconds(phase);
 
-  // 2. The store: the top, then every live cell below the top slice holding its root.
+  // 2. The store: the slices writeStore would make of the whole tree, the top's and every cell's, with the
+  // slices spanning several cells assembled from their parts.
   phase = std::chrono::steady_clock::now();
-  StoreFileWriter writer(store, write);
-  EffectiveAttributes effective;
-  writer.append(top, {0, glm::ivec3(0), top.voxels[0].color, top.voxels[0].normal, SliceInfo::kNoSlice},
-                &effective);
-  std::map<std::tuple<int, int, int, int>, std::uint32_t> sliceOfCube;  // (cube level, cube) -> slice
-  for (std::uint32_t s = 0; s < writer.slices().size(); ++s) {
-    const SliceInfo& info = writer.slices()[s];
-    if (info.voxelLevel == report.cellLevel)
-      sliceOfCube[{info.cubeLevel, info.cubeCoord.x, info.cubeCoord.y, info.cubeCoord.z}] = s;
-  }
-  struct Cell {
-    std::uint32_t record;
-    glm::ivec3 coord;
-  };
-  std::vector<Cell> cells;
+  StoreWriteOptions writeOptions = write;
+  writeOptions.progress = [&](double f) { progress("write", f); };
+  StoreFileWriter writer(store, writeOptions);
   BuildStats& stats = report.stats;
   addTreeStats(top, 0, stats);
-  {
-    // The top tree's voxels of the cell level, with their coordinates.
-    std::vector<std::tuple<std::uint32_t, int, glm::ivec3>> walk{{0u, 0, glm::ivec3(0)}};
-    while (!walk.empty()) {
-      const auto [v, level, coord] = walk.back();
-      walk.pop_back();
-      if (level == report.cellLevel) {
-        cells.push_back({v, coord});
-        continue;
-      }
-      const VoxelRecord& r = top.voxels[v];
-      for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot)
-        if (r.childMask >> slot & 1u) walk.push_back({c++, level + 1, childCoord(coord, int(slot))});
+  writer.appendForest(top, report.cellLevel, [&](glm::ivec3 cell, bool counting) {
+    VoxelTree tree = readCell(cellPath(work, cell));
+    if (!counting) {
+      // The cell's root is already counted by the top as a leaf voxel of the cell level.
+      addTreeStats(tree, report.cellLevel, stats);
+      --stats.voxelsPerLevel[std::size_t(report.cellLevel)];
+      --stats.leafVoxels;
+      stats.contours -= tree.voxels[0].hasContour;
+      ++report.cells;
     }
-  }
-  for (std::size_t i = 0; i < cells.size(); ++i) {
-    const Cell& cell = cells[i];
-    const VoxelTree tree = readCell(cellPath(work, cell.coord));
-    // The cell's root is already counted by the top as a leaf voxel of the cell level.
-    addTreeStats(tree, report.cellLevel, stats);
-    --stats.voxelsPerLevel[std::size_t(report.cellLevel)];
-    --stats.leafVoxels;
-    stats.contours -= tree.voxels[0].hasContour;
-    if (tree.voxels[0].childMask != 0) {
-      std::uint32_t parent = SliceInfo::kNoSlice;
-      for (int c = 0; c < report.cellLevel && parent == SliceInfo::kNoSlice; ++c) {
-        const glm::ivec3 cube = cell.coord >> (report.cellLevel - c);
-        if (const auto it = sliceOfCube.find({c, cube.x, cube.y, cube.z}); it != sliceOfCube.end())
-          parent = it->second;
-      }
-      if (parent == SliceInfo::kNoSlice) throw std::logic_error("buildStore: a cell has no top slice");
-      writer.append(tree, {report.cellLevel, cell.coord, effective.color[cell.record],
-                           effective.normal[cell.record], parent});
-    }
-    progress("write", double(i + 1) / double(cells.size()));
-  }
+    return tree;
+  });
   report.slices = writer.slices();
   writer.finish({transform,
                  {options.levels, options.geometryError, options.colorError, options.normalError,
@@ -364,7 +328,6 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
                  top.voxels[0].color,
                  top.voxels[0].normal});
   report.phaseSeconds["write"] = seconds(phase);
-  report.cells = cells.size();
   std::error_code ignored;
   std::filesystem::remove_all(work, ignored);
   stats.trianglesUsed = source.triangleCount();

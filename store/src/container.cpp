@@ -6,6 +6,8 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
+#include <functional>
+#include <map>
 #include <stdexcept>
 #include <string>
 #include <system_error>
@@ -149,25 +151,78 @@ std::size_t sliceRawBytes(const SliceHead& h) {
   return bytes;
 }
 
-// Appends bits LSB-first into bytes.
-class BitWriter {
+static_assert(std::endian::native == std::endian::little, "slices are little-endian, as written in memory");
+
+// Bits LSB-first, as slices store them (bit i in byte i / 8), appendable at any bit offset: a slice spanning
+// several cells of an out-of-core build is assembled from each cell's part.
+class Bits {
  public:
-  explicit BitWriter(std::vector<std::byte>& out) : out_(out) {}
   void push(bool bit) {
-    if (count_ % 8 == 0) out_.push_back(std::byte{0});
-    if (bit) out_.back() |= std::byte(1u << (count_ % 8));
+    if (count_ % 64 == 0) words_.push_back(0);
+    if (bit) words_.back() |= std::uint64_t(1) << (count_ % 64);
     ++count_;
+  }
+  void append(const Bits& other) {
+    const unsigned shift = unsigned(count_ % 64);
+    if (shift == 0) {
+      words_.insert(words_.end(), other.words_.begin(), other.words_.end());
+    } else {
+      for (const std::uint64_t w : other.words_) {
+        words_.back() |= w << shift;
+        words_.push_back(w >> (64 - shift));
+      }
+    }
+    count_ += other.count_;
+    words_.resize((count_ + 63) / 64);  // bits past count_ are zero, so the dropped word is empty
+  }
+  void writeTo(std::vector<std::byte>& out) const {
+    const std::size_t at = out.size();
+    out.resize(at + bitBytes(count_));
+    std::memcpy(out.data() + at, words_.data(), bitBytes(count_));
   }
 
  private:
-  std::vector<std::byte>& out_;
+  std::vector<std::uint64_t> words_;
   std::size_t count_ = 0;
 };
 
-void appendWord(std::vector<std::byte>& out, std::uint32_t word) {
-  const std::size_t at = out.size();
-  out.resize(at + 4);
-  std::memcpy(out.data() + at, &word, 4);
+// A slice's sections before they are laid out: a split bit per parent, a valid mask per split parent, then
+// per new voxel a presence bit and the present values, for contours, colors and normals.
+struct SliceSections {
+  Bits split, contourBits, colorBits, normalBits;
+  std::vector<std::uint8_t> masks;
+  std::vector<std::uint32_t> contours, colors, normals;
+
+  void append(const SliceSections& o) {
+    split.append(o.split), contourBits.append(o.contourBits);
+    colorBits.append(o.colorBits), normalBits.append(o.normalBits);
+    masks.insert(masks.end(), o.masks.begin(), o.masks.end());
+    contours.insert(contours.end(), o.contours.begin(), o.contours.end());
+    colors.insert(colors.end(), o.colors.begin(), o.colors.end());
+    normals.insert(normals.end(), o.normals.begin(), o.normals.end());
+  }
+};
+
+// The decoded slice: head, then the sections in the order sliceRawBytes counts them.
+std::vector<std::byte> layOut(const SliceHead& head, const SliceSections& s) {
+  std::vector<std::byte> out(sizeof head);
+  std::memcpy(out.data(), &head, sizeof head);
+  out.reserve(sliceRawBytes(head));
+  const auto words = [&](const std::vector<std::uint32_t>& values) {
+    const std::size_t at = out.size();
+    out.resize(at + 4 * values.size());
+    std::memcpy(out.data() + at, values.data(), 4 * values.size());
+  };
+  s.split.writeTo(out);
+  for (const std::uint8_t mask : s.masks) out.push_back(std::byte(mask));
+  s.contourBits.writeTo(out), words(s.contours);
+  if (head.attachments & 1u) s.colorBits.writeTo(out), words(s.colors);
+  if (head.attachments & 2u) s.normalBits.writeTo(out), words(s.normals);
+  // The head's counts and the sections come from different places for a slice spanning cells: never write
+  // a slice whose parts disagree with its head.
+  if (out.size() != sliceRawBytes(head))
+    throw std::logic_error("writeStore: a slice's sections and head disagree");
+  return out;
 }
 
 bool bitAt(const std::byte* bits, std::size_t i) {
@@ -183,12 +238,19 @@ std::uint32_t wordAt(const std::byte* words, std::size_t i) {
 // ---------------------------------------------------------------------------------------------------------
 // Writing: the tree level by level in Morton (breadth-first, slot) order, where every cube of any level holds
 // a contiguous range of every deeper level.
+
+// Per level of a subtree, from its root's level down: its voxels, those with children, contours, and the
+// attribute values its slices store (inheritance applied).
+struct LevelTotals {
+  std::uint64_t voxels = 0, splits = 0, contours = 0, colors = 0, normals = 0;
+};
+
 class StoreWriter {
  public:
+  // `tree` may be a root alone (a cell of an out-of-core build without children).
   StoreWriter(const VoxelTree& tree, const StoreWriteOptions& options, const SubtreePlacement& at)
       : tree_(tree), options_(options), at_(at) {
-    if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
-      throw std::invalid_argument("writeStore: the tree has no voxels below the root");
+    if (tree.voxels.empty()) throw std::invalid_argument("writeStore: the tree has no root");
     const InheritanceRule inherits(options.inheritance);
     const std::size_t n = tree.voxels.size();
     effectiveColor_.assign(n, 0), effectiveNormal_.assign(n, 0);
@@ -241,14 +303,92 @@ class StoreWriter {
     }
   }
 
-  // Plans the slices (cube splits included) and hands each one's raw bytes and entry to `emit`. The root's
-  // cube is the first cube: a subtree's slices start one level below its root.
-  template <class Emit>
-  void run(Emit&& emit) {
-    plan({at_.rootLevel, at_.rootCoord, 0, 7}, at_.rootLevel + 1, 0, 1, at_.parentSlice, emit);
+  // Plans the slices (splits included) and hands each one to `sink` (see FileSink). The root's cube is the
+  // first cube: a subtree's slices start one level below its root.
+  template <class Sink>
+  void run(Sink& sink) {
+    plan({at_.rootLevel, at_.rootCoord, 0, 7}, at_.rootLevel + 1, 0, 1, at_.parentSlice, sink);
+  }
+  // Plans the slices from `level` on of the tree's whole cube (an out-of-core cell whose coarser levels went
+  // into slices spanning several cells).
+  template <class Sink>
+  void runFrom(int level, std::uint32_t parentSlice, Sink& sink) {
+    if (level - 1 > topLevel()) return;
+    plan({at_.rootLevel, at_.rootCoord, 0, 7}, level, 0, voxelsAt(level - 1).size(), parentSlice, sink);
   }
   std::size_t voxelCount() const { return tree_.voxels.size(); }
   EffectiveAttributes effective() const { return {effectiveColor_, effectiveNormal_}; }
+  // The tree's deepest level (absolute).
+  int topLevel() const { return at_.rootLevel + int(levels_.size()) - 1; }
+  // The tree's voxels of its deepest level, Morton order: an out-of-core top's cells.
+  std::vector<std::pair<std::uint32_t, glm::ivec3>> deepestVoxels() const {
+    std::vector<std::pair<std::uint32_t, glm::ivec3>> out;
+    for (const Voxel& v : levels_.back()) out.push_back({v.record, v.coord});
+    return out;
+  }
+  std::vector<LevelTotals> totals() const {
+    std::vector<LevelTotals> out(levels_.size());
+    for (std::size_t l = 0; l < levels_.size(); ++l) {
+      const Prefix& p = prefix_[l];
+      out[l] = {levels_[l].size(), p.splits.back(), p.contours.back(), p.colors.back(), p.normals.back()};
+    }
+    return out;
+  }
+  // Out of core: the levels below this tree's deepest come from cells, the voxels of that level, each with
+  // its subtree's totals (`cells[i]`, its root's level first).
+  void addCells(const std::vector<std::vector<LevelTotals>>& cells) {
+    std::size_t depth = 0;
+    for (const auto& t : cells) depth = std::max(depth, t.size());
+    cellPrefix_.assign(depth, {});
+    for (std::size_t k = 0; k < depth; ++k) {
+      CellPrefix& p = cellPrefix_[k];
+      for (auto* v : {&p.voxels, &p.splits, &p.children, &p.contours, &p.colors, &p.normals})
+        v->assign(cells.size() + 1, 0);
+      for (std::size_t i = 0; i < cells.size(); ++i) {
+        const LevelTotals here = k < cells[i].size() ? cells[i][k] : LevelTotals{};
+        const std::uint64_t below = k + 1 < cells[i].size() ? cells[i][k + 1].voxels : 0;
+        p.voxels[i + 1] = p.voxels[i] + here.voxels, p.splits[i + 1] = p.splits[i] + here.splits;
+        p.children[i + 1] = p.children[i] + below, p.contours[i + 1] = p.contours[i] + here.contours;
+        p.colors[i + 1] = p.colors[i] + here.colors, p.normals[i + 1] = p.normals[i] + here.normals;
+      }
+    }
+  }
+  // Level `level` for every parent the tree has at level - 1: a cell's part of a slice spanning cells.
+  SliceSections sectionsOfLevel(int level) const {
+    if (level - 1 > topLevel()) return {};
+    return sections(level, 0, voxelsAt(level - 1).size());
+  }
+  SliceHead headOf(int level, std::size_t a, std::size_t b) const {
+    SliceHead h{};
+    h.magic = kSliceMagic;
+    h.attachments = (tree_.hasColors ? 1u : 0u) | (tree_.hasNormals ? 2u : 0u);
+    if (level - 1 < topLevel()) {
+      const Prefix& up = prefixAt(level - 1);
+      const Prefix& here = prefixAt(level);
+      const std::uint32_t ca = up.children[a], cb = up.children[b];
+      h.parentCount = std::uint32_t(b - a);
+      h.splitCount = up.splits[b] - up.splits[a];
+      h.voxelCount = cb - ca;
+      h.contourCount = here.contours[cb] - here.contours[ca];
+      h.colorCount = here.colors[cb] - here.colors[ca];
+      h.normalCount = here.normals[cb] - here.normals[ca];
+      return h;
+    }
+    // Cells: the same cells [a, b) on every level. Runs this large split, so saturating counts are exact
+    // enough to decide that.
+    const auto k = std::size_t(level - 1 - topLevel());
+    const auto count = [&](const std::vector<std::uint64_t>& prefix) {
+      return std::uint32_t(std::min<std::uint64_t>(prefix[b] - prefix[a], 0xFFFFFFFFu));
+    };
+    const CellPrefix& up = cellPrefix_[k];
+    h.parentCount = count(up.voxels), h.splitCount = count(up.splits), h.voxelCount = count(up.children);
+    if (k + 1 < cellPrefix_.size()) {
+      const CellPrefix& here = cellPrefix_[k + 1];
+      h.contourCount = count(here.contours), h.colorCount = count(here.colors);
+      h.normalCount = count(here.normals);
+    }
+    return h;
+  }
 
  private:
   struct Voxel {
@@ -257,6 +397,9 @@ class StoreWriter {
   };
   struct Prefix {
     std::vector<std::uint32_t> children, splits, contours, colors, normals;
+  };
+  struct CellPrefix {  // per cell, in order: totals of one level below the tree's deepest
+    std::vector<std::uint64_t> voxels, splits, children, contours, colors, normals;
   };
   // What a slice covers: a cube and a run of its sub-cubes (SliceInfo).
   struct Run {
@@ -268,33 +411,33 @@ class StoreWriter {
   // Per-level data by absolute voxel level (the root sits at at_.rootLevel).
   const std::vector<Voxel>& voxelsAt(int level) const { return levels_[std::size_t(level - at_.rootLevel)]; }
   const Prefix& prefixAt(int level) const { return prefix_[std::size_t(level - at_.rootLevel)]; }
-  int deepestLevel() const { return at_.rootLevel + int(levels_.size()) - 1; }
-
-  SliceHead headOf(int level, std::size_t a, std::size_t b) const {
+  int deepestLevel() const { return topLevel() + std::max(0, int(cellPrefix_.size()) - 1); }
+  // The parents [a, b) of level - 1 give the voxels [first, second) of `level` (cells: the same cells).
+  std::pair<std::size_t, std::size_t> childRange(int level, std::size_t a, std::size_t b) const {
+    if (level - 1 >= topLevel()) return {a, b};
     const Prefix& up = prefixAt(level - 1);
-    const Prefix& here = prefixAt(level);
-    const std::uint32_t ca = up.children[a], cb = up.children[b];
-    SliceHead h{};
-    h.magic = kSliceMagic;
-    h.parentCount = std::uint32_t(b - a);
-    h.splitCount = up.splits[b] - up.splits[a];
-    h.voxelCount = cb - ca;
-    h.contourCount = here.contours[cb] - here.contours[ca];
-    h.colorCount = here.colors[cb] - here.colors[ca];
-    h.normalCount = here.normals[cb] - here.normals[ca];
-    h.attachments = (tree_.hasColors ? 1u : 0u) | (tree_.hasNormals ? 2u : 0u);
-    return h;
+    return {up.children[a], up.children[b]};
+  }
+  // The sub-cube of `cubeLevel` holding parent i of `level` (a cell's cube contains all of its voxels).
+  glm::ivec3 subCube(int level, std::size_t i, int cubeLevel) const {
+    const int parentLevel = std::min(level - 1, topLevel());
+    return voxelsAt(parentLevel)[i].coord >> (parentLevel - cubeLevel);
   }
 
   // The slices of `run` from voxel level `level` on; its parents are [a, b) of level - 1.
-  template <class Emit>
-  void plan(const Run& run, int level, std::size_t a, std::size_t b, std::uint32_t parentSlice, Emit& emit) {
+  template <class Sink>
+  void plan(const Run& run, int level, std::size_t a, std::size_t b, std::uint32_t parentSlice, Sink& sink) {
     if (level > deepestLevel()) return;
     const SliceHead head = headOf(level, a, b);
     if (head.voxelCount == 0) return;
+    const bool fromCells = level > topLevel();
+    if (fromCells && run.cubeLevel >= topLevel()) {
+      sink.delegate(a, level, parentSlice);  // within one cell: its own subtree plans the rest
+      return;
+    }
     const bool wholeCube = run.firstSlot == 0 && run.lastSlot == 7;
     if (sliceRawBytes(head) > options_.sliceBytes && (!wholeCube || run.cubeLevel < level - 1)) {
-      split(run, level, a, b, parentSlice, emit);
+      split(run, level, a, b, parentSlice, sink);
       return;
     }
     SliceInfo info;
@@ -308,27 +451,26 @@ class StoreWriter {
     info.colorCount = head.colorCount;
     info.normalCount = head.normalCount;
     info.parentSlice = parentSlice;
-    const std::uint32_t id = emit(encode(head, level, a, b), info);
-    const Prefix& up = prefixAt(level - 1);
-    plan(run, level + 1, up.children[a], up.children[b], id, emit);
+    const std::uint32_t id =
+        fromCells ? sink.reserve(info, head, a, b) : sink.emit(layOut(head, sections(level, a, b)), info);
+    const auto [ca, cb] = childRange(level, a, b);
+    plan(run, level + 1, ca, cb, id, sink);
   }
 
   // Splits a run whose level `level` exceeds the slice size: its sub-cubes, in Morton order (their parents
   // are contiguous runs of [a, b)), are packed into groups that each fit; a group of one sub-cube becomes
   // that sub-cube's own run, which packs its own sub-cubes in turn where it still does not fit.
-  template <class Emit>
-  void split(const Run& run, int level, std::size_t a, std::size_t b, std::uint32_t parentSlice, Emit& emit) {
+  template <class Sink>
+  void split(const Run& run, int level, std::size_t a, std::size_t b, std::uint32_t parentSlice, Sink& sink) {
     struct Part {
       int slot;
       std::size_t a, b;
     };
     std::vector<Part> parts;
-    const int shift = level - 1 - (run.cubeLevel + 1);
-    const std::vector<Voxel>& parents = voxelsAt(level - 1);
     for (std::size_t i = a; i < b;) {
-      const glm::ivec3 sub = parents[i].coord >> shift;
+      const glm::ivec3 sub = subCube(level, i, run.cubeLevel + 1);
       std::size_t j = i;
-      while (j < b && (parents[j].coord >> shift) == sub) ++j;
+      while (j < b && subCube(level, j, run.cubeLevel + 1) == sub) ++j;
       parts.push_back({(sub.x & 1) | (sub.y & 1) << 1 | (sub.z & 1) << 2, i, j});
       i = j;
     }
@@ -346,43 +488,40 @@ class StoreWriter {
       }
       const Part& p = parts[first];
       if (first == last)
-        plan({run.cubeLevel + 1, childCoord(run.cube, p.slot), 0, 7}, level, p.a, p.b, parentSlice, emit);
+        plan({run.cubeLevel + 1, childCoord(run.cube, p.slot), 0, 7}, level, p.a, p.b, parentSlice, sink);
       else
         plan({run.cubeLevel, run.cube, p.slot, parts[last].slot}, level, p.a, parts[last].b, parentSlice,
-             emit);
+             sink);
       first = last + 1;
     }
   }
 
-  std::vector<std::byte> encode(const SliceHead& head, int level, std::size_t a, std::size_t b) const {
-    std::vector<std::byte> out(sizeof head);
-    std::memcpy(out.data(), &head, sizeof head);
-    out.reserve(sliceRawBytes(head));
+  // Level `level` of the parents [a, b) of level - 1 (in the tree).
+  SliceSections sections(int level, std::size_t a, std::size_t b) const {
+    SliceSections out;
     const std::vector<Voxel>& parents = voxelsAt(level - 1);
-    {
-      BitWriter split(out);
-      for (std::size_t i = a; i < b; ++i) split.push(tree_.voxels[parents[i].record].childMask != 0);
+    for (std::size_t i = a; i < b; ++i) {
+      const std::uint8_t mask = tree_.voxels[parents[i].record].childMask;
+      out.split.push(mask != 0);
+      if (mask) out.masks.push_back(mask);
     }
-    for (std::size_t i = a; i < b; ++i)
-      if (const std::uint8_t mask = tree_.voxels[parents[i].record].childMask) out.push_back(std::byte(mask));
     const std::uint32_t ca = prefixAt(level - 1).children[a], cb = prefixAt(level - 1).children[b];
+    if (ca == cb) return out;
     const std::vector<Voxel>& voxels = voxelsAt(level);
-    const auto section = [&](auto has, auto value) {
-      {
-        BitWriter bits(out);
-        for (std::uint32_t i = ca; i < cb; ++i) bits.push(has(voxels[i].record));
+    for (std::uint32_t i = ca; i < cb; ++i) {
+      const std::uint32_t v = voxels[i].record;
+      const VoxelRecord& r = tree_.voxels[v];
+      out.contourBits.push(r.hasContour);
+      if (r.hasContour) out.contours.push_back(r.contour);
+      if (tree_.hasColors) {
+        out.colorBits.push(storesColor_[v] != 0);
+        if (storesColor_[v]) out.colors.push_back(effectiveColor_[v]);
       }
-      for (std::uint32_t i = ca; i < cb; ++i)
-        if (has(voxels[i].record)) appendWord(out, value(voxels[i].record));
-    };
-    section([&](std::uint32_t v) { return tree_.voxels[v].hasContour; },
-            [&](std::uint32_t v) { return tree_.voxels[v].contour; });
-    if (tree_.hasColors)
-      section([&](std::uint32_t v) { return storesColor_[v] != 0; },
-              [&](std::uint32_t v) { return effectiveColor_[v]; });
-    if (tree_.hasNormals)
-      section([&](std::uint32_t v) { return storesNormal_[v] != 0; },
-              [&](std::uint32_t v) { return effectiveNormal_[v]; });
+      if (tree_.hasNormals) {
+        out.normalBits.push(storesNormal_[v] != 0);
+        if (storesNormal_[v]) out.normals.push_back(effectiveNormal_[v]);
+      }
+    }
     return out;
   }
 
@@ -393,6 +532,7 @@ class StoreWriter {
   std::vector<std::uint8_t> storesColor_, storesNormal_;
   std::vector<std::vector<Voxel>> levels_;
   std::vector<Prefix> prefix_;
+  std::vector<CellPrefix> cellPrefix_;
 };
 
 }  // namespace
@@ -491,39 +631,157 @@ void StoreFileWriter::put(const void* data, std::size_t bytes) {
     fail(path_, std::string("cannot write (") + std::strerror(errno) + ")");
 }
 
+std::uint32_t StoreFileWriter::writeSlice(const std::vector<std::byte>& raw, SliceInfo info,
+                                          std::uint32_t reserved) {
+  compressed_.resize(ZSTD_compressBound(raw.size()));
+  const std::size_t packed =
+      ZSTD_compress(compressed_.data(), compressed_.size(), raw.data(), raw.size(), kZstdLevel);
+  if (ZSTD_isError(packed)) fail(path_, std::string("compression failed: ") + ZSTD_getErrorName(packed));
+  info.offset = offset_;
+  info.compressedBytes = std::uint32_t(packed);
+  info.rawBytes = std::uint32_t(raw.size());
+  info.checksum = XXH3_64bits(compressed_.data(), packed);
+  put(compressed_.data(), packed);
+  offset_ += packed;
+  if (reserved != SliceInfo::kNoSlice) {
+    slices_[reserved] = info;
+    return reserved;
+  }
+  slices_.push_back(info);
+  return std::uint32_t(slices_.size() - 1);
+}
+
+namespace {
+
+// Where StoreWriter's plan sends slices: written at once, in plan order.
+struct FileSink {
+  std::function<std::uint32_t(const std::vector<std::byte>&, const SliceInfo&)> write;
+  std::uint32_t emit(const std::vector<std::byte>& raw, const SliceInfo& info) { return write(raw, info); }
+  std::uint32_t reserve(const SliceInfo&, const SliceHead&, std::size_t, std::size_t) {
+    throw std::logic_error("writeStore: a tree without cells reserved a slice");
+  }
+  void delegate(std::size_t, int, std::uint32_t) {
+    throw std::logic_error("writeStore: a tree without cells handed on a cell");
+  }
+};
+
+}  // namespace
+
 std::vector<std::uint32_t> StoreFileWriter::append(const VoxelTree& tree, const SubtreePlacement& at,
                                                    EffectiveAttributes* effective) {
   if (!file_) throw std::logic_error("StoreFileWriter: append after finish");
   if (at.parentSlice != SliceInfo::kNoSlice && at.parentSlice >= slices_.size())
     throw std::invalid_argument("writeStore: a subtree's parent slice is not written yet");
+  if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
+    throw std::invalid_argument("writeStore: the tree has no voxels below the root");
   StoreWriter writer(tree, options_, at);
   std::vector<std::uint32_t> ids;
-  std::vector<char> compressed;
   std::uint64_t voxelsWritten = 1;  // the root is the parent slice's (or the header's)
-  writer.run([&](const std::vector<std::byte>& raw, SliceInfo info) {
-    compressed.resize(ZSTD_compressBound(raw.size()));
-    const std::size_t packed =
-        ZSTD_compress(compressed.data(), compressed.size(), raw.data(), raw.size(), kZstdLevel);
-    if (ZSTD_isError(packed)) fail(path_, std::string("compression failed: ") + ZSTD_getErrorName(packed));
-    info.offset = offset_;
-    info.compressedBytes = std::uint32_t(packed);
-    info.rawBytes = std::uint32_t(raw.size());
-    info.checksum = XXH3_64bits(compressed.data(), packed);
-    put(compressed.data(), packed);
-    offset_ += packed;
-    slices_.push_back(info);
-    ids.push_back(std::uint32_t(slices_.size() - 1));
+  FileSink sink{[&](const std::vector<std::byte>& raw, const SliceInfo& info) {
+    ids.push_back(writeSlice(raw, info));
     voxelsWritten += info.voxelCount;
     if (options_.progress) options_.progress(double(voxelsWritten) / double(writer.voxelCount()));
     return ids.back();
-  });
+  }};
+  writer.run(sink);
   if (effective) *effective = writer.effective();
   return ids;
+}
+
+namespace {
+
+// The out-of-core top's sink: its own levels are written at once; slices of cell levels that span several
+// cells are reserved (an id in plan order, so parents still come first) and written once their last cell
+// has given its part; a run within one cell is left to that cell.
+struct ForestSink {
+  struct Reserved {
+    SliceHead head;
+    std::size_t lastCell;
+    SliceSections parts;
+  };
+  std::function<std::uint32_t(const std::vector<std::byte>&, const SliceInfo&)> write;
+  std::vector<SliceInfo>& slices;
+  std::map<std::uint32_t, Reserved> reserved;
+  std::vector<std::vector<std::pair<int, std::uint32_t>>> cellParts;  // per cell: (level, reserved slice)
+  std::vector<std::pair<int, std::uint32_t>> cellStart;  // per cell: (first level, parent slice) of its own
+
+  std::uint32_t emit(const std::vector<std::byte>& raw, const SliceInfo& info) { return write(raw, info); }
+  std::uint32_t reserve(const SliceInfo& info, const SliceHead& head, std::size_t a, std::size_t b) {
+    const auto id = std::uint32_t(slices.size());
+    slices.push_back(info);
+    reserved[id] = {head, b - 1, {}};
+    for (std::size_t cell = a; cell < b; ++cell) cellParts[cell].push_back({info.voxelLevel, id});
+    return id;
+  }
+  void delegate(std::size_t cell, int level, std::uint32_t parentSlice) {
+    cellStart[cell] = {level, parentSlice};
+  }
+};
+
+}  // namespace
+
+void StoreFileWriter::appendForest(const VoxelTree& top, int cellLevel,
+                                   const std::function<VoxelTree(glm::ivec3 cell, bool counting)>& loadCell) {
+  if (!file_) throw std::logic_error("StoreFileWriter: append after finish");
+  if (!slices_.empty()) throw std::logic_error("StoreFileWriter: a forest must be the store's first subtree");
+  if (top.voxels.empty() || top.voxels[0].childMask == 0)
+    throw std::invalid_argument("writeStore: the tree has no voxels below the root");
+  const VoxelRecord& root = top.voxels[0];
+  StoreWriter topWriter(top, options_, {0, glm::ivec3(0), root.color, root.normal, SliceInfo::kNoSlice});
+  std::vector<std::pair<std::uint32_t, glm::ivec3>> cells;
+  if (topWriter.topLevel() == cellLevel) cells = topWriter.deepestVoxels();
+  const EffectiveAttributes effective = topWriter.effective();
+  const auto placement = [&](std::size_t i) {
+    const auto [record, coord] = cells[i];
+    return SubtreePlacement{cellLevel, coord, effective.color[record], effective.normal[record],
+                            SliceInfo::kNoSlice};
+  };
+  const auto progress = [&](std::size_t done) {
+    if (options_.progress)
+      options_.progress(double(done) / double(std::max<std::size_t>(2 * cells.size(), 1)));
+  };
+  // 1. Every cell's totals per level: the plan's sizes for slices spanning cells.
+  std::vector<std::vector<LevelTotals>> totals(cells.size());
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    totals[i] = StoreWriter(loadCell(cells[i].second, true), options_, placement(i)).totals();
+    progress(i + 1);
+  }
+  topWriter.addCells(totals);
+  // 2. The plan: the top's slices written, the spanning ones reserved, the rest handed to their cells.
+  const auto write = [&](const std::vector<std::byte>& raw, const SliceInfo& info) {
+    return writeSlice(raw, info);
+  };
+  ForestSink sink{write,
+                  slices_,
+                  {},
+                  std::vector<std::vector<std::pair<int, std::uint32_t>>>(cells.size()),
+                  std::vector<std::pair<int, std::uint32_t>>(cells.size(), {0, SliceInfo::kNoSlice})};
+  topWriter.run(sink);
+  // 3. Each cell: its parts of the spanning slices (a slice is written when its last cell is done), then its
+  // own slices.
+  FileSink own{write};
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    const VoxelTree tree = loadCell(cells[i].second, false);
+    StoreWriter cell(tree, options_, placement(i));
+    for (const auto& [level, id] : sink.cellParts[i]) {
+      ForestSink::Reserved& r = sink.reserved.at(id);
+      r.parts.append(cell.sectionsOfLevel(level));
+      if (r.lastCell != i) continue;
+      writeSlice(layOut(r.head, r.parts), slices_[id], id);
+      sink.reserved.erase(id);
+    }
+    if (const auto [level, parent] = sink.cellStart[i]; parent != SliceInfo::kNoSlice)
+      cell.runFrom(level, parent, own);
+    progress(cells.size() + i + 1);
+  }
+  if (!sink.reserved.empty()) throw std::logic_error("writeStore: a slice spanning cells was not completed");
 }
 
 void StoreFileWriter::finish(const StoreContents& contents) {
   if (!file_) throw std::logic_error("StoreFileWriter: finish twice");
   if (slices_.empty()) throw std::invalid_argument("writeStore: the store has no slices");
+  for (const SliceInfo& slice : slices_)
+    if (slice.compressedBytes == 0) throw std::logic_error("writeStore: a reserved slice was never written");
   std::vector<DirectoryEntry> directory(slices_.size());
   for (std::size_t i = 0; i < slices_.size(); ++i) directory[i] = entryOf(slices_[i]);
   const std::size_t directoryBytes = directory.size() * sizeof(DirectoryEntry);
@@ -639,18 +897,17 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_
   if (kCheckChecksums && XXH3_64bits(directory.data(), h.directoryBytes) != h.directoryChecksum)
     fail(path, "directory checksum mismatch");
 
-  // Slices tile the bytes between the header and the directory in order, so every byte has a checksum.
-  std::uint64_t expectedOffset = sizeof h;
+  // Slices tile the bytes between the header and the directory (in file order, which is not always the
+  // directory's: an out-of-core build writes a slice spanning cells after its last cell), so every byte has
+  // a checksum.
   slices_.reserve(directory.size());
   for (std::size_t i = 0; i < directory.size(); ++i) {
     const DirectoryEntry& e = directory[i];
     const auto bad = [&](const std::string& what) {
       fail(path, "directory entry " + std::to_string(i) + ": " + what);
     };
-    if (e.offset != expectedOffset || e.compressedBytes == 0 ||
-        e.offset + e.compressedBytes > h.directoryOffset)
+    if (e.offset < sizeof h || e.compressedBytes == 0 || e.offset + e.compressedBytes > h.directoryOffset)
       bad("slice bytes out of place");
-    expectedOffset += e.compressedBytes;
     if (e.rawBytes < sizeof(SliceHead) || e.rawBytes > kMaxSliceRawBytes) bad("invalid slice size");
     if (e.voxelLevel < 1 || e.voxelLevel > h.levels || e.cubeLevel >= e.voxelLevel) bad("invalid levels");
     for (const std::int32_t c : e.cubeCoord)
@@ -660,6 +917,15 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_
       bad("invalid run of sub-cubes");
     if (e.parentSlice != SliceInfo::kNoSlice && e.parentSlice >= i) bad("parent slice does not come first");
     slices_.push_back(sliceOf(e));
+  }
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> extents;  // (offset, compressed bytes)
+  extents.reserve(slices_.size());
+  for (const SliceInfo& s : slices_) extents.push_back({s.offset, s.compressedBytes});
+  std::sort(extents.begin(), extents.end());
+  std::uint64_t expectedOffset = sizeof h;
+  for (const auto& [offset, bytes] : extents) {
+    if (offset != expectedOffset) fail(path, "slice bytes out of place at offset " + std::to_string(offset));
+    expectedOffset += bytes;
   }
   if (expectedOffset != h.directoryOffset) fail(path, "the slices do not end where the directory starts");
 }

@@ -1,15 +1,18 @@
 // The out-of-core build (builder/build.hpp buildStore) against the in-core build of the same mesh and
 // options: the stores decode (StoreReader::loadTree) to the same octree, voxel for voxel, at every cell level
-// and thread count; an interrupted build leaves no store, and resuming keeps the cells already on disk and
-// still gives the same octree; a resume refuses a work folder of another build; too little memory is a
-// clear error before any work; a damaged spilled cell is built again, not trusted.
+// and thread count, and hold the same slices (cube, run, level, bytes and parent), those spanning cells too;
+// an interrupted build leaves no store, and resuming keeps the cells already on disk and still gives the same
+// octree; a resume refuses a work folder of another build; too little memory is a clear error before any
+// work; a damaged spilled cell is built again, not trusted.
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <set>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
@@ -41,6 +44,23 @@ svo::VoxelTree inCoreTree(const svo::Mesh& mesh, const svo::BuildOptions& option
   return svo::StoreReader(file.path).loadTree();
 }
 
+// A store's slices by what they cover: (voxel level, cube level, cube, run) -> decoded bytes and the parent's
+// key. Ids and file offsets may differ between two stores of the same slices.
+using SliceKey = std::tuple<int, int, int, int, int, int, int>;
+std::map<SliceKey, std::pair<std::vector<std::byte>, SliceKey>> slicesByKey(const svo::StoreReader& reader) {
+  const auto& slices = reader.slices();
+  const auto key = [&](std::uint32_t id) {
+    if (id == svo::SliceInfo::kNoSlice) return SliceKey{};
+    const svo::SliceInfo& s = slices[id];
+    return SliceKey{s.voxelLevel,  s.cubeLevel, s.cubeCoord.x, s.cubeCoord.y,
+                    s.cubeCoord.z, s.firstSlot, s.lastSlot};
+  };
+  std::map<SliceKey, std::pair<std::vector<std::byte>, SliceKey>> out;
+  for (std::uint32_t id = 0; id < slices.size(); ++id)
+    out[key(id)] = {reader.readSlice(id), key(slices[id].parentSlice)};
+  return out;
+}
+
 void expectSameTree(const svo::VoxelTree& a, const svo::VoxelTree& b) {
   ASSERT_EQ(a.voxels.size(), b.voxels.size());
   EXPECT_EQ(a.hasColors, b.hasColors);
@@ -56,6 +76,9 @@ TEST(OutOfCore, EqualsTheInCoreBuildAtEveryCellLevel) {
     options.levels = 7;
     if (errorStop) options.geometryError = 1.0f, options.colorError = 8.0f;  // leaves above the finest level
     const svo::VoxelTree reference = inCoreTree(mesh, options);
+    const svotest::TempFile inCore("svo_ooc_incore", ".svo");
+    svo::writeOctree(inCore.path, svo::buildOctree(mesh, options), smallSlices());
+    const auto inCoreSlices = slicesByKey(svo::StoreReader(inCore.path));
     for (const int cellLevel : {1, 2, 3, 6}) {
       SCOPED_TRACE("cell level " + std::to_string(cellLevel) + (errorStop ? ", error-driven stop" : ""));
       const svotest::TempFile store("svo_ooc", ".svo");
@@ -68,6 +91,10 @@ TEST(OutOfCore, EqualsTheInCoreBuildAtEveryCellLevel) {
       EXPECT_FALSE(fs::exists(store.path.string() + ".build"));  // the work folder goes with success
       const svo::StoreReader reader(store.path);
       expectSameTree(reader.loadTree(), reference);
+      const auto slices = slicesByKey(reader);
+      EXPECT_EQ(slices.size(), inCoreSlices.size());
+      EXPECT_TRUE(slices == inCoreSlices) << "the out-of-core store's slices differ from the in-core store's";
+      EXPECT_EQ(reader.verify(), reference.voxels.size());
       // The report's statistics count the whole octree once.
       std::uint64_t voxels = 0;
       for (const std::uint64_t v : report.stats.voxelsPerLevel) voxels += v;

@@ -56,6 +56,8 @@ constexpr double kMinSampleSeconds = 0.2;
 constexpr std::uint64_t kShuffleSeed = 0x5EED;
 // Goals from issue 4, printed next to the measured ratios.
 constexpr double kDecodeGoal = 0.8, kColdReadGoal = 0.5;
+// Slice sizes (issue 4): median at least half the target, none above 1.5x it unless its cube cannot split.
+constexpr double kMedianSliceGoal = 0.5, kLargestSliceGoal = 1.5;
 // Compressed bytes the warm comparison keeps in memory: the first slices up to this much (all of a small
 // store), so that a store of any size is measured in bounded memory.
 constexpr std::uint64_t kWarmSampleBytes = std::uint64_t(256) << 20;
@@ -467,6 +469,35 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
       "virtual\n"
       "disk may still be cached by its host. Random order: a fixed shuffle of all {} slices.\n",
       100.0 * maxResident, slices.size());
+
+  printTitle("Slice sizes");
+  {
+    // Slices whose cube is one voxel of the level above cannot split; the goals are about the others.
+    std::vector<double> splittable;
+    std::size_t unsplittable = 0, overLimit = 0;
+    for (const SliceInfo& s : slices) {
+      const double size = double(s.rawBytes) / double(h.sliceBytes);
+      if (s.firstSlot == 0 && s.lastSlot == 7 && s.cubeLevel == s.voxelLevel - 1) {
+        ++unsplittable;
+        continue;
+      }
+      splittable.push_back(size);
+      overLimit += size > kLargestSliceGoal;
+    }
+    std::sort(splittable.begin(), splittable.end());
+    const auto quantile = [&](double q) {
+      return splittable.empty() ? 0.0 : splittable[std::size_t(q * double(splittable.size() - 1) + 0.5)];
+    };
+    Table sizes({"decoded slice size / target", "p10", "median", "p90", "largest", "above 1.5x", "goal"});
+    sizes.addRow({fmt::format("{} slices that can split", splittable.size()),
+                  fmt::format("{:.2f}", quantile(0.1)), fmt::format("{:.2f}", quantile(0.5)),
+                  fmt::format("{:.2f}", quantile(0.9)), fmt::format("{:.2f}", quantile(1.0)),
+                  std::to_string(overLimit),
+                  fmt::format("median >= {:.1f}, none above {:.1f}", kMedianSliceGoal, kLargestSliceGoal)});
+    sizes.print();
+    fmt::print("target: {} B decoded; {} more slices hold the children of a single voxel (cannot split)\n",
+               h.sliceBytes, unsplittable);
+  }
 
   printTitle("Bytes per leaf voxel");
   fmt::print("{} leaf voxels (voxels without children), {} voxels in all\n", formatCount(leaves),

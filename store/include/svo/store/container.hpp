@@ -175,16 +175,27 @@ class StoreFileWriter {
   // `effective` receives each record's attribute values as a reader decodes them (inheritance applied).
   std::vector<std::uint32_t> append(const VoxelTree& tree, const SubtreePlacement& at,
                                     EffectiveAttributes* effective = nullptr);
+  // The out-of-core build's store, as the first subtree: `top` holds the levels down to `cellLevel`, and each
+  // of its voxels of that level is a cell whose subtree (rooted at that voxel) `loadCell` returns, twice per
+  // cell in Morton order (`counting` first, then to write). The slices are those writeStore makes of the
+  // whole tree; the ones spanning several cells are assembled from each cell's part, so at most one cell is
+  // held at a time (plus one slice per level).
+  void appendForest(const VoxelTree& top, int cellLevel,
+                    const std::function<VoxelTree(glm::ivec3 cell, bool counting)>& loadCell);
   const std::vector<SliceInfo>& slices() const { return slices_; }
   void finish(const StoreContents& contents);
 
  private:
   void put(const void* data, std::size_t bytes);
+  // Compresses and writes one slice; fills the directory entry `reserved` or appends one. Returns its id.
+  std::uint32_t writeSlice(const std::vector<std::byte>& raw, SliceInfo info,
+                           std::uint32_t reserved = SliceInfo::kNoSlice);
   std::filesystem::path path_, temp_;
   StoreWriteOptions options_;
   std::FILE* file_ = nullptr;
   std::uint64_t offset_ = 0;
   std::vector<SliceInfo> slices_;
+  std::vector<char> compressed_;
 };
 
 // Writes the voxel tree as a slice store, atomically: `path` either keeps its old content or gets the
