@@ -358,6 +358,30 @@ class StoreWriter {
     if (level - 1 > topLevel()) return {};
     return sections(level, 0, voxelsAt(level - 1).size());
   }
+
+ private:
+  struct Voxel {
+    std::uint32_t record;
+    glm::ivec3 coord;
+  };
+  struct Prefix {
+    std::vector<std::uint32_t> children, splits, contours, colors, normals;
+  };
+  struct CellPrefix {  // per cell, in order: totals of one level below the tree's deepest
+    std::vector<std::uint64_t> voxels, splits, children, contours, colors, normals;
+  };
+  // What a slice covers: a cube and a run of its sub-cubes (SliceInfo).
+  struct Run {
+    int cubeLevel;
+    glm::ivec3 cube;
+    int firstSlot, lastSlot;
+  };
+
+  // Per-level data by absolute voxel level (the root sits at at_.rootLevel).
+  const std::vector<Voxel>& voxelsAt(int level) const { return levels_[std::size_t(level - at_.rootLevel)]; }
+  const Prefix& prefixAt(int level) const { return prefix_[std::size_t(level - at_.rootLevel)]; }
+  int deepestLevel() const { return topLevel() + std::max(0, int(cellPrefix_.size()) - 1); }
+  // The head of the slice of level `level` over the parents [a, b) of level - 1.
   SliceHead headOf(int level, std::size_t a, std::size_t b) const {
     SliceHead h{};
     h.magic = kSliceMagic;
@@ -389,29 +413,6 @@ class StoreWriter {
     }
     return h;
   }
-
- private:
-  struct Voxel {
-    std::uint32_t record;
-    glm::ivec3 coord;
-  };
-  struct Prefix {
-    std::vector<std::uint32_t> children, splits, contours, colors, normals;
-  };
-  struct CellPrefix {  // per cell, in order: totals of one level below the tree's deepest
-    std::vector<std::uint64_t> voxels, splits, children, contours, colors, normals;
-  };
-  // What a slice covers: a cube and a run of its sub-cubes (SliceInfo).
-  struct Run {
-    int cubeLevel;
-    glm::ivec3 cube;
-    int firstSlot, lastSlot;
-  };
-
-  // Per-level data by absolute voxel level (the root sits at at_.rootLevel).
-  const std::vector<Voxel>& voxelsAt(int level) const { return levels_[std::size_t(level - at_.rootLevel)]; }
-  const Prefix& prefixAt(int level) const { return prefix_[std::size_t(level - at_.rootLevel)]; }
-  int deepestLevel() const { return topLevel() + std::max(0, int(cellPrefix_.size()) - 1); }
   // The parents [a, b) of level - 1 give the voxels [first, second) of `level` (cells: the same cells).
   std::pair<std::size_t, std::size_t> childRange(int level, std::size_t a, std::size_t b) const {
     if (level - 1 >= topLevel()) return {a, b};
