@@ -217,7 +217,11 @@ bool InheritanceRule::color(std::uint32_t a, std::uint32_t b) const {
   return true;
 }
 bool InheritanceRule::normal(std::uint32_t a, std::uint32_t b) const {
-  return a == b || glm::dot(decodeNormal(a), decodeNormal(b)) >= normalCos_;
+  if (a == b) return true;
+  // The angle's cosine against the threshold without normalizing either: one square root, not two
+  // normalizations (this test runs per voxel in every layout).
+  const glm::vec3 p = normalDirection(a), q = normalDirection(b);
+  return glm::dot(p, q) >= normalCos_ * std::sqrt(glm::dot(p, p) * glm::dot(q, q));
 }
 
 namespace {

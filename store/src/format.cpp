@@ -41,8 +41,6 @@ glm::vec4 decodeColor(std::uint32_t abgr) {
 }
 
 namespace {
-constexpr std::uint32_t kNormalUMax = (1u << 15) - 1;  // 15-bit face coordinate (Fig. 7b)
-constexpr std::uint32_t kNormalVMax = (1u << 14) - 1;  // 14-bit face coordinate (Fig. 7b)
 // The two face coordinates for each axis, in axis order.
 constexpr int kFaceAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};
 }  // namespace
@@ -60,13 +58,7 @@ std::uint32_t encodeNormal(glm::vec3 n) {
 }
 
 glm::vec3 decodeNormal(std::uint32_t bits) {
-  const std::uint32_t face = bits >> 29;
-  const int axis = std::min<int>(int(face >> 1), 2);
-  glm::vec3 n(0.0f);
-  n[axis] = (face & 1u) ? -1.0f : 1.0f;
-  n[kFaceAxes[axis][0]] = float((bits >> 14) & kNormalUMax) / float(kNormalUMax) * 2.0f - 1.0f;
-  n[kFaceAxes[axis][1]] = float(bits & kNormalVMax) / float(kNormalVMax) * 2.0f - 1.0f;
-  return glm::normalize(n);
+  return glm::normalize(normalDirection(bits));
 }
 
 }  // namespace svo

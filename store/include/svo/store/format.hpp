@@ -112,8 +112,20 @@ glm::vec4 decodeColor(std::uint32_t abgr);
 
 // Normal as a point on the unit cube: [31:29] face (axis * 2 + negative), [28:14] u (15 bits), [13:0] v
 // (14 bits); u, v are the two remaining coordinates in [-1, 1] in axis order.
+inline constexpr std::uint32_t kNormalUMax = (1u << 15) - 1;  // 15-bit face coordinate (Fig. 7b)
+inline constexpr std::uint32_t kNormalVMax = (1u << 14) - 1;  // 14-bit face coordinate (Fig. 7b)
 std::uint32_t encodeNormal(glm::vec3 n);
 glm::vec3 decodeNormal(std::uint32_t bits);  // unit length
+// The normal's point on the unit cube (not unit length): decodeNormal without the normalization, inline for
+// the layout's per-voxel inheritance test.
+inline glm::vec3 normalDirection(std::uint32_t bits) {
+  const std::uint32_t face = bits >> 29;
+  const int axis = face >> 1 < 2 ? int(face >> 1) : 2;
+  const float u = float((bits >> 14) & kNormalUMax) / float(kNormalUMax) * 2.0f - 1.0f;
+  const float v = float(bits & kNormalVMax) / float(kNormalVMax) * 2.0f - 1.0f;
+  const float w = (face & 1u) ? -1.0f : 1.0f;
+  return axis == 0 ? glm::vec3(w, u, v) : axis == 1 ? glm::vec3(u, w, v) : glm::vec3(u, v, w);
+}
 
 // Attribute lookup entry (Fig. 7c): [7:0] attribute mask, [31:8] value pointer in 32-bit words from the start
 // of the attachment's value array. A child whose bit is clear inherits its parent's value.
