@@ -81,12 +81,14 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
         for (int slot = 0; slot < 8; ++slot)
           if (slot < firstSlot || slot > lastSlot) mask &= std::uint8_t(~(1u << slot));
       parent.childMask = mask;
+      const BlockView::Attributes colors = BlockView::attributes(d, AttachmentType::Color);
+      const BlockView::Attributes normals = BlockView::attributes(d, AttachmentType::Normal);
       for (int slot = 0; slot < 8; ++slot) {
         if (!(mask >> slot & 1u)) continue;
         SliceVoxel c{childCoord(parent.coord, slot), 0, false, 0, parent.color, parent.normal};
         if (auto contour = BlockView::contour(d, slot)) c.hasContour = true, c.contour = *contour;
-        if (auto v = BlockView::attribute(d, slot, AttachmentType::Color)) c.color = *v;
-        if (auto v = BlockView::attribute(d, slot, AttachmentType::Normal)) c.normal = *v;
+        if (auto v = colors.at(slot)) c.color = *v;
+        if (auto v = normals.at(slot)) c.normal = *v;
         next.push_back(c);
         nextDescriptors.push_back((d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr);
       }
@@ -365,7 +367,9 @@ Pager::Prepared Pager::prepare(const Request& request) {
           record && tree.voxels[*record].childMask != 0)
         entryRecords.push_back({coord, *record});
     std::vector<std::uint32_t> slotOf;
-    out.block = layoutBlock(tree, LayoutOptions{}, nullptr, &slotOf);
+    LayoutOptions layout;
+    layout.inheritEqualOnly = true;  // decoded slices: the store already decided what inherits
+    out.block = layoutBlock(tree, layout, nullptr, &slotOf);
     out.rootSlot = out.block.view().info().rootSlot;
     for (const auto& [coord, record] : entryRecords) out.entries.push_back({coord, slotOf[record]});
     for (const auto& [child, records] : childRecords)

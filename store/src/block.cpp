@@ -69,7 +69,11 @@ std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, i
 
 std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent, int slot,
                                                   AttachmentType type) {
-  // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> value.
+  return attributes(parent, type).at(slot);
+}
+
+BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
+  // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> values.
   const BlockInfo& info = infoOf(parent);
   const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
   const auto* slots = at<ChildDescriptor>(&info, std::ptrdiff_t(info.slotsPointer) * 4);
@@ -78,10 +82,9 @@ std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent,
     if (entries[a].type != type) continue;
     const auto* attachment = at<std::uint32_t>(&info, std::ptrdiff_t(entries[a].pointer) * 4);
     const AttributeLookup lookup{attachment[index]};
-    if (!(lookup.mask() >> slot & 1u)) return std::nullopt;
-    return attachment[lookup.valuePointer() + childRank(lookup.mask(), slot)];
+    return {lookup.mask(), attachment + lookup.valuePointer()};
   }
-  return std::nullopt;
+  return {};
 }
 
 const AttachmentEntry* BlockView::attachment(AttachmentType type) const {
@@ -209,15 +212,18 @@ Block::Block(AlignedBytes bytes) : bytes_(std::move(bytes)), view_(bytes_.data()
 // Layout.
 InheritanceRule::InheritanceRule(const LayoutOptions& options)
     : colorSteps_(options.colorInheritSteps),
-      normalCos_(std::cos(options.normalInheritDegrees * 3.14159265f / 180.0f)) {}
+      normalCos_(std::cos(options.normalInheritDegrees * 3.14159265f / 180.0f)),
+      equalOnly_(options.inheritEqualOnly) {}
 
 bool InheritanceRule::color(std::uint32_t a, std::uint32_t b) const {
+  if (equalOnly_) return a == b;
   for (int shift = 0; shift < 32; shift += 8)
     if (std::abs(int((a >> shift) & 255u) - int((b >> shift) & 255u)) > colorSteps_) return false;
   return true;
 }
 bool InheritanceRule::normal(std::uint32_t a, std::uint32_t b) const {
   if (a == b) return true;
+  if (equalOnly_) return false;
   // The angle's cosine against the threshold without normalizing either: one square root, not two
   // normalizations (this test runs per voxel in every layout).
   const glm::vec3 p = normalDirection(a), q = normalDirection(b);
@@ -491,12 +497,14 @@ VoxelTree readBlock(const BlockView& block) {
     tree.voxels[i].childMask = d->validMask();
     tree.voxels[i].stub = d->isStub();
     tree.voxels[i].firstChild = std::uint32_t(tree.voxels.size());
+    const BlockView::Attributes colors = BlockView::attributes(d, AttachmentType::Color);
+    const BlockView::Attributes normals = BlockView::attributes(d, AttachmentType::Normal);
     for (int slot = 0; slot < 8; ++slot) {
       if (!(d->validMask() >> slot & 1u)) continue;
       VoxelRecord c;
       if (auto contour = BlockView::contour(d, slot)) c.hasContour = true, c.contour = *contour;
-      c.color = BlockView::attribute(d, slot, AttachmentType::Color).value_or(parent.color);
-      c.normal = BlockView::attribute(d, slot, AttachmentType::Normal).value_or(parent.normal);
+      c.color = colors.at(slot).value_or(parent.color);
+      c.normal = normals.at(slot).value_or(parent.normal);
       tree.voxels.push_back(c);
       descriptorOf.push_back((d->leafMask() >> slot & 1u) ? nullptr : BlockView::child(d, slot));
     }

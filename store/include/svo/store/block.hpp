@@ -82,6 +82,17 @@ class BlockView {
   // Paper Fig. 8: page header -> info section -> attachment -> lookup entry -> value. nullopt when the
   // child's bit is clear (it inherits its parent's value).
   static std::optional<std::uint32_t> attribute(const ChildDescriptor* parent, int slot, AttachmentType type);
+  // The same lookup done once for all of `parent`'s children: for walks that read every child (each lookup
+  // is a chain of dependent loads).
+  struct Attributes {
+    std::uint8_t mask = 0;                  // children with a value of their own
+    const std::uint32_t* values = nullptr;  // their values, in slot order
+    std::optional<std::uint32_t> at(int slot) const {
+      if (!(mask >> slot & 1u)) return std::nullopt;
+      return values[childRank(mask, slot)];
+    }
+  };
+  static Attributes attributes(const ChildDescriptor* parent, AttachmentType type);
   static const BlockInfo& infoOf(const ChildDescriptor* descriptor);
 
  private:
@@ -117,6 +128,10 @@ struct LayoutOptions {
   int colorInheritSteps = 1;
   // A child whose normal is within this angle of its parent's inherits it (sec. 5.4).
   float normalInheritDegrees = 0.5f;
+  // The tree's values are a store's effective values (slices decoded, inheritance applied): a child inherits
+  // exactly where its value equals its parent's, as the store decided. The same blocks as the tolerances
+  // give for a store written with them, without testing every voxel against them (the pager).
+  bool inheritEqualOnly = false;
 };
 
 // Sec. 5.4: whether a child's attribute value is left out and inherited from its parent's effective value.
@@ -130,6 +145,7 @@ class InheritanceRule {
  private:
   int colorSteps_;
   float normalCos_;
+  bool equalOnly_;
 };
 
 struct LayoutStats {
