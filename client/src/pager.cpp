@@ -253,7 +253,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
     out.error = store_.path().string() + ": slice " + std::to_string(slice) + ": " + what;
   };
   // Disk, checksum and zstd, no lock held; a failed slice ends the chain, the ones before it still load.
-  std::vector<std::vector<std::byte>> raw;
+  std::vector<SliceBytes> raw;
   for (std::uint32_t k = 0; k < request.count; ++k) {
     const std::uint32_t slice = region.slices[first + k];
     try {

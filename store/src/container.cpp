@@ -931,12 +931,14 @@ StoreReader::StoreReader(const std::filesystem::path& path) : path_(path), file_
   if (expectedOffset != h.directoryOffset) fail(path, "the slices do not end where the directory starts");
 }
 
-std::vector<std::byte> StoreReader::readSlice(std::uint32_t id) const {
+SliceBytes StoreReader::readSlice(std::uint32_t id) const {
   if (id >= slices_.size()) throw sliceError(id, "no such slice");
   const SliceInfo& s = slices_[id];
   // pread on the descriptor kept open since construction: no reopening per slice, and safe to call from
   // several threads at once.
-  std::vector<char> compressed(s.compressedBytes);
+  // One compressed buffer per thread, reused, without a zero fill per slice (as the decoded bytes).
+  thread_local std::vector<char, UninitializedAllocator<char>> compressed;
+  compressed.resize(s.compressedBytes);
   const std::int64_t read = readAt(file_->fd, s.offset, compressed.data(), compressed.size());
   if (read < 0) throw sliceError(id, std::string("cannot read (") + std::strerror(errno) + ")");
   if (std::uint64_t(read) != s.compressedBytes) throw sliceError(id, "truncated");
@@ -944,14 +946,14 @@ std::vector<std::byte> StoreReader::readSlice(std::uint32_t id) const {
     throw sliceError(id, "checksum mismatch");
   if (ZSTD_getFrameContentSize(compressed.data(), compressed.size()) != s.rawBytes)
     throw sliceError(id, "size does not match its compressed frame");
-  std::vector<std::byte> raw(s.rawBytes);
+  SliceBytes raw(s.rawBytes);
   const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), compressed.data(), compressed.size());
   if (ZSTD_isError(got) || got != s.rawBytes) throw sliceError(id, "does not decompress");
   return raw;
 }
 
-void StoreReader::decodeSlice(std::uint32_t id, const std::vector<std::byte>& raw,
-                              std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children) const {
+void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, std::span<SliceVoxel> parents,
+                              std::vector<SliceVoxel>& children) const {
   const SliceInfo& s = slices_.at(id);
   if (parents.size() != s.parentCount)
     throw sliceError(id, "expects " + std::to_string(s.parentCount) + " parent voxels, its cube has " +

@@ -47,7 +47,7 @@ svo::VoxelTree inCoreTree(const svo::Mesh& mesh, const svo::BuildOptions& option
 // A store's slices by what they cover: (voxel level, cube level, cube, run) -> decoded bytes and the parent's
 // key. Ids and file offsets may differ between two stores of the same slices.
 using SliceKey = std::tuple<int, int, int, int, int, int, int>;
-std::map<SliceKey, std::pair<std::vector<std::byte>, SliceKey>> slicesByKey(const svo::StoreReader& reader) {
+std::map<SliceKey, std::pair<svo::SliceBytes, SliceKey>> slicesByKey(const svo::StoreReader& reader) {
   const auto& slices = reader.slices();
   const auto key = [&](std::uint32_t id) {
     if (id == svo::SliceInfo::kNoSlice) return SliceKey{};
@@ -55,7 +55,7 @@ std::map<SliceKey, std::pair<std::vector<std::byte>, SliceKey>> slicesByKey(cons
     return SliceKey{s.voxelLevel,  s.cubeLevel, s.cubeCoord.x, s.cubeCoord.y,
                     s.cubeCoord.z, s.firstSlot, s.lastSlot};
   };
-  std::map<SliceKey, std::pair<std::vector<std::byte>, SliceKey>> out;
+  std::map<SliceKey, std::pair<svo::SliceBytes, SliceKey>> out;
   for (std::uint32_t id = 0; id < slices.size(); ++id)
     out[key(id)] = {reader.readSlice(id), key(slices[id].parentSlice)};
   return out;
