@@ -37,19 +37,14 @@ std::uint64_t sliceKey(int voxelLevel, int cubeLevel, glm::ivec3 c) {
 }
 
 int slotToward(const glm::ivec3& coord, int shift) {
-  const glm::ivec3 b = (coord >> shift) & 1;
-  return b.x | b.y << 1 | b.z << 2;
-}
-
-bool wholeCube(std::uint8_t firstSlot, std::uint8_t lastSlot) {
-  return firstSlot == 0 && lastSlot == 7;
+  return childSlot(coord >> shift);
 }
 
 // Where a region is entered from its parent's block: the cube's voxel, or each sub-cube's voxel of a run
 // (present or not), in Morton order, and their level.
 std::pair<std::vector<glm::ivec3>, int> entryVoxels(int cubeLevel, glm::ivec3 cube, std::uint8_t firstSlot,
                                                     std::uint8_t lastSlot) {
-  if (wholeCube(firstSlot, lastSlot)) return {{cube}, cubeLevel};
+  if (isWholeCube(firstSlot, lastSlot)) return {{cube}, cubeLevel};
   std::vector<glm::ivec3> out;
   for (int slot = firstSlot; slot <= lastSlot; ++slot) out.push_back(childCoord(cube, slot));
   return {out, cubeLevel + 1};

@@ -436,7 +436,7 @@ class StoreWriter {
       sink.delegate(a, level, parentSlice);  // within one cell: its own subtree plans the rest
       return;
     }
-    const bool wholeCube = run.firstSlot == 0 && run.lastSlot == 7;
+    const bool wholeCube = isWholeCube(run.firstSlot, run.lastSlot);
     if (sliceRawBytes(head) > options_.sliceBytes && (!wholeCube || run.cubeLevel < level - 1)) {
       split(run, level, a, b, parentSlice, sink);
       return;
@@ -472,7 +472,7 @@ class StoreWriter {
       const glm::ivec3 sub = subCube(level, i, run.cubeLevel + 1);
       std::size_t j = i;
       while (j < b && subCube(level, j, run.cubeLevel + 1) == sub) ++j;
-      parts.push_back({(sub.x & 1) | (sub.y & 1) << 1 | (sub.z & 1) << 2, i, j});
+      parts.push_back({childSlot(sub), i, j});
       i = j;
     }
     // Even shares: a run of n slices' worth closes each group near 1/n of it instead of filling groups to
@@ -561,7 +561,7 @@ SliceParts slicePartsOf(const SliceInfo& s, bool hasColors, bool hasNormals) {
 SliceBox sliceBox(const SliceInfo& s) {
   const double size = std::ldexp(1.0, -s.cubeLevel);
   const glm::dvec3 corner = glm::dvec3(1.0) + glm::dvec3(s.cubeCoord) * size;
-  if (s.firstSlot == 0 && s.lastSlot == 7) return {corner, corner + size};
+  if (s.wholeCube()) return {corner, corner + size};
   // The union of the run's sub-cubes: the slots set a bit per axis, so the run spans an axis's upper half
   // where any of its slots does (and likewise the lower half).
   glm::dvec3 lower = corner + size, upper = corner;
@@ -580,7 +580,7 @@ bool sliceWithin(const SliceInfo& inner, const SliceInfo& outer) {
   // A finer cube: its ancestor one level below the outer cube is one of the outer run's sub-cubes.
   const glm::ivec3 sub = inner.cubeCoord >> (inner.cubeLevel - outer.cubeLevel - 1);
   if ((sub >> 1) != outer.cubeCoord) return false;
-  const int slot = (sub.x & 1) | (sub.y & 1) << 1 | (sub.z & 1) << 2;
+  const int slot = childSlot(sub);
   return slot >= outer.firstSlot && slot <= outer.lastSlot;
 }
 
@@ -694,19 +694,17 @@ namespace {
 // The out-of-core top's sink: its own levels are written at once; slices of cell levels that span several
 // cells are reserved (an id in plan order, so parents still come first) and written once their last cell
 // has given its part; a run within one cell is left to that cell.
-struct ForestSink {
+struct ForestSink : FileSink {
   struct Reserved {
     SliceHead head;
     std::size_t lastCell;
     SliceSections parts;
   };
-  std::function<std::uint32_t(const std::vector<std::byte>&, const SliceInfo&)> write;
   std::vector<SliceInfo>& slices;
   std::map<std::uint32_t, Reserved> reserved;
   std::vector<std::vector<std::pair<int, std::uint32_t>>> cellParts;  // per cell: (level, reserved slice)
   std::vector<std::pair<int, std::uint32_t>> cellStart;  // per cell: (first level, parent slice) of its own
 
-  std::uint32_t emit(const std::vector<std::byte>& raw, const SliceInfo& info) { return write(raw, info); }
   std::uint32_t reserve(const SliceInfo& info, const SliceHead& head, std::size_t a, std::size_t b) {
     const auto id = std::uint32_t(slices.size());
     slices.push_back(info);
@@ -752,7 +750,7 @@ void StoreFileWriter::appendForest(const VoxelTree& top, int cellLevel,
   const auto write = [&](const std::vector<std::byte>& raw, const SliceInfo& info) {
     return writeSlice(raw, info);
   };
-  ForestSink sink{write,
+  ForestSink sink{{write},
                   slices_,
                   {},
                   std::vector<std::vector<std::pair<int, std::uint32_t>>>(cells.size()),
@@ -1012,7 +1010,7 @@ std::span<SliceVoxel> StoreReader::claimParents(std::uint32_t id, std::vector<Sl
   // The run's voxels one level above the slice: a contiguous Morton range.
   const SliceInfo& s = slices_[id];
   glm::ivec3 first, last;
-  if (s.firstSlot == 0 && s.lastSlot == 7) {
+  if (s.wholeCube()) {
     const int shift = s.voxelLevel - 1 - s.cubeLevel;
     first = s.cubeCoord << shift, last = first + ((1 << shift) - 1);
   } else {

@@ -477,7 +477,7 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
     std::size_t unsplittable = 0, overLimit = 0;
     for (const SliceInfo& s : slices) {
       const double size = double(s.rawBytes) / double(h.sliceBytes);
-      if (s.firstSlot == 0 && s.lastSlot == 7 && s.cubeLevel == s.voxelLevel - 1) {
+      if (!s.canSplit()) {
         ++unsplittable;
         continue;
       }

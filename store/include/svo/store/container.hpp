@@ -60,6 +60,11 @@ struct Octree {
   Block block;
 };
 
+// Whether the run of sub-cubes [firstSlot, lastSlot] is the whole cube.
+constexpr bool isWholeCube(int firstSlot, int lastSlot) {
+  return firstSlot == 0 && lastSlot == 7;
+}
+
 // One entry of the slice directory.
 struct SliceInfo {
   std::uint64_t offset = 0;           // file offset of the compressed bytes
@@ -71,6 +76,9 @@ struct SliceInfo {
   // The run of the cube's sub-cubes (child slots, Morton order) the slice covers: 0-7 is the whole cube; a
   // shorter run is a packed group of sub-cubes, and needs cubeLevel + 1 < voxelLevel.
   std::uint8_t firstSlot = 0, lastSlot = 7;
+  bool wholeCube() const { return isWholeCube(firstSlot, lastSlot); }
+  // Whether it could split further: a run, or a cube holding more than one voxel of the level above.
+  bool canSplit() const { return !wholeCube() || cubeLevel < voxelLevel - 1; }
   std::int32_t voxelLevel = 0;    // the level of the voxels the slice adds (their parents are one above)
   std::uint32_t parentCount = 0;  // voxels of level voxelLevel - 1 in the cube's run
   std::uint32_t voxelCount = 0;   // voxels the slice adds
@@ -101,6 +109,10 @@ bool mortonLess(const glm::ivec3& a, const glm::ivec3& b);
 // Coordinate of child `slot` of the cube at `parent`, one level finer.
 constexpr glm::ivec3 childCoord(const glm::ivec3& parent, int slot) {
   return parent * 2 + glm::ivec3(slot & 1, slot >> 1 & 1, slot >> 2 & 1);
+}
+// The slot of the cube at `coord` in its parent (childCoord's inverse).
+constexpr int childSlot(const glm::ivec3& coord) {
+  return (coord.x & 1) | (coord.y & 1) << 1 | (coord.z & 1) << 2;
 }
 
 // A voxel as the slices describe it: where it is, which children it has, its contour and its effective
