@@ -123,7 +123,7 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
   spdlog::info("converging the reference frames ({} pool) ...", formatBytes(args.referenceBudget));
   Pager reference(args.in, pagerOptions(args.referenceBudget, args));
   std::ofstream csv(folder / "frames.csv");
-  csv << "frame,elapsed_s,frame_ms,update_ms,resident_bytes,loaded,evicted,requested,cancelled,failed,"
+  csv << "frame,elapsed_s,frame_ms,update_ms,resident_bytes,loaded,evicted,requested,cancelled,denied,failed,"
          "wanted,in_flight,rmse,silhouette_pct,reference_converged\n";
   plot::Series rmse{"RMSE vs converged", {}}, silhouette{"silhouette mismatch %", {}};
   std::vector<double> frameMs;
@@ -138,8 +138,8 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
     frameMs.push_back(f.seconds() * 1e3);
     csv << i << ',' << elapsed[i] << ',' << f.seconds() * 1e3 << ',' << f.updateSeconds * 1e3 << ','
         << s.residentBytes << ',' << s.loaded << ',' << s.evicted << ',' << s.requested << ',' << s.cancelled
-        << ',' << s.failed << ',' << s.wanted << ',' << s.inFlight << ',' << error.rmse << ','
-        << error.silhouettePercent << ',' << int(ok) << '\n';
+        << ',' << s.denied << ',' << s.failed << ',' << s.wanted << ',' << s.inFlight << ',' << error.rmse
+        << ',' << error.silhouettePercent << ',' << int(ok) << '\n';
     rmse.points.push_back({elapsed[i], error.rmse});
     silhouette.points.push_back({elapsed[i], error.silhouettePercent});
   }

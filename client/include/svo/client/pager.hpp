@@ -56,6 +56,7 @@ struct PagerOptions {
 // What one update() did. Counts are slices.
 struct PagerStats {
   std::uint32_t loaded = 0, evicted = 0, requested = 0, cancelled = 0, failed = 0;
+  std::uint32_t denied = 0;    // read and laid out, then dropped: no room at their priority
   std::uint32_t wanted = 0;    // slices the view wants that are not resident
   std::uint32_t inFlight = 0;  // queued or being worked on after the update
   std::size_t residentBytes = 0;
@@ -115,6 +116,7 @@ class Pager {
     std::vector<std::uint32_t> children;
     std::uint32_t resident = 0;  // slices resident: a prefix of `slices`
     BlockPool::BlockId block = 0;
+    std::size_t blockBytes = 0;                         // its block's size (the pool holds it in whole pages)
     std::uint32_t rootSlot = 0;                         // the cube's voxel in its block
     EntrySlots entries;                                 // its entry voxels that have children, in its block
     std::map<std::uint32_t, EntrySlots> childSlots;     // child region -> its entry voxels in this block
@@ -151,7 +153,9 @@ class Pager {
   std::uint32_t chainLength(std::uint32_t slice) const;
   std::uint32_t parentSlotOf(const Region& parent, std::uint32_t child, const glm::ivec3& coord) const;
   bool evictable(std::uint32_t region, double priority) const;
+  void indexRoom();
   bool roomFor(std::size_t bytes, double priority) const;
+  std::size_t leastBlockGrowth(std::uint32_t slice) const;
   const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
   ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
 
@@ -169,6 +173,8 @@ class Pager {
   std::vector<double> viewPriority_;    // per slice, the view query's rank (0 = not wanted): decides eviction
   std::vector<double> wantedPriority_;  // the same with ray feedback: decides load order
   std::vector<std::size_t> denied_;     // bytes a slice dropped for lack of room needed (0 = not dropped)
+  std::vector<std::pair<double, std::size_t>> evictableRoom_;  // see indexRoom
+  std::optional<double> leastBlockBytesPerRawByte_;            // smallest measured (commit)
   std::vector<std::string> errors_;
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0;
   std::atomic<std::uint64_t> bytesRead_{0};
