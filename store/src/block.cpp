@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <deque>
+#include <memory>
 #include <stdexcept>
 #include <string>
 
@@ -206,7 +207,10 @@ BlockView BlockView::unchecked(const std::byte* data, std::size_t size) {
   return view;
 }
 
-Block::Block(AlignedBytes bytes) : bytes_(std::move(bytes)), view_(bytes_.data(), bytes_.size()) {}
+// Only layoutBlock makes blocks: their pointers hold by construction, and checking them again cost the pager
+// a tenth of its layout time. The block tests check layout output with the validating BlockView.
+Block::Block(AlignedBytes bytes)
+    : bytes_(std::move(bytes)), view_(BlockView::unchecked(bytes_.data(), bytes_.size())) {}
 
 // ---------------------------------------------------------------------------------------------------------
 // Layout.
@@ -328,31 +332,41 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
 
   // Per non-leaf voxel: contours of its children, and which children's attributes differ from the parent's.
   const InheritanceRule inherits(options);
-  std::vector<std::uint32_t> effectiveColor(n), effectiveNormal(n);
+  // Per-voxel scratch is written before it is read (the parent first), so it is left uninitialized.
+  const auto effectiveColor = std::make_unique_for_overwrite<std::uint32_t[]>(n);
+  const auto effectiveNormal = std::make_unique_for_overwrite<std::uint32_t[]>(n);
   effectiveColor[0] = tree.voxels[0].color;
   effectiveNormal[0] = tree.voxels[0].normal;
   std::vector<std::uint32_t> contours, colors, normals;
-  struct Entry {
-    std::uint32_t contourFirst = 0, colorFirst = 0, normalFirst = 0;
-    std::uint8_t contourMask = 0, colorMask = 0, normalMask = 0;
+  contours.reserve(n), colors.reserve(tree.hasColors ? n : 0), normals.reserve(tree.hasNormals ? n : 0);
+  struct Entry {  // set for voxels with children only
+    std::uint32_t contourFirst, colorFirst, normalFirst;
+    std::uint8_t contourMask, colorMask, normalMask, leafMask;
   };
-  std::vector<Entry> entries(n);
+  const auto entries = std::make_unique_for_overwrite<Entry[]>(n);
   LayoutStats stats;
   // Breadth first from the root, so each child's effective (possibly inherited) value is known from its
   // parent.
-  std::vector<std::uint32_t> queue{0};
+  std::vector<std::uint32_t> queue;
+  queue.reserve(n);
+  queue.push_back(0);
   for (std::size_t qi = 0; qi < queue.size(); ++qi) {
     const std::uint32_t v = queue[qi];
     const VoxelRecord& r = tree.voxels[v];
     if (r.childMask == 0) continue;
     Entry& e = entries[v];
-    e.contourFirst = std::uint32_t(contours.size());
-    e.colorFirst = std::uint32_t(colors.size());
-    e.normalFirst = std::uint32_t(normals.size());
+    e = {std::uint32_t(contours.size()),
+         std::uint32_t(colors.size()),
+         std::uint32_t(normals.size()),
+         0,
+         0,
+         0,
+         0};
     for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
       if (!(r.childMask >> slot & 1u)) continue;
       const VoxelRecord& child = tree.voxels[c];
       if (child.hasContour) contours.push_back(child.contour), e.contourMask |= std::uint8_t(1u << slot);
+      if (child.childMask == 0 && !child.stub) e.leafMask |= std::uint8_t(1u << slot);
       effectiveColor[c] = effectiveColor[v];
       effectiveNormal[c] = effectiveNormal[v];
       if (tree.hasColors) {
@@ -425,12 +439,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       continue;
     }
     const std::uint32_t slot = plan.slotOf[v];
-    std::uint8_t leaf = 0;
-    for (std::uint32_t c = r.firstChild, s = 0; s < 8; ++s) {
-      if (!(r.childMask >> s & 1u)) continue;
-      const VoxelRecord& child = tree.voxels[c++];
-      if (child.childMask == 0 && !child.stub) leaf |= std::uint8_t(1u << s);
-    }
+    const Entry& e = entries[v];
     std::uint32_t pointer = 0;
     bool far = false;
     if (plan.runOf[v] != 0) {
@@ -444,7 +453,6 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       }
       assert(pointer <= options.maxNearPointer);
     }
-    const Entry& e = entries[v];
     std::uint32_t contourPointer = 0;
     if (e.contourMask) {
       const std::size_t words =
@@ -455,7 +463,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
             "fit one block until the paging client (block pool) lands: use fewer --levels");
       contourPointer = std::uint32_t(words);
     }
-    slots[slot] = ChildDescriptor::make(pointer, far, r.childMask, leaf, contourPointer, e.contourMask);
+    slots[slot] = ChildDescriptor::make(pointer, far, r.childMask, e.leafMask, contourPointer, e.contourMask);
     if (tree.hasColors) colorWords[slot] = AttributeLookup::make(slotCount + e.colorFirst, e.colorMask).bits;
     if (tree.hasNormals)
       normalWords[slot] = AttributeLookup::make(slotCount + e.normalFirst, e.normalMask).bits;

@@ -974,6 +974,9 @@ void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, 
   cursor += head.splitCount;
   std::uint32_t split = 0;
   const std::size_t firstAdded = children.size();
+  // At most 8 children per split voxel, whose masks are bytes of this slice: a hostile count reserves no
+  // more.
+  children.reserve(firstAdded + std::min<std::size_t>(head.voxelCount, 8 * std::size_t(head.splitCount)));
   for (std::size_t i = 0; i < parents.size(); ++i) {
     SliceVoxel& p = parents[i];
     if (!bitAt(splitBits, i)) continue;
