@@ -136,6 +136,7 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
   const std::size_t n = slices.size();
   regionOf_.assign(n, 0), indexInRegion_.assign(n, 0), failed_.assign(n, 0), inFlight_.assign(n, 0);
   wantedPriority_.assign(n, 0.0), viewPriority_.assign(n, 0.0), denied_.assign(n, 0);
+  inView_.assign(n, 0);
   cubeLevelsOf_.resize(std::size_t(kMaxLevels) + 2);
   std::map<std::tuple<int, int, int, int, int, int>, std::uint32_t> regionAt;  // (level, cube, run) -> region
   const auto fail = [&](std::uint32_t s, const std::string& what) {
@@ -591,8 +592,10 @@ PagerStats Pager::update(const ViewQuery& view) {
   // 1. What the view wants, with ray feedback.
   std::fill(wantedPriority_.begin(), wantedPriority_.end(), 0.0);
   std::fill(viewPriority_.begin(), viewPriority_.end(), 0.0);
+  std::fill(inView_.begin(), inView_.end(), 0);
   for (const SliceRequest& r : scheduleSlices(store_.slices(), view)) {
     viewPriority_[r.slice] = r.priority;
+    inView_[r.slice] = r.inFrustum;
     wantedPriority_[r.slice] = r.priority * (feedbackHits_.count(r.slice) ? kFeedbackBoost : 1.0);
   }
   feedbackHits_.clear();
@@ -631,14 +634,15 @@ PagerStats Pager::update(const ViewQuery& view) {
   // dropped.
   indexRoom();
   std::vector<SliceRequest> candidates;
-  std::uint32_t missing = 0;
+  std::uint32_t missing = 0, viewPending = 0;
   for (std::uint32_t s = 0; s < n; ++s) {
     if (wantedPriority_[s] <= 0.0 || failed_[s]) continue;
     const Region& region = regions_[regionOf_[s]];
     if (region.resident > indexInRegion_[s]) continue;
     ++missing;
-    if (requestable(s) && roomFor(leastBlockGrowth(s), viewPriority_[s]))
-      candidates.push_back({s, wantedPriority_[s], 0.0, true});
+    const bool candidate = requestable(s) && roomFor(leastBlockGrowth(s), viewPriority_[s]);
+    if (candidate) candidates.push_back({s, wantedPriority_[s], 0.0, true});
+    viewPending += inView_[s] && (candidate || inFlight_[s]);
   }
   std::sort(candidates.begin(), candidates.end(),
             [](const SliceRequest& a, const SliceRequest& b) { return a.priority > b.priority; });
@@ -679,6 +683,7 @@ PagerStats Pager::update(const ViewQuery& view) {
   queueReady_.notify_all();
   lastRequestable_ = std::uint32_t(candidates.size());
   lastInFlight_ = stats.inFlight;
+  lastViewPending_ = viewPending;
   stats.wanted = missing;
   stats.residentBytes = pool_.usedBytes();
   return stats;
@@ -719,6 +724,10 @@ void Pager::waitForWork(double seconds) {
 
 bool Pager::converged() const {
   return lastRequestable_ == 0 && lastInFlight_ == 0;
+}
+
+bool Pager::viewConverged() const {
+  return lastViewPending_ == 0;
 }
 
 std::vector<std::uint32_t> Pager::residentSlices() const {

@@ -6,10 +6,12 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <random>
 #include <set>
 
@@ -231,6 +233,48 @@ TEST(Pager, ConvergedFrameEqualsTheWholeOctree) {
   const svo::Frame whole = svo::render(svo::readOctree(store.path), camera, options);
   EXPECT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)), 0);
   EXPECT_EQ(std::memcmp(paged.depth.data(), whole.depth.data(), paged.depth.size() * sizeof(float)), 0);
+}
+
+// A close view converges inside its frustum first: then every slice the view wants inside the frustum is
+// resident (the budget holds everything), and the frame is already the one after the slices around the view
+// have loaded too, bit for bit.
+TEST(Pager, ViewConvergedMeansTheFrustumIsCompleteAndTheFrameFinal) {
+  const TempStore& store = sphereStore();
+  svo::Pager pager(store.path, {});
+  const svo::Camera camera = cameraAt({0.4, 0.3, 1.25}, {0.2, 0.1, 0.9}, 64);
+  svo::RenderOptions render;
+  render.lodPixels = 1.0f, render.threads = 1;
+  const svo::ViewQuery view = svo::viewOf(pager.transform(), camera, render.lodPixels);
+  std::optional<svo::Frame> atViewConverged;
+  bool converged = false;
+  for (int frame = 0; frame < 2000 && !converged; ++frame) {
+    pager.update(view);
+    converged = pager.converged();
+    svo::Frame image = svo::render(pager.trunk(), pager.transform(), camera, render);
+    if (!atViewConverged && pager.viewConverged()) {
+      const std::vector<std::uint32_t> resident = pager.residentSlices();
+      std::size_t inside = 0, outside = 0;
+      for (const svo::SliceRequest& r : svo::scheduleSlices(pager.store().slices(), view)) {
+        (r.inFrustum ? inside : outside)++;
+        if (r.inFrustum)
+          EXPECT_TRUE(std::binary_search(resident.begin(), resident.end(), r.slice)) << "slice " << r.slice;
+      }
+      ASSERT_GT(inside, 0u);
+      ASSERT_GT(outside, 0u) << "the view should leave slices outside its frustum";
+      atViewConverged = image;
+    }
+    pager.feedback(image, camera, render.lodPixels);
+    pager.waitForWork(0.002);
+  }
+  ASSERT_TRUE(converged);
+  ASSERT_TRUE(atViewConverged.has_value());
+  const svo::Frame final = svo::render(pager.trunk(), pager.transform(), camera, render);
+  EXPECT_EQ(
+      std::memcmp(final.color.data(), atViewConverged->color.data(), final.color.size() * sizeof(glm::vec4)),
+      0);
+  EXPECT_EQ(
+      std::memcmp(final.depth.data(), atViewConverged->depth.data(), final.depth.size() * sizeof(float)), 0);
+  pager.checkInvariants();
 }
 
 TEST(Pager, RandomViewsUnderATightBudgetStayExactAndWithinBudget) {

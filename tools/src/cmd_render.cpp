@@ -83,12 +83,11 @@ void renderConverged(const RenderArgs& args, RenderOptions options) {
   writeFrame(out, last.frame, args.aux);
   std::printf("first coarse image %.1f ms after opening (%d x %d, %.1f ms to render)\n", firstSeconds * 1e3,
               first.width, first.height, first.seconds * 1e3);
-  std::printf(
-      "converged in %.3f s after the first image (final image after %.3f s): %zu slices resident (%s "
-      "of %s), %s read\n",
-      c.seconds, c.imageFinalSeconds, pager.residentSlices().size(),
-      formatBytes(pager.residentBytes()).c_str(), formatBytes(pager.budgetBytes()).c_str(),
-      formatBytes(pager.bytesRead()).c_str());
+  std::printf("view converged in %.3f s after the first image (%s read; final image after %.3f s)\n",
+              c.viewSeconds, formatBytes(c.viewBytesRead).c_str(), c.imageFinalSeconds);
+  std::printf("with the slices around it in %.3f s: %zu slices resident (%s of %s), %s read\n", c.seconds,
+              pager.residentSlices().size(), formatBytes(pager.residentBytes()).c_str(),
+              formatBytes(pager.budgetBytes()).c_str(), formatBytes(pager.bytesRead()).c_str());
   for (const std::string& e : pager.takeErrors()) spdlog::warn("{}", e);
   std::printf("wrote %s\n", args.out.c_str());
 }

@@ -45,16 +45,24 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
   };
   // Each frame's hash and time; the run of frames equal to the last one tells when the image became final.
   std::uint64_t lastHash = 0;
-  double sameSince = 0.0;
+  Convergence out;
   while (true) {
     StreamedFrame step = streamFrame(pager, camera, options);
     const bool done = pager.converged();
     const double t = elapsed();
+    if (out.viewSeconds < 0.0 && (done || pager.viewConverged())) {
+      out.viewSeconds = t;
+      out.viewBytesRead = pager.bytesRead();
+      out.viewResidentSlices = pager.residentSlices();
+    }
     const std::uint64_t hash = frameHash(step.frame);
-    if (hash != lastHash) lastHash = hash, sameSince = t;
+    if (hash != lastHash) lastHash = hash, out.imageFinalSeconds = t;
     if (each) each(t, step);
     if (last) *last = std::move(step);
-    if (done) return {t, sameSince};
+    if (done) {
+      out.seconds = t;
+      return out;
+    }
     if (t > timeoutSeconds) return {};
   }
 }

@@ -27,6 +27,11 @@ StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOption
 // `each` sees every frame with the seconds since the start.
 struct Convergence {
   double seconds = -1.0;  // until the pager had nothing left to load for the view; negative: timed out
+  // Until nothing inside the view frustum was left to load (Pager::viewConverged), with the bytes read and
+  // the slices resident then; the rest of `seconds` loads the slices around the view.
+  double viewSeconds = -1.0;
+  std::uint64_t viewBytesRead = 0;
+  std::vector<std::uint32_t> viewResidentSlices;
   // When the frames stopped changing: the first frame from which on every frame equals the converged one
   // bit for bit (later loads refined nothing this view shows). Negative when timed out.
   double imageFinalSeconds = -1.0;

@@ -90,6 +90,9 @@ class Pager {
   // Nothing the last view wanted is missing (or everything missing failed or does not fit) and no request
   // is in flight.
   bool converged() const;
+  // The same for the view frustum alone: nothing missing inside it can load, so the frame shows all the
+  // detail it will get; slices around it (wanted for turns, ranked lower) may still be loading.
+  bool viewConverged() const;
 
   std::size_t residentBytes() const { return pool_.usedBytes(); }
   // Compressed bytes the workers have read from the store so far.
@@ -176,7 +179,8 @@ class Pager {
   std::vector<std::pair<double, std::size_t>> evictableRoom_;  // see indexRoom
   std::optional<double> leastBlockBytesPerRawByte_;            // smallest measured (commit)
   std::vector<std::string> errors_;
-  std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0;
+  std::vector<std::uint8_t> inView_;  // per slice: wanted and inside the view frustum
+  std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0;
   std::atomic<std::uint64_t> bytesRead_{0};
 
   mutable std::shared_mutex
