@@ -598,7 +598,6 @@ PagerStats Pager::update(const ViewQuery& view) {
     inView_[r.slice] = r.inFrustum;
     wantedPriority_[r.slice] = r.priority * (feedbackHits_.count(r.slice) ? kFeedbackBoost : 1.0);
   }
-  feedbackHits_.clear();
   for (Region& r : regions_) {
     r.priority = 0.0;
     for (std::uint32_t k = 0; k < r.resident; ++k)
@@ -690,6 +689,7 @@ PagerStats Pager::update(const ViewQuery& view) {
 }
 
 void Pager::feedback(const Frame& frame, const Camera& camera, double lodPixels) {
+  feedbackHits_.clear();  // the latest frame's feedback replaces the last one's
   const SceneTransform& scene = transform();
   const Camera::Basis basis = camera.basis();
   for (int y = kFeedbackStride / 2; y < frame.height; y += kFeedbackStride) {

@@ -14,6 +14,12 @@
 namespace svo::tools {
 namespace {
 
+// A still view is rendered at most this often while it converges; between frames the loop only commits
+// finished loads and asks for the next ones (Pager::update), so the workers get the cores that rendering the
+// same view again would take. On 2 cores the 20M terrain close-up (256^2) converged in 0.43-0.45 s at 10
+// frames/s, 0.43-0.51 s at 15/s and 0.59-0.69 s rendering back to back; 5/s was no faster.
+constexpr double kStillViewFrameSeconds = 0.1;
+
 std::uint64_t frameHash(const Frame& frame) {
   XXH3_state_t* state = XXH3_createState();
   XXH3_64bits_reset(state);
@@ -43,6 +49,7 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
   const auto elapsed = [&] {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   };
+  const ViewQuery view = viewOf(pager.transform(), camera, options.lodPixels);
   // Each frame's hash and time; the run of frames equal to the last one tells when the image became final.
   std::uint64_t lastHash = 0;
   Convergence out;
@@ -64,6 +71,12 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
       return out;
     }
     if (t > timeoutSeconds) return {};
+    // Until the next frame is due, only commit what the workers finish and ask for what follows.
+    const double nextFrame = t - step.seconds() + kStillViewFrameSeconds;
+    for (double now = elapsed(); now < nextFrame && !pager.converged(); now = elapsed()) {
+      pager.waitForWork(nextFrame - now);
+      pager.update(view);
+    }
   }
 }
 

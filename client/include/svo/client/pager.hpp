@@ -83,7 +83,8 @@ class Pager {
   // make room), then re-prioritizes and cancels requests for `view`.
   PagerStats update(const ViewQuery& view);
   // Ray feedback from a rendered frame: pixels that stopped at a voxel wider than the view's target, on a
-  // grid of every kFeedbackStride-th pixel, raise the priority of the slice that refines that voxel.
+  // grid of every kFeedbackStride-th pixel, raise the priority of the slice that refines that voxel (in every
+  // update until the next frame's feedback).
   void feedback(const Frame& frame, const Camera& camera, double lodPixels);
   // Blocks until a worker finishes something or `seconds` pass (loops that converge a view; never a frame).
   void waitForWork(double seconds);
