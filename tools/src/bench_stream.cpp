@@ -29,7 +29,7 @@ namespace {
 struct StreamArgs {
   std::string input, output = "stream-report";
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
-  int size = 512, runs = 3, pathFrames = 60, workerNice = 0;
+  int size = 512, runs = 3, pathFrames = 60, workerNice = PagerOptions{}.workerNice;
   float lodPixels = 1.0f;
   double timeout = 300.0;
 };
@@ -199,7 +199,7 @@ void addStreamBench(CLI::App& bench) {
       ->check(CLI::Range(0.01, 64.0))
       ->capture_default_str();
   cmd->add_option("--worker-nice", args->workerNice,
-                  "nice value of the pager's threads: trades convergence time for streaming frame time")
+                  "nice value of the pager's threads: trades streaming while the camera moves for frame time")
       ->check(CLI::Range(0, 19))
       ->capture_default_str();
   cmd->callback([args] { runStreamBench(*args); });

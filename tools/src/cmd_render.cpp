@@ -34,7 +34,7 @@ struct RenderArgs {
   bool noContours = false, aux = false;
   std::size_t budget = 0, referenceBudget = std::size_t(1) << 30;
   std::string pathFile;
-  int ioThreads = 2, workerNice = 0;
+  int ioThreads = PagerOptions{}.ioThreads, workerNice = PagerOptions{}.workerNice;
   double timeout = 300.0;
 };
 
@@ -220,8 +220,8 @@ void addRenderCommand(CLI::App& app) {
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
   cmd->add_option("--worker-nice", args->workerNice,
-                  "with --budget: nice value of those threads; higher gives frames more of the CPU and "
-                  "slows convergence")
+                  "with --budget: nice value of those threads; higher gives frames more of the CPU, lower "
+                  "streams faster while the camera moves")
       ->check(CLI::Range(0, 19))
       ->capture_default_str();
   cmd->add_option("--timeout", args->timeout, "with --budget: seconds a view may take to converge")

@@ -47,10 +47,12 @@ struct PagerOptions {
   // Wall time update() may spend committing finished blocks (memcpy + pointer patches); the rest wait for
   // the next frame. Keeps streaming frames close to resident ones (issue 5: p99 <= 1.5x).
   double commitMillis = 2.0;
-  // Nice value of the workers (0-19). Where frames keep every core busy, the workers' CPU share trades
-  // convergence time against streaming frame time: on 2 cores nice 5 brought the bunny's streaming p99 from
-  // ~3x to ~1.1x the resident p99, and its cold close-up convergence from 0.87 s to 1.5 s.
-  int workerNice = 0;
+  // Nice value of the workers (0-19): frames come first. Where frames keep every core busy (a moving camera
+  // rendered back to back), the workers' CPU share trades detail arriving against frame time. On 2 cores,
+  // the 20M terrain store's 60-frame orbit: streaming p99 1.15-1.31x the resident p99 at nice 19 (0.9-2.1x
+  // at 10, 1.8-2.2x at 0), with half the slices loaded during the orbit (26-29 against 53 at nice 0). A
+  // still view loses nothing: its loop renders 10 frames/s and leaves the cores to the workers between them.
+  int workerNice = 19;
 };
 
 // What one update() did. Counts are slices.
