@@ -83,16 +83,6 @@ double TriangleStore::computeFat(const Box& box) const {
   return kFatRelative * extent + kFatUlps * DBL_EPSILON * magnitude + DBL_MIN;
 }
 
-RayCtx::RayCtx(const Ray& ray) : o(ray.origin), d(ray.direction), tMin(ray.tMin), tMax(ray.tMax) {
-  inv = 1.0 / d;
-}
-
-bool RayCtx::usable() const {
-  for (int i = 0; i < 3; ++i)
-    if (!std::isfinite(o[i]) || !std::isfinite(d[i])) return false;
-  return d != dvec3(0.0) && !std::isnan(tMin) && !std::isnan(tMax) && tMin <= tMax;
-}
-
 void LocalTriangles::assign(const TriangleStore& store, std::vector<std::uint32_t>& refs) {
   std::vector<std::uint32_t> localOf(store.size(), kNoTriangle);
   tris.clear();
@@ -118,23 +108,6 @@ bool triangleOverlapsBox(const Tri& tri, const Box& box) {
 bool boxesOverlap(const Box& a, const Box& b) {
   return a.lo.x <= b.hi.x && b.lo.x <= a.hi.x && a.lo.y <= b.hi.y && b.lo.y <= a.hi.y && a.lo.z <= b.hi.z &&
          b.lo.z <= a.hi.z;
-}
-
-bool clipRay(const RayCtx& r, const Box& box, double margin, double& t0, double& t1) {
-  t0 = r.tMin;
-  t1 = r.tMax;
-  for (int i = 0; i < 3; ++i) {
-    const double lo = box.lo[i] - margin, hi = box.hi[i] + margin;
-    if (r.d[i] == 0.0) {
-      if (r.o[i] < lo || r.o[i] > hi) return false;
-      continue;
-    }
-    double a = (lo - r.o[i]) * r.inv[i], b = (hi - r.o[i]) * r.inv[i];
-    if (a > b) std::swap(a, b);
-    t0 = std::max(t0, a);
-    t1 = std::min(t1, b);
-  }
-  return t0 <= t1;
 }
 
 std::vector<std::uint32_t> filterBoxQuery(const TriangleStore& store, std::vector<std::uint32_t> candidates,
