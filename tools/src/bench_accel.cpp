@@ -47,7 +47,7 @@ constexpr double kOrgRefsLo = 3.0, kOrgRefsHi = 5.0;    // ORG Sec. 3.1: rp most
 constexpr double kOrgRenderVsKd = 1.5;      // ORG Sec. 3.2: sr vs kd-tree 0.6 ... 2.1; issue: within 1.5×
 constexpr double kOavmPointerRatio = 0.55;  // OAVM abstract: 54.45% fewer pointers
 constexpr double kOavmTimeRatio = 0.6;      // OAVM abstract: 52.37% less intersection time
-constexpr double kEmbreeBar = 0.5;          // issue: best structure ≥ 0.5× Embree's Mrays/s
+constexpr double kEmbreeBar = 0.5;          // issue: best of kd-tree, ORG, OAVM ≥ 0.5× Embree's Mrays/s
 
 struct AccelArgs {
   std::vector<std::string> meshes;
@@ -265,13 +265,18 @@ std::vector<Claim> checkClaims(const std::vector<SceneResult>& results) {
                         tr <= kOavmTimeRatio});
     }
     if (embree) {
+      // The issue's three structures (the kd-tree with either build, ORG, OAVM); UG, RG and RG-2 are only the
+      // ORG paper's comparison structures.
       double best = 1e300;
       std::string who;
-      for (const Row& row : r.rows)
-        if (!row.peer && row.renderSeconds < best) best = row.renderSeconds, who = row.structure;
-      const double q = embree->renderSeconds / best;
-      claims.push_back(
-          {"ours: best ≥ 0.5× Embree Mrays/s", r.name, fmt::format("{:.2f} ({})", q, who), q >= kEmbreeBar});
+      for (const char* ours : {"kd-binned", "kd-sah", "org", "oavm"})
+        if (const Row* row = r.find(ours); row && row->renderSeconds < best)
+          best = row->renderSeconds, who = row->structure;
+      if (!who.empty()) {
+        const double q = embree->renderSeconds / best;
+        claims.push_back({"ours: best of kd-tree, ORG, OAVM ≥ 0.5× Embree Mrays/s", r.name,
+                          fmt::format("{:.2f} ({})", q, who), q >= kEmbreeBar});
+      }
     }
   }
   // ORG linear build: µs per triangle over N, per generated kind (flat when max/min stays small).
