@@ -945,7 +945,12 @@ SliceBytes StoreReader::readSlice(std::uint32_t id) const {
   if (ZSTD_getFrameContentSize(compressed.data(), compressed.size()) != s.rawBytes)
     throw sliceError(id, "size does not match its compressed frame");
   SliceBytes raw(s.rawBytes);
-  const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), compressed.data(), compressed.size());
+  // One decompression context per thread, reused: ZSTD_decompress would set one up for every slice.
+  thread_local const std::unique_ptr<ZSTD_DCtx, std::size_t (*)(ZSTD_DCtx*)> context(ZSTD_createDCtx(),
+                                                                                     ZSTD_freeDCtx);
+  if (!context) throw std::bad_alloc();
+  const std::size_t got =
+      ZSTD_decompressDCtx(context.get(), raw.data(), raw.size(), compressed.data(), compressed.size());
   if (ZSTD_isError(got) || got != s.rawBytes) throw sliceError(id, "does not decompress");
   return raw;
 }
