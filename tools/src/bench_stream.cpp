@@ -29,7 +29,7 @@ namespace {
 struct StreamArgs {
   std::string input, output = "stream-report";
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
-  int size = 512, runs = 3, pathFrames = 60, workerNice = PagerOptions{}.workerNice;
+  int size = 512, runs = 3, pathFrames = 120, workerNice = PagerOptions{}.workerNice;
   float lodPixels = 1.0f;
   double timeout = 300.0;
 };
@@ -135,11 +135,14 @@ void runStreamBench(const StreamArgs& args) {
           curve.points.push_back({t, std::max(1e-4, frameError(frame, frames.back().second).rmse)});
     }
     curves.push_back(curve);
-    // 3. A camera path streaming, against the same path with everything each frame wants resident.
-    std::vector<double> streaming, resident;
+    // 3. A camera path streaming from a cold file, against the same path with everything each frame wants
+    // resident; per run, as one stall decides a p99.
+    std::vector<double> streamP99s, residentP99s, p99Ratios;
     std::size_t maxResident = 0;
-    {
+    for (int run = 0; run < args.runs; ++run) {
+      dropFileCache(args.input);
       Pager pager(args.input, pagerOptions);
+      std::vector<double> streaming, resident;
       for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
         const StreamedFrame step = streamFrame(pager, c, options);
         streaming.push_back(step.seconds());
@@ -149,13 +152,16 @@ void runStreamBench(const StreamArgs& args) {
         convergeView(pager, c, options, args.timeout);
         resident.push_back(streamFrame(pager, c, options).seconds());
       }
+      streamP99s.push_back(percentile(streaming, 0.99));
+      residentP99s.push_back(percentile(resident, 0.99));
+      p99Ratios.push_back(streamP99s.back() / residentP99s.back());
     }
     const Summary first = summarize(firstImage), view = summarize(viewConverge), all = summarize(converge),
                   seq = summarize(sequential), final = summarize(imageFinal);
-    const double streamP99 = percentile(streaming, 0.99), residentP99 = percentile(resident, 0.99);
+    const double streamP99 = summarize(streamP99s).median, residentP99 = summarize(residentP99s).median;
     char ratio[32], p99ratio[32];
     std::snprintf(ratio, sizeof ratio, "%.2fx", view.median / seq.median);
-    std::snprintf(p99ratio, sizeof p99ratio, "%.2fx", streamP99 / residentP99);
+    std::snprintf(p99ratio, sizeof p99ratio, "%.2fx", summarize(p99Ratios).median);
     table.addRow({formatBytes(budget), formatSeconds(first.median), formatSeconds(view.median),
                   formatSeconds(final.median), formatBytes(viewBytes), formatSeconds(seq.median), ratio,
                   formatSeconds(all.median), formatBytes(bytes), formatSeconds(streamP99),
@@ -171,6 +177,8 @@ void runStreamBench(const StreamArgs& args) {
   std::printf(
       "view converged: nothing inside the close-up's frustum left to load (bytes read: by then); all "
       "converged: also the slices around it, wanted for turns\n"
+      "p99 ratio: the median over the runs of each run's streaming p99 / resident p99 (the p99 columns: "
+      "medians)\n"
       "goals: first image < 100 ms; view / seq <= 1.5x; streaming p99 <= 1.5x resident p99\n");
   std::printf("wrote %s\n", plotPath.c_str());
 }
