@@ -475,10 +475,6 @@ bool Pager::commit(Prepared& prepared, PagerStats& stats) {
     if (needed > pool_.freeBytes() + freed + reclaimable) {
       // Detail is dropped, never memory added. The chain's last slice is marked, so a shorter chain can
       // still load.
-      fprintf(
-          stderr, "deny need %zu freed %zu free %zu reclaim %zu least %zu ratio %.2f parentEvictable %d\n",
-          needed, freed, pool_.freeBytes(), reclaimable, leastBlockGrowth(prepared.slice),
-          leastBlockBytesPerRawByte_.value_or(-1), region.parent > 0 && evictable(region.parent, priority));
       denied_[region.slices[first + prepared.added - 1]] = needed - freed;
       stats.denied += prepared.added;
       return false;

@@ -49,9 +49,9 @@ struct PagerOptions {
   double commitMillis = 2.0;
   // Nice value of the workers (0-19): frames come first. Where frames keep every core busy (a moving camera
   // rendered back to back), the workers' CPU share trades detail arriving against frame time. On 2 cores,
-  // the 20M terrain store's 60-frame orbit: streaming p99 1.15-1.31x the resident p99 at nice 19 (0.9-2.1x
-  // at 10, 1.8-2.2x at 0), with half the slices loaded during the orbit (26-29 against 53 at nice 0). A
-  // still view loses nothing: its loop renders 10 frames/s and leaves the cores to the workers between them.
+  // the 20M terrain store's orbit (svo bench stream): streaming p99 1.27-1.49x the resident p99 at nice 19,
+  // 1.61-1.77x at nice 0, with about half the slices loaded during the orbit. A still view loses nothing: its
+  // loop renders 10 frames/s and leaves the cores to the workers between them.
   int workerNice = 19;
 };
 
