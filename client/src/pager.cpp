@@ -531,12 +531,17 @@ void Pager::indexRoom() {
     evictableRoom_[i].second += evictableRoom_[i - 1].second;
 }
 
-// Whether `bytes` more could be made room for at `priority`: free pages plus the leaf regions less wanted
-// (as indexed by indexRoom).
-bool Pager::roomFor(std::size_t bytes, double priority) const {
+// Whether `bytes` more could be made room for at `priority` for a block of `region`: free pages plus the leaf
+// regions less wanted (as indexed by indexRoom), less the region and its parent, which commit() keeps.
+bool Pager::roomFor(std::size_t bytes, double priority, std::uint32_t region) const {
   const auto less = std::lower_bound(evictableRoom_.begin(), evictableRoom_.end(),
                                      std::pair<double, std::size_t>(priority, 0));
-  return pool_.freeBytes() + (less == evictableRoom_.begin() ? 0 : std::prev(less)->second) >= bytes;
+  std::size_t room = pool_.freeBytes() + (less == evictableRoom_.begin() ? 0 : std::prev(less)->second);
+  for (std::int32_t r = std::int32_t(region), k = 0; r >= 0 && k < 2;
+       r = regions_[std::size_t(r)].parent, ++k)
+    if (evictable(std::uint32_t(r), priority))
+      room -= std::min(room, pool_.size(regions_[std::size_t(r)].block));
+  return room >= bytes;
 }
 
 // The least a slice's request adds to the pool: what it needed when last dropped for lack of room, or its
@@ -635,7 +640,7 @@ PagerStats Pager::update(const ViewQuery& view) {
     const Region& region = regions_[regionOf_[s]];
     if (region.resident > indexInRegion_[s]) continue;
     ++missing;
-    const bool candidate = requestable(s) && roomFor(leastBlockGrowth(s), viewPriority_[s]);
+    const bool candidate = requestable(s) && roomFor(leastBlockGrowth(s), viewPriority_[s], regionOf_[s]);
     if (candidate) candidates.push_back({s, wantedPriority_[s], 0.0, true});
     viewPending += inView_[s] && (candidate || inFlight_[s]);
   }
@@ -658,8 +663,17 @@ PagerStats Pager::update(const ViewQuery& view) {
         stats.cancelled += q.count;
       }
     }
+    // What the requests in flight will take, at least: a new request must fit beside them, or several
+    // requests that each fit alone are read and laid out only for the later ones to be dropped.
+    const double perRawByte = leastBlockBytesPerRawByte_.value_or(kLeastBlockBytesPerRawByte);
+    std::size_t reserved = 0;
+    for (std::uint32_t s = 0; s < n; ++s)
+      if (inFlight_[s]) reserved += std::size_t(perRawByte * double(store_.slices()[s].rawBytes));
     for (const SliceRequest& c : candidates) {
       if (keep.size() + working_ + done_.size() >= std::size_t(options_.maxInFlight)) break;
+      const std::size_t growth = leastBlockGrowth(c.slice);
+      if (!roomFor(reserved + growth, viewPriority_[c.slice], regionOf_[c.slice])) continue;
+      reserved += growth;
       keep.push_back({c.slice, chainLength(c.slice), c.priority});
       setInFlight(keep.back(), 1);
       stats.requested += keep.back().count;

@@ -160,7 +160,7 @@ class Pager {
   std::uint32_t parentSlotOf(const Region& parent, std::uint32_t child, const glm::ivec3& coord) const;
   bool evictable(std::uint32_t region, double priority) const;
   void indexRoom();
-  bool roomFor(std::size_t bytes, double priority) const;
+  bool roomFor(std::size_t bytes, double priority, std::uint32_t region) const;
   std::size_t leastBlockGrowth(std::uint32_t slice) const;
   const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
   ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
