@@ -71,9 +71,12 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
       return out;
     }
     if (t > timeoutSeconds) return {};
-    // Until the next frame is due, only commit what the workers finish and ask for what follows.
+    // Until the next frame is due, only commit what the workers finish and ask for what follows; the frame
+    // comes at once when the view, or everything, has converged.
     const double nextFrame = t - step.seconds() + kStillViewFrameSeconds;
-    for (double now = elapsed(); now < nextFrame && !pager.converged(); now = elapsed()) {
+    const bool viewDone = out.viewSeconds >= 0.0;
+    for (double now = elapsed();
+         now < nextFrame && !pager.converged() && (viewDone || !pager.viewConverged()); now = elapsed()) {
       pager.waitForWork(nextFrame - now);
       pager.update(view);
     }
