@@ -547,7 +547,8 @@ bool Pager::roomFor(std::size_t bytes, double priority, std::uint32_t region) co
 // The least a slice's request adds to the pool: what it needed when last dropped for lack of room, or its
 // decoded bytes at the smallest block growth per decoded byte measured so far. A request that cannot get
 // that much room is not made: reading, decoding and laying out a block that is then dropped takes the
-// cores from the frames and delays convergence (20M terrain at 64 MiB: 40% of the bytes read were dropped).
+// cores from the frames and delays convergence (20M terrain close-up at 64 MiB: 61 MiB read to converge
+// before this check, 36 MiB after).
 std::size_t Pager::leastBlockGrowth(std::uint32_t slice) const {
   const Region& region = regions_[regionOf_[slice]];
   const double perRawByte = leastBlockBytesPerRawByte_.value_or(kLeastBlockBytesPerRawByte);
