@@ -378,7 +378,12 @@ Pager::Prepared Pager::prepare(const Request& request) {
     fail(region.slices[first + out.added - 1], e.what());
     out.added = 0;
     out.block = Block();
+    return out;
   }
+  // The pages the commit will most likely copy the block into, mapped here rather than on the render thread.
+  std::shared_lock poolShared(poolMutex_);  // no commit beside it
+  std::lock_guard prefaulting(prefaultMutex_);
+  pool_.prefault(out.block.bytes().size());
   return out;
 }
 

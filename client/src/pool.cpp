@@ -12,8 +12,8 @@ BlockPool::BlockPool(std::size_t budgetBytes) {
     throw std::invalid_argument("block pool: a budget of " + std::to_string(budgetBytes) +
                                 " bytes holds no 8 KB page");
   pageCount_ = std::uint32_t(std::min<std::size_t>(budgetBytes / kPageBytes, UINT32_MAX));
-  // Exactly the budget, rounded down to whole pages; AlignedBytes zero-fills, so the pages are touched once
-  // here and the resident size is the budget from the start (no surprise growth later).
+  // Exactly the budget, rounded down to whole pages, and not zero-filled: the OS maps each page on its first
+  // write (insert, or prefault ahead of it), so opening a large budget costs nothing.
   arena_ = AlignedBytes(std::size_t(pageCount_) * kPageBytes, /*zeroed=*/false);
   freeRuns_[0] = pageCount_;
 }
@@ -105,10 +105,22 @@ std::optional<BlockPool::BlockId> BlockPool::insert(std::span<const std::byte> b
   }
   blocks_[id] = {*first, pages};
   usedPages_ += pages;
+  touchedPages_ = std::max(touchedPages_, *first + pages);
   std::byte* at = arena_.data() + std::size_t(*first) * kPageBytes;
   std::memcpy(at, bytes.data(), bytes.size());
   std::memset(at + bytes.size(), 0, std::size_t(pages) * kPageBytes - bytes.size());
   return id;
+}
+
+void BlockPool::prefault(std::size_t bytes) {
+  const std::uint32_t end =
+      std::uint32_t(std::min<std::uint64_t>(pageCount_, std::uint64_t(touchedPages_) + pagesFor(bytes)));
+  // One write per OS page maps it; the pages past touchedPages_ were never used, so they are free.
+  constexpr std::size_t kOsPage = 4096;
+  for (std::size_t at = std::size_t(touchedPages_) * kPageBytes; at < std::size_t(end) * kPageBytes;
+       at += kOsPage)
+    arena_.data()[at] = std::byte{0};
+  touchedPages_ = std::max(touchedPages_, end);
 }
 
 void BlockPool::erase(BlockId id) {

@@ -187,7 +187,8 @@ class Pager {
   std::atomic<std::uint64_t> bytesRead_{0};
 
   mutable std::shared_mutex
-      poolMutex_;  // workers read blocks shared; commits and evictions write exclusively
+      poolMutex_;             // workers read blocks shared; commits and evictions write exclusively
+  std::mutex prefaultMutex_;  // one worker at a time prefaults the pool (BlockPool::prefault)
   mutable std::mutex queueMutex_;
   std::condition_variable_any queueReady_;
   std::condition_variable doneReady_;
