@@ -542,11 +542,17 @@ bool Pager::roomFor(std::size_t bytes, double priority, std::uint32_t region) co
   const auto less = std::lower_bound(evictableRoom_.begin(), evictableRoom_.end(),
                                      std::pair<double, std::size_t>(priority, 0));
   std::size_t room = pool_.freeBytes() + (less == evictableRoom_.begin() ? 0 : std::prev(less)->second);
-  for (std::int32_t r = std::int32_t(region), k = 0; r >= 0 && k < 2;
-       r = regions_[std::size_t(r)].parent, ++k)
-    if (evictable(std::uint32_t(r), priority))
-      room -= std::min(room, pool_.size(regions_[std::size_t(r)].block));
+  const auto kept = [&](std::uint32_t r) {
+    if (evictable(r, priority)) room -= std::min(room, pool_.size(regions_[r].block));
+  };
+  kept(region);
+  if (regions_[region].parent >= 0) kept(std::uint32_t(regions_[region].parent));
   return room >= bytes;
+}
+
+// Decoded slice bytes to block bytes, at least: the smallest ratio measured, or the prior before any.
+double Pager::leastBlockBytesPerRawByte() const {
+  return leastBlockBytesPerRawByte_.value_or(kLeastBlockBytesPerRawByte);
 }
 
 // The least a slice's request adds to the pool: what it needed when last dropped for lack of room, or its
@@ -556,9 +562,9 @@ bool Pager::roomFor(std::size_t bytes, double priority, std::uint32_t region) co
 // before this check, 36 MiB after).
 std::size_t Pager::leastBlockGrowth(std::uint32_t slice) const {
   const Region& region = regions_[regionOf_[slice]];
-  const double perRawByte = leastBlockBytesPerRawByte_.value_or(kLeastBlockBytesPerRawByte);
-  const std::size_t bytes = (region.resident ? region.blockBytes : 0) +
-                            std::size_t(perRawByte * double(store_.slices()[slice].rawBytes));
+  const std::size_t bytes =
+      (region.resident ? region.blockBytes : 0) +
+      std::size_t(leastBlockBytesPerRawByte() * double(store_.slices()[slice].rawBytes));
   const std::size_t pages = std::size_t(BlockPool::pagesFor(bytes)) * kPageBytes;
   const std::size_t held = region.resident ? pool_.size(region.block) : 0;
   return std::max(denied_[slice], pages > held ? pages - held : 0);
@@ -671,7 +677,7 @@ PagerStats Pager::update(const ViewQuery& view) {
     }
     // What the requests in flight will take, at least: a new request must fit beside them, or several
     // requests that each fit alone are read and laid out only for the later ones to be dropped.
-    const double perRawByte = leastBlockBytesPerRawByte_.value_or(kLeastBlockBytesPerRawByte);
+    const double perRawByte = leastBlockBytesPerRawByte();
     std::size_t reserved = 0;
     for (std::uint32_t s = 0; s < n; ++s)
       if (inFlight_[s]) reserved += std::size_t(perRawByte * double(store_.slices()[s].rawBytes));

@@ -162,6 +162,7 @@ class Pager {
   void indexRoom();
   bool roomFor(std::size_t bytes, double priority, std::uint32_t region) const;
   std::size_t leastBlockGrowth(std::uint32_t slice) const;
+  double leastBlockBytesPerRawByte() const;
   const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
   ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
 
