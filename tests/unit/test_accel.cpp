@@ -342,6 +342,46 @@ TEST(AccelStiff, ThinInTwoAxesAndFlatInTwoAxes) {
   }
 }
 
+// Features finer than a float step: the kd-tree keeps its planes as floats and classifies triangle boxes
+// rounded onto them. Slivers 2^-30 apart and 0.75 float steps thick (steps near 0.3 are 2^-25) reach past
+// the plane their box rounds onto. Rays lying in, grazing and crossing the slivers must still find brute
+// force's hit (without the rounding in the traversal margin, kd-sah misses some).
+TEST(AccelStiff, FeaturesFinerThanAFloatStep) {
+  constexpr double kStep = 0x1p-30, kThickness = 0.75 * 0x1p-25;
+  svo::Mesh mesh;
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  auto add = [&](dvec3 a, dvec3 b, dvec3 c) {
+    const auto base = std::uint32_t(mesh.positions.size());
+    mesh.positions.insert(mesh.positions.end(), {a, b, c});
+    mesh.triangles.emplace_back(base, base + 1, base + 2);
+  };
+  constexpr int kSlivers = 400;
+  for (int k = 0; k < kSlivers; ++k) {
+    const double x = 0.3 + k * kStep, y = u(rng);
+    add(dvec3(x, y, 0.0), dvec3(x + kThickness, y + 0.05, 1.0), dvec3(x + kThickness, y, 1.0));
+  }
+  for (int k = 0; k < 200; ++k) {  // spread over the unit box, so the tree has planes elsewhere too
+    const dvec3 p(u(rng), u(rng), u(rng));
+    add(p, p + dvec3(0.05, 0.0, 0.0), p + dvec3(0.0, 0.05, 0.05));
+  }
+  std::vector<Ray> rays;
+  for (int i = 0; i < 20000; ++i) {
+    // Aimed at a point of a sliver: lying in the plane x = const through it, grazing, and crossing.
+    const auto& t = mesh.triangles[std::size_t(i % kSlivers)];
+    const double s = u(rng), r = u(rng) * (1.0 - s);
+    const dvec3 a = mesh.positions[t[0]], b = mesh.positions[t[1]], c = mesh.positions[t[2]];
+    const dvec3 p = a + s * (b - a) + r * (c - a);
+    const dvec3 inPlane(0.0, u(rng) - 0.5, u(rng) - 0.5);
+    rays.push_back(Ray{p - inPlane, inPlane});
+    rays.push_back(Ray{p - inPlane, inPlane + dvec3(kStep * (u(rng) - 0.5), 0.0, 0.0)});
+    rays.push_back(Ray{p - dvec3(1.0, 0.0, 0.0), dvec3(1.0, 1e-3 * (u(rng) - 0.5), 1e-3 * (u(rng) - 0.5))});
+  }
+  checkRays(mesh, rays, "slivers");
+  checkPlaneRays(mesh, 2000, "slivers");
+  checkBoxes(mesh, 300, 13, "slivers");
+}
+
 TEST(AccelBadInput, EmptyNonFiniteDegenerateAndZeroVolume) {
   std::vector<svo::Mesh> meshes(4);
   // [0] empty. [1] NaN / Inf vertices next to a valid triangle. [2] all degenerate. [3] one flat triangle.
@@ -406,6 +446,9 @@ TEST(AccelBadInput, ParametersOutOfRangeAreRejected) {
   k = KdParams{};
   k.intersectionCost = -1;
   expectThrowMentioning([&] { buildKdTree(t, k); }, "C_I");
+  k = KdParams{};
+  k.emptySpaceBonus = 1.5;
+  expectThrowMentioning([&] { buildKdTree(t, k); }, "empty space");
   k = KdParams{};
   k.leafSize = 0;
   expectThrowMentioning([&] { buildKdTree(t, k); }, "leaf");

@@ -3,8 +3,10 @@
 // Algorithm 2), bin-count policies (Sec. 3.2), max depth 8 + 1.3·log2 N (Sec. 2.2.3); and the paper's
 // baseline, the exact O(N log N) event-sorting SAH build of Wald & Havran 2006.
 #include <algorithm>
+#include <bit>
 #include <cassert>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "common.hpp"
@@ -25,6 +27,7 @@ void KdParams::validate() const {
   require(std::isfinite(intersectionCost) && intersectionCost > 0.0,
           "kd-tree intersection cost C_I must be > 0");
   require(leafSize >= 1, "kd-tree leaf size must be >= 1");
+  require(emptySpaceBonus > 0.0 && emptySpaceBonus <= 1.0, "kd-tree empty space bonus must be in (0, 1]");
   require(std::isfinite(depthBase) && depthBase >= 0.0 && std::isfinite(depthSlope) && depthSlope >= 0.0,
           "kd-tree depth rule 8 + 1.3·log2 N needs finite, non-negative coefficients");
 }
@@ -34,13 +37,51 @@ namespace {
 
 constexpr std::uint32_t kLeaf = 3;
 
+// 8 bytes, as in Wald's and pbrt's kd-trees: half the memory of a double plane, so twice the nodes per cache
+// line. At 1e6 triangles the tree is 27 MB, and traversal waits on node loads.
 struct KdNode {
-  double split = 0.0;
-  std::uint32_t meta = 0;   // low 2 bits: axis or kLeaf; high bits: right child (inner) or first ref (leaf)
-  std::uint32_t count = 0;  // leaf: references
+  std::uint32_t word = 0;  // inner: the split plane as float bits, on the SplitGrid; leaf: reference count
+  std::uint32_t meta = 0;  // low 2 bits: axis or kLeaf; high bits: right child (inner) or first ref (leaf)
   bool leaf() const { return (meta & 3u) == kLeaf; }
   int axis() const { return int(meta & 3u); }
   std::uint32_t payload() const { return meta >> 2; }
+  float split() const { return std::bit_cast<float>(word); }
+  std::uint32_t count() const { return word; }
+};
+
+// The positions a split plane can take: origin + double(f) for a float f, computed the same way by the
+// build and by traversal, so a ray is tested against exactly the plane the triangles were classified by.
+// Offsets from the scene's corner keep float precision relative to the scene's extent (a scene far from
+// the origin loses nothing). The build classifies triangle boxes rounded to the nearest grid values (the
+// exact SAH's planes lie on box walls, and a wall off the grid would make the snapped plane cut its
+// triangle; rounding outwards would make triangles that share a vertex overlap). A box moves by at most
+// `error`, which traversal adds to its margin: a ray that close to a plane visits both children.
+struct SplitGrid {
+  dvec3 origin{0.0};
+  double error = 0.0;
+  SplitGrid() = default;
+  explicit SplitGrid(const Box& scene)
+      : origin(scene.lo),
+        error(std::ldexp(std::max({scene.extent().x, scene.extent().y, scene.extent().z}),
+                         -kFloatRoundingExponent)) {}
+  // Half a float ulp of the largest offset, 2^-24 relative, plus the double addition's rounding: 2^-23.
+  static constexpr int kFloatRoundingExponent = 23;
+  double at(int axis, float f) const { return origin[axis] + double(f); }
+  // The largest grid value <= x, as its float.
+  float below(int axis, double x) const {
+    float f = float(std::max(x - origin[axis], double(std::numeric_limits<float>::lowest())));
+    while (at(axis, f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+    return f;
+  }
+  double nearest(int axis, double x) const {
+    const double f = x - origin[axis];
+    return std::abs(f) <= double(std::numeric_limits<float>::max()) ? at(axis, float(f)) : x;
+  }
+  Box rounded(const Box& b) const {
+    Box g;
+    for (int k = 0; k < 3; ++k) g.lo[k] = nearest(k, b.lo[k]), g.hi[k] = nearest(k, b.hi[k]);
+    return g;
+  }
 };
 
 struct Candidate {
@@ -82,7 +123,7 @@ class BinnedSplitter {
     return std::clamp<std::size_t>(std::size_t(std::ceil(bins)), 1, kMaxBins);
   }
 
-  Candidate find(const TriangleStore& store, const std::vector<std::uint32_t>& prims, const Box& node) {
+  Candidate find(const std::vector<Box>& boxes, const std::vector<std::uint32_t>& prims, const Box& node) {
     Candidate best;
     const dvec3 ext = node.hi - node.lo;
     // Sec. 2.2: the split is searched on the node's longest axis only.
@@ -97,7 +138,7 @@ class BinnedSplitter {
     const double lo = node.lo[axis];
     const double last = double(nsl - 1);
     for (std::uint32_t id : prims) {
-      const Box& b = store.boxes[id];
+      const Box& b = boxes[id];
       if (b.lo[axis] <= lo) {
         ++ns_[0];  // line 8: starts at or before the node: left of every candidate plane
       } else {
@@ -173,7 +214,8 @@ double sahCost(const KdParams& p, const Box& node, int axis, double pos, double 
   const double sa = 2.0 * (ext.x * ext.y + ext.y * ext.z + ext.z * ext.x);
   const double wl = pos - node.lo[axis], wr = node.hi[axis] - pos;
   const double sl = 2.0 * (e1 * e2 + wl * (e1 + e2)), sr = 2.0 * (e1 * e2 + wr * (e1 + e2));
-  return p.traversalCost + p.intersectionCost * (sl * nl + sr * nr) / sa;  // Eq. 2
+  const double bonus = (nl == 0.0 || nr == 0.0) ? p.emptySpaceBonus : 1.0;           // Wald & Havran: λ(p)
+  return bonus * (p.traversalCost + p.intersectionCost * (sl * nl + sr * nr) / sa);  // Eq. 2
 }
 
 // Sweeps the sorted events of a node (all three axes) and returns the cheapest plane.
@@ -212,12 +254,16 @@ class KdTree final : public Accel {
  public:
   KdTree(const Triangles& triangles, const KdParams& params) : store_(triangles), p_(params) {
     params.validate();
+    grid_ = SplitGrid(store_.bounds);
+    fat_ = store_.fat + grid_.error;
     root_ = store_.bounds;
+    boxes_.resize(store_.size());
+    for (std::uint32_t id : store_.valid) boxes_[id] = grid_.rounded(store_.boxes[id]);
     const double n = double(std::max<std::size_t>(store_.valid.size(), 1));
     maxDepth_ = int(std::lround(p_.depthBase + p_.depthSlope * std::log2(n)));
     maxDepth_ = std::clamp(maxDepth_, 0, kMaxStack - 2);
     if (store_.valid.empty()) {
-      nodes_.push_back(KdNode{0.0, kLeaf, 0});
+      nodes_.push_back(KdNode{0, kLeaf});
       return;
     }
     side_.assign(store_.size(), 0);
@@ -227,13 +273,14 @@ class KdTree final : public Accel {
     } else {
       std::vector<Event> events;
       events.reserve(6 * store_.valid.size());
-      for (std::uint32_t id : store_.valid) appendEvents(store_.boxes[id], id, events);
+      for (std::uint32_t id : store_.valid) appendEvents(boxes_[id], id, events);
       std::sort(events.begin(), events.end());
       std::vector<std::uint32_t> prims = store_.valid;
       buildExact(std::move(events), std::move(prims), root_, 0);
     }
     side_.clear();
     side_.shrink_to_fit();
+    std::vector<Box>().swap(boxes_);
     local_.assign(store_, refs_);
   }
 
@@ -251,19 +298,20 @@ class KdTree final : public Accel {
   std::vector<std::uint32_t> boxQuery(const Box& box) const override {
     std::vector<std::uint32_t> candidates;
     if (box.empty() || store_.valid.empty()) return candidates;
-    const Box query = grow(box, store_.fat);
+    const Box query = grow(box, fat_);
     std::vector<std::uint32_t> stack{0};
     while (!stack.empty()) {
       const KdNode& node = nodes_[stack.back()];
       const std::uint32_t index = stack.back();
       stack.pop_back();
       if (node.leaf()) {
-        for (std::uint32_t k = 0; k < node.count; ++k)
+        for (std::uint32_t k = 0; k < node.count(); ++k)
           candidates.push_back(local_.id(refs_[node.payload() + k]));
         continue;
       }
-      if (query.lo[node.axis()] <= node.split) stack.push_back(index + 1);
-      if (query.hi[node.axis()] >= node.split) stack.push_back(node.payload());
+      const double split = grid_.at(node.axis(), node.split());
+      if (query.lo[node.axis()] <= split) stack.push_back(index + 1);
+      if (query.hi[node.axis()] >= split) stack.push_back(node.payload());
     }
     return filterBoxQuery(store_, std::move(candidates), box);
   }
@@ -271,7 +319,7 @@ class KdTree final : public Accel {
   std::vector<Plane> planes(std::size_t limit) const override {
     std::vector<Plane> out;
     for (const KdNode& n : nodes_)
-      if (!n.leaf() && out.size() < limit) out.push_back(Plane{n.axis(), n.split});
+      if (!n.leaf() && out.size() < limit) out.push_back(Plane{n.axis(), grid_.at(n.axis(), n.split())});
     return out;
   }
 
@@ -281,7 +329,7 @@ class KdTree final : public Accel {
     s.cells = nodes_.size();
     s.references = refs_.size();
     for (const KdNode& n : nodes_)
-      if (n.leaf()) ++s.leaves, s.emptyLeaves += n.count == 0;
+      if (n.leaf()) ++s.leaves, s.emptyLeaves += n.count() == 0;
     s.pointers = nodes_.size();  // a right-child index per inner node, a reference offset per leaf
     s.maxDepth = depthReached_;
     s.bytes = nodes_.size() * sizeof(KdNode) + refs_.size() * sizeof(std::uint32_t) + local_.bytes();
@@ -291,7 +339,7 @@ class KdTree final : public Accel {
  private:
   std::uint32_t makeLeaf(const std::vector<std::uint32_t>& prims) {
     const std::uint32_t index = std::uint32_t(nodes_.size());
-    nodes_.push_back(KdNode{0.0, (std::uint32_t(refs_.size()) << 2) | kLeaf, std::uint32_t(prims.size())});
+    nodes_.push_back(KdNode{std::uint32_t(prims.size()), (std::uint32_t(refs_.size()) << 2) | kLeaf});
     refs_.insert(refs_.end(), prims.begin(), prims.end());
     return index;
   }
@@ -300,31 +348,41 @@ class KdTree final : public Accel {
   // touching the plane from one side stays on that side, one lying in the plane goes to both (Wald & Havran's
   // classification). Rays meeting the plane within the margin visit both children (traverse), so a hit on
   // the plane is found from either side.
-  static void partition(const TriangleStore& store, const std::vector<std::uint32_t>& prims, int axis,
-                        double pos, std::vector<std::uint32_t>& left, std::vector<std::uint32_t>& right) {
+  void partition(const std::vector<std::uint32_t>& prims, int axis, double pos,
+                 std::vector<std::uint32_t>& left, std::vector<std::uint32_t>& right) const {
     for (std::uint32_t id : prims) {
-      const Box& b = store.boxes[id];
+      const Box& b = boxes_[id];
       if (b.lo[axis] < pos || b.hi[axis] <= pos) left.push_back(id);
       if (b.hi[axis] > pos || b.lo[axis] >= pos) right.push_back(id);
     }
   }
 
-  std::uint32_t makeInner(int axis, double pos) {
+  std::uint32_t makeInner(int axis, float split) {
     const std::uint32_t index = std::uint32_t(nodes_.size());
-    nodes_.push_back(KdNode{pos, std::uint32_t(axis), 0});
+    nodes_.push_back(KdNode{std::bit_cast<std::uint32_t>(split), std::uint32_t(axis)});
     return index;
+  }
+
+  // The plane a candidate becomes: its position snapped down onto the grid (a no-op for the exact build's
+  // planes, which lie on grid box walls); none when the snap leaves the node.
+  bool snap(Candidate& c, const Box& node, float& split) const {
+    if (c.axis < 0) return false;
+    split = grid_.below(c.axis, c.pos);
+    c.pos = grid_.at(c.axis, split);
+    return c.pos > node.lo[c.axis] && c.pos < node.hi[c.axis];
   }
 
   void buildBinned(BinnedSplitter& splitter, const std::vector<std::uint32_t>& prims, const Box& box,
                    int depth) {
     depthReached_ = std::max<std::size_t>(depthReached_, depth);
     if (prims.size() <= p_.leafSize || depth >= maxDepth_) return void(makeLeaf(prims));
-    const Candidate c = splitter.find(store_, prims, box);
-    if (c.axis < 0) return void(makeLeaf(prims));
+    Candidate c = splitter.find(boxes_, prims, box);
+    float split;
+    if (!snap(c, box, split)) return void(makeLeaf(prims));
     std::vector<std::uint32_t> left, right;
-    partition(store_, prims, c.axis, c.pos, left, right);
+    partition(prims, c.axis, c.pos, left, right);
     if (left.size() == prims.size() && right.size() == prims.size()) return void(makeLeaf(prims));
-    const std::uint32_t index = makeInner(c.axis, c.pos);
+    const std::uint32_t index = makeInner(c.axis, split);
     Box lb = box, rb = box;
     lb.hi[c.axis] = rb.lo[c.axis] = c.pos;
     buildBinned(splitter, left, lb, depth + 1);
@@ -336,10 +394,11 @@ class KdTree final : public Accel {
   void buildExact(std::vector<Event> events, std::vector<std::uint32_t> prims, const Box& box, int depth) {
     depthReached_ = std::max<std::size_t>(depthReached_, depth);
     if (prims.size() <= p_.leafSize || depth >= maxDepth_) return void(makeLeaf(prims));
-    const Candidate c = sweep(p_, events, box, prims.size());
-    if (c.axis < 0) return void(makeLeaf(prims));
+    Candidate c = sweep(p_, events, box, prims.size());
+    float split;
+    if (!snap(c, box, split)) return void(makeLeaf(prims));
     std::vector<std::uint32_t> left, right;
-    partition(store_, prims, c.axis, c.pos, left, right);
+    partition(prims, c.axis, c.pos, left, right);
     if (left.size() == prims.size() && right.size() == prims.size()) return void(makeLeaf(prims));
     // Classify (1 left only, 2 right only, 3 both), then split the sorted list and merge in the new,
     // clipped events of the straddling triangles (Wald & Havran Sec. 5: O(N log N) overall).
@@ -358,8 +417,8 @@ class KdTree final : public Accel {
     }
     for (std::uint32_t id : prims)
       if (side_[id] == 3) {
-        appendEvents(clipped(store_.boxes[id], lb), id, bl);
-        appendEvents(clipped(store_.boxes[id], rb), id, br);
+        appendEvents(clipped(boxes_[id], lb), id, bl);
+        appendEvents(clipped(boxes_[id], rb), id, br);
       }
     for (std::uint32_t id : prims) side_[id] = 0;
     { std::vector<Event>().swap(events); }
@@ -373,7 +432,7 @@ class KdTree final : public Accel {
       return out;
     };
     std::vector<Event> leftEvents = merged(el, bl), rightEvents = merged(er, br);
-    const std::uint32_t index = makeInner(c.axis, c.pos);
+    const std::uint32_t index = makeInner(c.axis, split);
     { std::vector<std::uint32_t>().swap(prims); }
     buildExact(std::move(leftEvents), std::move(left), lb, depth + 1);
     nodes_[index].meta |= std::uint32_t(nodes_.size()) << 2;
@@ -386,7 +445,7 @@ class KdTree final : public Accel {
   template <class Visit>
   bool traverse(const RayCtx& r, const Hit& best, Visit&& visit) const {
     double t0, t1;
-    if (!clipRay(r, root_, store_.fat, t0, t1)) return false;
+    if (!clipRay(r, root_, fat_, t0, t1)) return false;
     struct Entry {
       std::uint32_t node;
       double t0, t1;
@@ -394,12 +453,21 @@ class KdTree final : public Accel {
     Entry stack[kMaxStack];
     int top = 0;
     std::uint32_t index = 0;
-    const double fat = store_.fat;
+    const double fat = fat_;
+    // Per-axis terms in plain arrays: glm's vec3 operator[] is a switch, so indexing by a node's axis cost
+    // mispredicted branches at every node (1e6-triangle sphere: 8% of the render time).
+    double origin[3], dir[3], inv[3], tol[3], gridOrigin[3];
+    for (int k = 0; k < 3; ++k) {
+      origin[k] = r.o[k], dir[k] = r.d[k], inv[k] = r.inv[k];
+      tol[k] = fat * std::abs(r.inv[k]);
+      gridOrigin[k] = grid_.origin[k];
+    }
     for (;;) {
       const KdNode* node = &nodes_[index];
       while (!node->leaf()) {
         const int a = node->axis();
-        const double o = r.o[a], d = r.d[a], split = node->split;
+        const double o = origin[a], d = dir[a];
+        const double split = gridOrigin[a] + double(node->split());  // == grid_.at(a, ...), as built
         const std::uint32_t left = index + 1, right = node->payload();
         if (d == 0.0) {
           if (o < split - fat)
@@ -412,25 +480,34 @@ class KdTree final : public Accel {
             index = left;
           }
         } else {
-          const double ts = (split - o) * r.inv[a];
-          const double tol = fat * std::abs(r.inv[a]);
+          const double ts = (split - o) * inv[a];
+          const double margin = tol[a];
           const bool leftFirst = o < split || (o == split && d > 0.0);
           const std::uint32_t nearChild = leftFirst ? left : right, farChild = leftFirst ? right : left;
-          if (ts < 0.0 || ts > t1 + tol) {
+          if (ts > t1 + margin) {
             index = nearChild;
-          } else if (ts < t0 - tol) {
+          } else if (ts < 0.0) {
+            // Moving away from the plane: the far child too while the ray is still within the margin.
+            if (t0 <= ts + margin) {
+              assert(top < kMaxStack);
+              stack[top++] = {farChild, t0, std::min(t1, ts + margin)};
+            }
+            index = nearChild;
+          } else if (ts < t0 - margin) {
             index = farChild;
           } else {
             assert(top < kMaxStack);
-            stack[top++] = {farChild, std::max(t0, ts - tol), t1};
+            stack[top++] = {farChild, std::max(t0, ts - margin), t1};
             index = nearChild;
-            t1 = std::min(t1, ts + tol);
+            t1 = std::min(t1, ts + margin);
           }
         }
         node = &nodes_[index];
       }
-      for (std::uint32_t k = 0; k < node->count; ++k)
-        if (visit(refs_[node->payload() + k])) return true;
+      const std::uint32_t* refs = refs_.data() + node->payload();
+      const std::uint32_t count = node->count();
+      for (std::uint32_t k = 0; k < count; ++k)
+        if (visit(refs[k])) return true;
       for (;;) {
         if (top == 0) return false;
         const Entry e = stack[--top];
@@ -444,6 +521,9 @@ class KdTree final : public Accel {
   TriangleStore store_;
   KdParams p_;
   Box root_;
+  SplitGrid grid_;
+  double fat_ = 0.0;        // traversal margin: the store's plus the grid's rounding
+  std::vector<Box> boxes_;  // during the build: triangle boxes rounded onto grid_
   int maxDepth_ = 0;
   std::size_t depthReached_ = 0;
   std::vector<KdNode> nodes_;
