@@ -346,7 +346,7 @@ std::vector<geom::Slab> slabsCutting(const std::vector<geom::Slab>& slabs, const
 
 void setAttributes(VoxelRecord& r, const Aggregate& a, bool colors) {
   if (colors) r.color = encodeColor(glm::vec4(a.color / a.weight));
-  r.normal = encodeNormal(glm::vec3(meanNormal(a)));
+  r.normal = latticeNormal(glm::vec3(meanNormal(a)));  // the store keeps normals on its 16-bit lattice
 }
 
 // Marks `r` dead when none of its children survived; returns whether it did.

@@ -2,8 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include <glm/geometric.hpp>
+#include <glm/vec2.hpp>
 
 namespace svo {
 
@@ -59,6 +61,58 @@ std::uint32_t encodeNormal(glm::vec3 n) {
 
 glm::vec3 decodeNormal(std::uint32_t bits) {
   return glm::normalize(normalDirection(bits));
+}
+
+namespace {
+// Coordinates as signed 8-bit fractions of 127 (snorm8): 0 and +-1 are on the lattice, so the axes are.
+constexpr int kOctMax = (1 << (kOctNormalBits - 1)) - 1;
+float signNotZero(float x) {
+  return x < 0.0f ? -1.0f : 1.0f;
+}
+// Both tables are built once, on first use: 65536 entries each.
+template <class Fill>
+const std::vector<std::uint32_t>& table(Fill fill) {
+  static const std::vector<std::uint32_t> t = [&] {
+    std::vector<std::uint32_t> out(std::size_t(1) << (2 * kOctNormalBits));
+    for (std::size_t code = 0; code < out.size(); ++code) out[code] = fill(std::uint16_t(code));
+    return out;
+  }();
+  return t;
+}
+}  // namespace
+
+std::uint16_t octNormalCode(glm::vec3 n) {
+  const float l1 = std::abs(n.x) + std::abs(n.y) + std::abs(n.z);
+  if (!(l1 > 0.0f)) return octNormalCode({0.0f, 0.0f, 1.0f});
+  glm::vec2 p = glm::vec2(n.x, n.y) / l1;
+  if (n.z < 0.0f)
+    p = glm::vec2((1.0f - std::abs(p.y)) * signNotZero(p.x), (1.0f - std::abs(p.x)) * signNotZero(p.y));
+  const auto q = [](float c) {
+    return std::uint8_t(std::int8_t(std::lround(std::clamp(c, -1.0f, 1.0f) * float(kOctMax))));
+  };
+  return std::uint16_t(q(p.x) << kOctNormalBits | q(p.y));
+}
+
+glm::vec3 octNormalDirection(std::uint16_t code) {
+  const auto c = [](std::uint8_t b) { return std::max(float(std::int8_t(b)) / float(kOctMax), -1.0f); };
+  const float x = c(std::uint8_t(code >> kOctNormalBits)), y = c(std::uint8_t(code));
+  glm::vec3 v(x, y, 1.0f - std::abs(x) - std::abs(y));
+  if (v.z < 0.0f)
+    v = glm::vec3((1.0f - std::abs(y)) * signNotZero(x), (1.0f - std::abs(x)) * signNotZero(y), v.z);
+  return glm::normalize(v);
+}
+
+std::uint32_t latticeNormalBits(std::uint16_t code) {
+  static const auto& t = table([](std::uint16_t c) { return encodeNormal(octNormalDirection(c)); });
+  return t[code];
+}
+
+std::uint32_t predictedContourNormalBits(std::uint16_t code) {
+  static const auto& t = table([](std::uint16_t c) {
+    const glm::ivec3 q = quantizeContourNormal(glm::dvec3(normalDirection(latticeNormalBits(c))));
+    return packContourBits(q.x, q.y, q.z, 0, 0);
+  });
+  return t[code];
 }
 
 }  // namespace svo

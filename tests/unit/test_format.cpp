@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstring>
 #include <random>
+#include <set>
 
 #include <glm/geometric.hpp>
 
@@ -363,6 +364,51 @@ TEST(Format, NormalEdgesAndCorners) {
   // Tiny and huge magnitudes give the same direction.
   checkNormal({1e-30, 2e-30, -3e-30});
   checkNormal({1e30, -2e30, 3e30});
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The store's normal lattice: 16-bit octahedral codes.
+
+// Every lattice point survives the store's round trip (cube bits -> code -> cube bits), so the store keeps
+// normals in two bytes without loss; and the codes are unit directions.
+TEST(Format, LatticeNormalsRoundTripThroughTheirCodes) {
+  std::set<std::uint32_t> distinct;
+  for (std::uint32_t code = 0; code < (1u << (2 * svo::kOctNormalBits)); ++code) {
+    const std::uint32_t bits = svo::latticeNormalBits(std::uint16_t(code));
+    ASSERT_EQ(svo::latticeNormalBits(svo::octNormalCodeOf(bits)), bits) << "code " << code;
+    ASSERT_NEAR(glm::length(svo::octNormalDirection(std::uint16_t(code))), 1.0f, 1e-6f);
+    distinct.insert(bits);
+  }
+  // -128 repeats -1 (2 * 256 - 1 codes), and the folded square's rim names some directions twice.
+  EXPECT_LT(distinct.size(), (1u << 16) - 511u);
+  EXPECT_GT(distinct.size(), (1u << 16) - 2 * 511u);
+}
+
+// Rounding onto the lattice moves a direction by less than a degree (the steps are 0.7 degrees at most), is
+// idempotent, and keeps the axes exactly.
+TEST(Format, LatticeNormalErrorIsUnderADegree) {
+  std::mt19937_64 rng(8);
+  double worst = 0.0;
+  for (int i = 0; i < 200000; ++i) {
+    const glm::dvec3 n = randomUnit(rng);
+    const std::uint32_t bits = svo::latticeNormal(glm::vec3(n));
+    worst = std::max(worst, angleBetween(n, glm::dvec3(svo::decodeNormal(bits))));
+    ASSERT_EQ(svo::latticeNormal(svo::decodeNormal(bits)), bits);
+  }
+  EXPECT_LT(worst, 1.0 * 3.14159265358979 / 180.0);
+  EXPECT_GT(worst, 0.5 * 3.14159265358979 / 180.0);  // it does round: 8 bits are not 29
+  for (int x = -1; x <= 1; ++x)
+    for (int y = -1; y <= 1; ++y)
+      for (int z = -1; z <= 1; ++z) {
+        if (x == 0 && y == 0 && z == 0) continue;
+        const glm::dvec3 n = glm::normalize(glm::dvec3(x, y, z));
+        // The axes lie on lattice points (flat walls and floors keep their normals, up to the cube
+        // encoding's own half step, 7e-5 rad); the rest within a lattice step.
+        const bool axis = std::abs(x) + std::abs(y) + std::abs(z) == 1;
+        const double bound = axis ? 1e-4 : 0.7 * 3.14159265358979 / 180.0;
+        EXPECT_LE(angleBetween(n, glm::dvec3(svo::decodeNormal(svo::latticeNormal(glm::vec3(n))))), bound)
+            << x << " " << y << " " << z;
+      }
 }
 
 // ---------------------------------------------------------------------------------------------------------

@@ -7,6 +7,7 @@
 //  - bad files: every single-byte corruption of a small store and every truncation is reported (header,
 //    directory or slice named), never decoded; wrong magic, version, a directory past the end, zero length.
 #include <gtest/gtest.h>
+#include <glm/geometric.hpp>
 
 #include <algorithm>
 #include <cstdio>
@@ -259,6 +260,25 @@ TEST(Store, TruncationsAndForeignFilesGiveClearErrors) {
   EXPECT_NE(loadError(path).find("unexpected bytes after the directory"), std::string::npos);
   EXPECT_NE(loadError(tempPath("missing.svo")).find("no such file"), std::string::npos);
   fs::remove(path);
+}
+
+// The store keeps normals as 16-bit lattice codes: a normal off the lattice (not from latticeNormal, as the
+// builder's are) is refused rather than silently rounded, and no file is left behind.
+TEST(Store, RefusesNormalsOffTheLattice) {
+  svo::VoxelTree tree = svo::readBlock(plainTriangles(3).block.view());
+  ASSERT_TRUE(tree.hasNormals);
+  std::size_t leaf = 1;
+  while (tree.voxels[leaf].childMask != 0) ++leaf;
+  tree.voxels[leaf].normal = svo::encodeNormal(glm::normalize(glm::vec3(0.3f, 0.2f, 0.9f)));
+  ASSERT_NE(svo::latticeNormalBits(svo::octNormalCodeOf(tree.voxels[leaf].normal)), tree.voxels[leaf].normal);
+  const fs::path path = tempPath("off-lattice.svo");
+  try {
+    svo::writeStore(path, tree, {}, {}, {});
+    ADD_FAILURE() << "a normal off the lattice was written";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("lattice"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(path));
 }
 
 TEST(Store, RejectsBadWriteOptions) {

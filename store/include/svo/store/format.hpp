@@ -127,6 +127,28 @@ inline glm::vec3 normalDirection(std::uint32_t bits) {
   return axis == 0 ? glm::vec3(w, u, v) : axis == 1 ? glm::vec3(u, w, v) : glm::vec3(u, v, w);
 }
 
+// The store's normal lattice (format v4): 16-bit octahedral codes, 8 bits per coordinate of the unit
+// octahedron folded onto a square (Cigolle et al. 2014, "A Survey of Efficient Representations for
+// Independent Unit Vectors", sec. 3.6). The builder rounds every normal onto it (latticeNormal), so the
+// store keeps two bytes per normal without loss; blocks keep the cube encoding above (sec. 5.4). Lattice
+// steps are 0.7 degrees at most: rounding moves a normal by under one degree.
+inline constexpr int kOctNormalBits = 8;   // per coordinate: measured on the 20M terrain, 1.06 B/leaf stored
+std::uint16_t octNormalCode(glm::vec3 n);  // nearest lattice point of a non-zero direction
+glm::vec3 octNormalDirection(std::uint16_t code);  // unit length
+// The cube encoding of a lattice point (a table lookup).
+std::uint32_t latticeNormalBits(std::uint16_t code);
+// The cube-encoded normal rounded onto the lattice; latticeNormal(n) for a direction.
+inline std::uint16_t octNormalCodeOf(std::uint32_t normalBits) {
+  return octNormalCode(normalDirection(normalBits));
+}
+inline std::uint32_t latticeNormal(glm::vec3 n) {
+  return latticeNormalBits(octNormalCode(n));
+}
+// The contour normal (its 18 bits in place, [31:14]) that quantizeContourNormal gives for the lattice normal
+// `code`: the store predicts a contour's normal from its voxel's normal (a table lookup).
+std::uint32_t predictedContourNormalBits(std::uint16_t code);
+inline constexpr std::uint32_t kContourNormalMask = ~std::uint32_t(0) << 14;
+
 // Attribute lookup entry (Fig. 7c): [7:0] attribute mask, [31:8] value pointer in 32-bit words from the start
 // of the attachment's value array. A child whose bit is clear inherits its parent's value.
 struct AttributeLookup {
