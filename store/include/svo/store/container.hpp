@@ -7,7 +7,7 @@
 // split bit per node of the level above in its cube, a valid mask per split node, then contours and the
 // attribute values that differ from the parent's for the new voxels; since version 4 contours and normals
 // are byte planes of what is left after predicting them, and normals are 16-bit lattice codes, format.hpp:
-// 5.13 -> 2.73 B per leaf voxel on disk, 2M-triangle terrain at 13 levels). When a cube's next level would
+// 5.13 -> 2.60 B per leaf voxel on disk, 2M-triangle terrain at 13 levels). When a cube's next level would
 // exceed the slice size, the slice splits spatially (sec. 7: "split spatially so that it has several child
 // slices"): the cube's 8 sub-cubes are packed, in Morton order, into runs that each fit the slice size, and
 // a run of one sub-cube becomes that sub-cube's own slice. Packing keeps slices near the slice size where
@@ -36,7 +36,8 @@ namespace svo {
 
 inline constexpr char kFileMagic[8] = {'S', 'V', 'O', 'S', 'T', 'R', 'M', '\0'};
 // 3: slices cover a run of their cube's sub-cubes (firstSlot, lastSlot).
-// 4: contours coded against their voxel's normal, normals as octahedral codes against their parent's.
+// 4: contours coded against their voxel's normal and parent's contour, normals as octahedral codes against
+// their parent's.
 inline constexpr std::uint32_t kFileVersion = 4;
 // Default slice size: "about 1 MB at most" (sec. 7); a cube whose next level would exceed it splits.
 inline constexpr std::uint32_t kDefaultSliceBytes = 1u << 20;

@@ -114,8 +114,9 @@ struct KdParams {
   std::size_t leafSize = 1;       // Sec. 3: "node split threshold 1"
   double depthBase = 8.0;         // Sec. 2.2.3: max depth 8 + 1.3·log2 N
   double depthSlope = 1.3;
-  // Exact SAH build only: Wald & Havran 2006 (Sec. 4.1, "λ(p)") scale the cost of a plane that cuts off
-  // empty space by 0.8, favouring empty leaves that rays skip without a triangle test.
+  // Exact SAH build only: Wald & Havran 2006 scale the cost of a plane that cuts off empty space by
+  // λ(p) = 0.8 (their SAH cost function), favouring empty leaves that rays skip without a triangle test.
+  // The binned build keeps the Qian et al. cost (Eq. 2), which has no such factor.
   double emptySpaceBonus = 0.8;
   void validate() const;  // throws std::invalid_argument naming the bad field
 };
