@@ -299,6 +299,9 @@ Pager::Prepared Pager::prepare(const Request& request) {
         if (!d || d->isStub() || !(d->validMask() >> slot & 1u))
           throw std::runtime_error("its cube's voxel is not in the parent region");
         voxel.coord = childCoord(voxel.coord, slot);
+        // Its contour too: the store predicts its children's contours from it.
+        const std::optional<std::uint32_t> contour = BlockView::contour(d, slot);
+        voxel.hasContour = contour.has_value(), voxel.contour = contour.value_or(0);
         if (auto v = BlockView::attribute(d, slot, AttachmentType::Color)) voxel.color = *v;
         if (auto v = BlockView::attribute(d, slot, AttachmentType::Normal)) voxel.normal = *v;
         d = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;

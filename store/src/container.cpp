@@ -594,6 +594,9 @@ class StoreWriter {
     NormalCodes codes;
     // Children follow their parents' order: walk both, for the parent's normal each child's is coded by.
     std::uint32_t i = ca;
+    // The scene's root voxel has no contour in the store (the header holds its attributes only): readers
+    // predict its children's contours without one, and so must this.
+    const bool parentContours = level - 1 > 0;
     for (std::size_t p = a; p < b; ++p) {
       const std::uint32_t parent = parents[p].record;
       const VoxelRecord& up = tree_.voxels[parent];
@@ -605,7 +608,7 @@ class StoreWriter {
         if (r.hasContour)
           out.contours.push_back(contourResidual(
               r.contour, (tree_.hasNormals ? predictedContourNormalBits(codes(effectiveNormal_[v])) : 0) |
-                             predictedContourPosition(up.hasContour, up.contour, slot)));
+                             predictedContourPosition(parentContours && up.hasContour, up.contour, slot)));
         if (tree_.hasColors) {
           out.colorBits.push(storesColor_[v] != 0);
           if (storesColor_[v]) out.colors.push_back(effectiveColor_[v]);
