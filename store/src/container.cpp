@@ -173,21 +173,33 @@ constexpr int kContourNormalShifts[3] = {26, 20, 14};  // nx, ny, nz (format.hpp
 // n.u = p (1.5/63) becomes n.u' = 2 p - (21/31) sum(+-n_i) in child position steps. Integers only: the
 // prediction is part of the format, so no compiler's floating point may round it differently. 0 when the
 // parent has no contour. (20M terrain: the position plane 0.73 -> 0.55 B per leaf voxel.)
-std::uint32_t predictedContourPosition(bool parentHasContour, std::uint32_t parentContour, int slot) {
-  if (!parentHasContour) return 0;
-  const auto field = [&](int shift, int bits) {
-    return int(std::int32_t(parentContour << (32 - shift - bits)) >> (32 - bits));
-  };
-  int reach = 0;  // sum of +-n_i, the sign from which half of the parent the child is in
-  for (int k = 0; k < 3; ++k)
-    reach += (slot >> k & 1) ? field(kContourNormalShifts[k], 6) : -field(kContourNormalShifts[k], 6);
-  const int numerator = 62 * field(7, 7) - 21 * reach;  // 31 x the prediction
-  const int rounded = (numerator >= 0 ? numerator + 15 : numerator - 15) / 31;
-  return std::uint32_t(std::clamp(rounded, -64, 63) & 127) << 7;
-}
+// Set up once per parent, asked once per child.
+class ContourPositionPredictor {
+ public:
+  ContourPositionPredictor(bool parentHasContour, std::uint32_t parentContour) : has_(parentHasContour) {
+    const auto field = [&](int shift, int bits) {
+      return int(std::int32_t(parentContour << (32 - shift - bits)) >> (32 - bits));
+    };
+    for (int k = 0; k < 3; ++k) normal_[k] = field(kContourNormalShifts[k], 6);
+    twicePosition_ = 62 * field(7, 7);
+  }
+  std::uint32_t operator()(int slot) const {
+    if (!has_) return 0;
+    int reach = 0;  // sum of +-n_i, the sign from which half of the parent the child is in
+    for (int k = 0; k < 3; ++k) reach += (slot >> k & 1) ? normal_[k] : -normal_[k];
+    const int numerator = twicePosition_ - 21 * reach;  // 31 x the prediction
+    const int rounded = (numerator >= 0 ? numerator + 15 : numerator - 15) / 31;
+    return std::uint32_t(std::clamp(rounded, -64, 63) & 127) << 7;
+  }
+
+ private:
+  bool has_;
+  int normal_[3];
+  int twicePosition_;  // 62 p: 31 x twice the parent's position field
+};
 
 // `predicted`: the normal fields predictedContourNormalBits gives for the voxel's normal (0 in a store
-// without normals) and the position field predictedContourPosition gives.
+// without normals) and the position field ContourPositionPredictor gives.
 ContourResidual contourResidual(std::uint32_t contour, std::uint32_t predicted) {
   ContourResidual r;
   for (int k = 0; k < 3; ++k)
@@ -600,6 +612,7 @@ class StoreWriter {
     for (std::size_t p = a; p < b; ++p) {
       const std::uint32_t parent = parents[p].record;
       const VoxelRecord& up = tree_.voxels[parent];
+      const ContourPositionPredictor position(parentContours && up.hasContour, up.contour);
       for (int slot = 0; slot < 8; ++slot) {
         if (!(up.childMask >> slot & 1u)) continue;
         const std::uint32_t v = voxels[i++].record;
@@ -608,7 +621,7 @@ class StoreWriter {
         if (r.hasContour)
           out.contours.push_back(contourResidual(
               r.contour, (tree_.hasNormals ? predictedContourNormalBits(codes(effectiveNormal_[v])) : 0) |
-                             predictedContourPosition(parentContours && up.hasContour, up.contour, slot)));
+                             position(slot)));
         if (tree_.hasColors) {
           out.colorBits.push(storesColor_[v] != 0);
           if (storesColor_[v]) out.colors.push_back(effectiveColor_[v]);
@@ -1078,9 +1091,15 @@ void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, 
   cursor += head.splitCount;
   std::uint32_t split = 0;
   const std::size_t firstAdded = children.size();
-  std::vector<std::uint32_t> predictedPosition;  // per new voxel, for its contour
-  if (head.contourCount)
-    predictedPosition.reserve(std::min<std::size_t>(head.voxelCount, 8 * std::size_t(head.splitCount)));
+  // Per new voxel: its contour's predicted position field, and its normal's lattice code (its parent's until
+  // the normals section gives its own).
+  struct Prediction {
+    std::uint32_t contourPosition;
+    std::uint16_t normalCode;
+  };
+  std::vector<Prediction> predicted;
+  predicted.reserve(std::min<std::size_t>(head.voxelCount, 8 * std::size_t(head.splitCount)));
+  NormalCodes codes;
   // At most 8 children per split voxel, whose masks are bytes of this slice: a hostile count reserves no
   // more.
   children.reserve(firstAdded + std::min<std::size_t>(head.voxelCount, 8 * std::size_t(head.splitCount)));
@@ -1091,11 +1110,12 @@ void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, 
     const std::uint8_t mask = std::to_integer<std::uint8_t>(masks[split++]);
     if (mask == 0) throw sliceError(id, "a split voxel with no children");
     p.childMask = mask;
+    const ContourPositionPredictor position(p.hasContour, p.contour);
+    const std::uint16_t parentCode = header_.hasNormals ? codes(p.normal) : 0;
     for (int slot = 0; slot < 8; ++slot) {
       if (!(mask >> slot & 1u)) continue;
       children.push_back({childCoord(p.coord, slot), 0, false, 0, p.color, p.normal});
-      if (head.contourCount)
-        predictedPosition.push_back(predictedContourPosition(p.hasContour, p.contour, slot));
+      predicted.push_back({head.contourCount ? position(slot) : 0, parentCode});
     }
   }
   if (split != head.splitCount || children.size() - firstAdded != head.voxelCount)
@@ -1125,13 +1145,15 @@ void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, 
                             std::uint32_t k) {
     return std::to_integer<std::uint8_t>(values[plane * count + k]);
   };
-  NormalCodes codes;
+  const std::uint32_t* const lattice = latticeNormalTable();
+  const std::uint32_t* const contourNormals = contourNormalPredictionTable();
   if (header_.hasNormals)
     section(normals, head.normalCount, [&](SliceVoxel& n, const std::byte* values, std::uint32_t k) {
-      // n.normal is still the parent's, which it inherited.
       const NormalResidual r{planeByte(values, head.normalCount, 0, k),
                              planeByte(values, head.normalCount, 1, k)};
-      n.normal = latticeNormalBits(normalCodeOf(r, codes(n.normal)));
+      std::uint16_t& code = predicted[std::size_t(&n - added)].normalCode;  // the parent's, so far
+      code = normalCodeOf(r, code);
+      n.normal = lattice[code];
     });
   if (header_.hasColors)
     section(colors, head.colorCount,
@@ -1141,8 +1163,8 @@ void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, 
     for (std::size_t plane = 0; plane < kContourBytes; ++plane)
       r[plane] = planeByte(values, head.contourCount, plane, k);
     n.hasContour = true;
-    n.contour = contourOf(r, (header_.hasNormals ? predictedContourNormalBits(codes(n.normal)) : 0) |
-                                 predictedPosition[std::size_t(&n - added)]);
+    const Prediction& p = predicted[std::size_t(&n - added)];
+    n.contour = contourOf(r, (header_.hasNormals ? contourNormals[p.normalCode] : 0) | p.contourPosition);
   });
 }
 

@@ -105,17 +105,17 @@ glm::vec3 octNormalDirection(std::uint16_t code) {
   return glm::normalize(v);
 }
 
-std::uint32_t latticeNormalBits(std::uint16_t code) {
+const std::uint32_t* latticeNormalTable() {
   static const auto& t = table([](std::uint16_t c) { return encodeNormal(octNormalDirection(c)); });
-  return t[code];
+  return t.data();
 }
 
-std::uint32_t predictedContourNormalBits(std::uint16_t code) {
+const std::uint32_t* contourNormalPredictionTable() {
   static const auto& t = table([](std::uint16_t c) {
     const glm::ivec3 q = quantizeContourNormal(glm::dvec3(normalDirection(latticeNormalBits(c))));
     return packContourBits(q.x, q.y, q.z, 0, 0);
   });
-  return t[code];
+  return t.data();
 }
 
 }  // namespace svo

@@ -135,8 +135,11 @@ inline glm::vec3 normalDirection(std::uint32_t bits) {
 inline constexpr int kOctNormalBits = 8;   // per coordinate: measured on the 20M terrain, 1.06 B/leaf stored
 std::uint16_t octNormalCode(glm::vec3 n);  // nearest lattice point of a non-zero direction
 glm::vec3 octNormalDirection(std::uint16_t code);  // unit length
-// The cube encoding of a lattice point (a table lookup).
-std::uint32_t latticeNormalBits(std::uint16_t code);
+// The cube encoding of each lattice point, by code (65536 entries, built on first use).
+const std::uint32_t* latticeNormalTable();
+inline std::uint32_t latticeNormalBits(std::uint16_t code) {
+  return latticeNormalTable()[code];
+}
 // The cube-encoded normal rounded onto the lattice; latticeNormal(n) for a direction.
 inline std::uint16_t octNormalCodeOf(std::uint32_t normalBits) {
   return octNormalCode(normalDirection(normalBits));
@@ -146,7 +149,10 @@ inline std::uint32_t latticeNormal(glm::vec3 n) {
 }
 // The contour normal (its 18 bits in place, [31:14]) that quantizeContourNormal gives for the lattice normal
 // `code`: the store predicts a contour's normal from its voxel's normal (a table lookup).
-std::uint32_t predictedContourNormalBits(std::uint16_t code);
+const std::uint32_t* contourNormalPredictionTable();  // by code, as latticeNormalTable
+inline std::uint32_t predictedContourNormalBits(std::uint16_t code) {
+  return contourNormalPredictionTable()[code];
+}
 inline constexpr std::uint32_t kContourNormalMask = ~std::uint32_t(0) << 14;
 
 // Attribute lookup entry (Fig. 7c): [7:0] attribute mask, [31:8] value pointer in 32-bit words from the start
