@@ -65,6 +65,7 @@ constexpr double kStreamViewDistance = 0.3;
 struct QualityArgs {
   std::string mesh;
   std::string levels = "8,9,10";
+  std::vector<float> contourCuts{BuildOptions{}.contourMinReduction};
   int size = 512;
   int runs = 3;
   std::string view = "-0.35,-0.25,-1";
@@ -155,11 +156,13 @@ Image imageOf(Frame&& frame) {
 
 struct Setting {
   int levels = 0;
+  float contourCut = 0.0f;  // the build's contourMinReduction; renders with contours only
   float lod = 1.0f;
   bool contours = true;
   int beam = 8;
   std::string family() const {
-    return fmt::format("{}, {}", contours ? "contours" : "cubes", beam ? "beam" : "no beam");
+    return fmt::format("{}, {}", contours ? fmt::format("contours cut {}", contourCut) : "cubes",
+                       beam ? "beam" : "no beam");
   }
   std::string name() const { return fmt::format("L{} lod {} {}", levels, lod, family()); }
 };
@@ -254,15 +257,14 @@ struct LevelScene {
 // are up to ~4x the compressed file; the arena's untouched pages cost nothing.
 constexpr std::size_t kWholeStoreBudgetPerFileByte = 16;
 
-void buildLevel(const Mesh& mesh, int levels, const std::filesystem::path& out, bool withRoot,
+void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesystem::path& out, bool withRoot,
                 LevelScene& s) {
-  BuildOptions build;
-  build.levels = levels;
-  spdlog::info("building {} levels ...", levels);
+  const int levels = build.levels;
+  spdlog::info("building {} levels, contour cut {} ...", levels, build.contourMinReduction);
   s.transform = fitSceneCube(mesh);
   VoxelTree tree;
   s.buildSeconds = timeSeconds([&] { tree = voxelize(mesh, s.transform, build); });
-  s.store = out / fmt::format("L{}.svo", levels);
+  s.store = out / fmt::format("L{}-cut{}.svo", levels, build.contourMinReduction);
   writeStore(
       s.store, tree, s.transform,
       {levels, build.geometryError, build.colorError, build.normalError, std::uint32_t(build.contours)});
@@ -300,7 +302,10 @@ void buildLevel(const Mesh& mesh, int levels, const std::filesystem::path& out, 
 void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads, int levels) {
   const std::filesystem::path out = args.out;
   LevelScene level;  // the store is scratch: gone however this ends
-  buildLevel(mesh, levels, out, false, level);
+  BuildOptions build;
+  build.levels = levels;
+  build.contourMinReduction = args.contourCuts.front();
+  buildLevel(mesh, build, out, false, level);
   const std::filesystem::path& store = level.store;
   const double finestVoxel = level.transform.size / double(std::int64_t(1) << levels);
   RenderOptions options;
@@ -429,30 +434,37 @@ void runQualityBench(const QualityArgs& args) {
   writePng(out / "reference.png", toImageBuf(reference));
 
   std::vector<Measured> all;
-  for (const int levels : levelList) {
-    LevelScene level;
-    buildLevel(mesh, levels, out, true, level);
-    const double buildSeconds = level.buildSeconds;
-    const std::uint64_t storeBytes = level.storeBytes;
-    const BlockView root = level.root();
-    const double finestVoxel = scene.size / double(std::int64_t(1) << levels);
-    for (const bool contours : {true, false})
-      for (const float lod : kLodSweep)
-        for (const int beam : kBeamSweep) {
-          Measured m;
-          m.setting = {levels, lod, contours, beam};
-          m.buildSeconds = buildSeconds, m.storeBytes = storeBytes;
-          RenderOptions options = base;
-          options.lodPixels = lod;
-          options.cast.contours = contours;
-          options.beamTile = beam;
-          Frame frame;
-          m.seconds = timeRuns(args.runs, [&] { frame = render(root, scene, camera, options); }).median;
-          m.image = imageOf(std::move(frame));
-          compare(reference, m.image, finestVoxel, m);
-          all.push_back(std::move(m));
-        }
-  }
+  for (const int levels : levelList)
+    for (const float cut : args.contourCuts) {
+      LevelScene level;
+      BuildOptions build;
+      build.levels = levels;
+      build.contourMinReduction = cut;
+      buildLevel(mesh, build, out, true, level);
+      const double buildSeconds = level.buildSeconds;
+      const std::uint64_t storeBytes = level.storeBytes;
+      const BlockView root = level.root();
+      const double finestVoxel = scene.size / double(std::int64_t(1) << levels);
+      for (const bool contours : {true, false}) {
+        // Cube renders ignore contours: one cut's are every cut's.
+        if (!contours && cut != args.contourCuts.front()) continue;
+        for (const float lod : kLodSweep)
+          for (const int beam : kBeamSweep) {
+            Measured m;
+            m.setting = {levels, contours ? cut : 0.0f, lod, contours, beam};
+            m.buildSeconds = buildSeconds, m.storeBytes = storeBytes;
+            RenderOptions options = base;
+            options.lodPixels = lod;
+            options.cast.contours = contours;
+            options.beamTile = beam;
+            Frame frame;
+            m.seconds = timeRuns(args.runs, [&] { frame = render(root, scene, camera, options); }).median;
+            m.image = imageOf(std::move(frame));
+            compare(reference, m.image, finestVoxel, m);
+            all.push_back(std::move(m));
+          }
+      }
+    }
 
   // Table, sorted by time.
   std::vector<const Measured*> byTime;
@@ -497,11 +509,12 @@ void runQualityBench(const QualityArgs& args) {
   for (const Measured& m : all) {
     if (m.setting.lod != 1.0f || !m.setting.contours || m.setting.beam == 0) continue;
     goals += fmt::format(
-        "- {} levels: silhouette mismatch {:.3f}% (goal <= {}%: {}), depth p99 {:.3f} voxels (goal <= {}: "
-        "{}; {:.3f} off edges)\n",
-        m.setting.levels, m.silhouettePercent, kGoalSilhouettePercent,
+        "- {} levels, contour cut {}: silhouette mismatch {:.3f}% (goal <= {}%: {}), depth p99 {:.3f} voxels "
+        "(goal <= {}: {}; {:.3f} off edges), store {:.2f} MB\n",
+        m.setting.levels, m.setting.contourCut, m.silhouettePercent, kGoalSilhouettePercent,
         m.silhouettePercent <= kGoalSilhouettePercent ? "met" : "missed", m.depthTail, kGoalDepthVoxels,
-        m.depthTail <= kGoalDepthVoxels ? "met" : "missed", m.depthTailOffEdges);
+        m.depthTail <= kGoalDepthVoxels ? "met" : "missed", m.depthTailOffEdges,
+        double(m.storeBytes) / (1 << 20));
   }
   std::size_t cubes = 0, dominatedCubes = 0;
   for (const Measured& c : all) {
@@ -567,6 +580,12 @@ void addQualityBench(CLI::App& bench) {
       "quality", "error against render time for every quality knob, vs the exact triangle reference");
   cmd->add_option("mesh", args->mesh, "triangle mesh")->required();
   cmd->add_option("--levels", args->levels, "octree depths to build, comma-separated")->capture_default_str();
+  cmd->add_option("--contour-cuts", args->contourCuts,
+                  "contour thresholds to build each depth with (svo build --contour-min-reduction), "
+                  "comma-separated; --stream builds with the first")
+      ->delimiter(',')
+      ->check(CLI::Range(0.0f, 2.0f))
+      ->capture_default_str();
   cmd->add_option("--size", args->size, "image width and height")->capture_default_str();
   cmd->add_option("--runs", args->runs, "timed runs per setting; the median is reported")
       ->capture_default_str();

@@ -26,7 +26,8 @@ constexpr std::array<std::array<float, 3>, 10> kPalette = {{{0.12f, 0.47f, 0.71f
                                                             {0.09f, 0.75f, 0.81f}}};
 // Panel margins in pixels: room for tick labels and titles.
 constexpr int kMarginLeft = 70, kMarginRight = 20, kMarginTop = 40, kMarginBottom = 50;
-constexpr int kLegendHeight = 60;
+// Legend rows (wrapped to the image width) and the line under them naming the y axis.
+constexpr int kLegendRowHeight = 25, kLegendFooterHeight = 35;
 constexpr int kFontSize = 16;
 
 struct Canvas {
@@ -75,7 +76,15 @@ void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>
       if (!colors.count(s.name)) colors[s.name] = kPalette[colors.size() % kPalette.size()];
   const int cols = int(std::ceil(std::sqrt(double(panels.size()))));
   const int rows = int((panels.size() + cols - 1) / cols);
-  const int pw = width / cols, ph = (height - kLegendHeight) / rows;
+  // Legend layout first: its rows take height from the panels.
+  const auto entryWidth = [](const std::string& name) { return 30 + 10 * int(name.size()); };
+  int legendRows = 1;
+  for (int lx = 20; const auto& [name, c] : colors) {
+    if (lx > 20 && lx + entryWidth(name) > width) ++legendRows, lx = 20;
+    lx += entryWidth(name);
+  }
+  const int legendHeight = legendRows * kLegendRowHeight + kLegendFooterHeight;
+  const int pw = width / cols, ph = (height - legendHeight) / rows;
   const std::array<float, 3> black{0, 0, 0}, grid{0.85f, 0.85f, 0.85f};
   for (std::size_t k = 0; k < panels.size(); ++k) {
     const Panel& panel = panels[k];
@@ -126,12 +135,12 @@ void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>
     }
   }
   // Legend: one colored square per series name.
-  int lx = 20;
-  const int ly = height - kLegendHeight / 2;
+  int lx = 20, ly = height - legendHeight + kLegendRowHeight + 5;
   for (const auto& [name, c] : colors) {
+    if (lx > 20 && lx + entryWidth(name) > width) ly += kLegendRowHeight, lx = 20;
     canvas.square(lx, ly, 6, c);
     labels.push_back({lx + 12, ly + 6, name});
-    lx += 30 + 10 * int(name.size());
+    lx += entryWidth(name);
   }
   labels.push_back({20, height - 5, "y: " + yLabel});
 
