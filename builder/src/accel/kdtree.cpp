@@ -446,12 +446,20 @@ class KdTree final : public Accel {
   bool traverse(const RayCtx& r, const Hit& best, Visit&& visit) const {
     double t0, t1;
     if (!clipRay(r, root_, fat_, t0, t1)) return false;
+    // Each entry also keeps the smallest t0 at or below it: once the closest hit so far lies before that, the
+    // rest of the stack is skipped at once instead of entry by entry (its order in t0 is only approximate:
+    // margins and rays along planes push spans that start where the current one does).
     struct Entry {
       std::uint32_t node;
-      double t0, t1;
+      double t0, t1, lowestT0;
     };
     Entry stack[kMaxStack];
     int top = 0;
+    const auto push = [&](std::uint32_t node, double t0, double t1) {
+      assert(top < kMaxStack);
+      stack[top] = {node, t0, t1, top ? std::min(t0, stack[top - 1].lowestT0) : t0};
+      ++top;
+    };
     std::uint32_t index = 0;
     const double fat = fat_;
     // Per-axis terms in plain arrays: glm's vec3 operator[] is a switch, so indexing by a node's axis cost
@@ -475,8 +483,7 @@ class KdTree final : public Accel {
           else if (o > split + fat)
             index = right;
           else {
-            assert(top < kMaxStack);
-            stack[top++] = {right, t0, t1};
+            push(right, t0, t1);
             index = left;
           }
         } else {
@@ -488,16 +495,12 @@ class KdTree final : public Accel {
             index = nearChild;
           } else if (ts < 0.0) {
             // Moving away from the plane: the far child too while the ray is still within the margin.
-            if (t0 <= ts + margin) {
-              assert(top < kMaxStack);
-              stack[top++] = {farChild, t0, std::min(t1, ts + margin)};
-            }
+            if (t0 <= ts + margin) push(farChild, t0, std::min(t1, ts + margin));
             index = nearChild;
           } else if (ts < t0 - margin) {
             index = farChild;
           } else {
-            assert(top < kMaxStack);
-            stack[top++] = {farChild, std::max(t0, ts - margin), t1};
+            push(farChild, std::max(t0, ts - margin), t1);
             index = nearChild;
             t1 = std::min(t1, ts + margin);
           }
@@ -509,7 +512,7 @@ class KdTree final : public Accel {
       for (std::uint32_t k = 0; k < count; ++k)
         if (visit(refs[k])) return true;
       for (;;) {
-        if (top == 0) return false;
+        if (top == 0 || stack[top - 1].lowestT0 > best.t) return false;
         const Entry e = stack[--top];
         if (e.t0 > best.t) continue;
         index = e.node, t0 = e.t0, t1 = e.t1;
