@@ -413,6 +413,9 @@ void runQualityBench(const QualityArgs& args) {
     for (const std::int64_t r : parseResolutions(resolutions, "--levels"))
       levelList.push_back(levelsOfResolution(r, "--levels"));
   }
+  for (std::size_t i = 0; i < args.contourCuts.size(); ++i)
+    if (std::count(args.contourCuts.begin(), args.contourCuts.begin() + i, args.contourCuts[i]))
+      throw UsageError(fmt::format("--contour-cuts: {} is listed twice", args.contourCuts[i]));
   const glm::dvec3 view = parseDirection(args.view, "--view");
   const int threads = resolveThreads(args.threads);
   const std::filesystem::path out = args.out;
