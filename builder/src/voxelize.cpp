@@ -461,13 +461,14 @@ class Voxelizer {
   }
 
   std::optional<ContourFit> fitContour(const geom::Cube& cube, const std::vector<Piece>& pieces,
-                                       const std::vector<geom::Slab>& slabs) const {
+                                       const std::vector<geom::Slab>& slabs, bool finest) const {
     ContourCandidates candidates;
     for (const Piece& p : pieces) candidates.add(p, triangles_[p.triangle].normal, pieceWeight(p, cube));
     const std::vector<Direction> directions = candidates.directions();
     std::vector<Extent> extents(directions.size());
     for (const Piece& p : pieces) extendExtents(directions, p, cube, extents);
-    return chooseContour(cube, directions, extents, slabs, options_.contourMinReduction);
+    return chooseContour(cube, directions, extents, slabs,
+                         finest ? options_.leafContourMinReduction : options_.innerContourMinReduction);
   }
 
   std::vector<Piece> clipPieces(const Node& node, const geom::Cube& cube) const {
@@ -501,7 +502,7 @@ class Voxelizer {
     const std::vector<Piece> pieces = needPieces ? clipPieces(node, cube) : std::vector<Piece>{};
     // The root has no parent descriptor to hold a contour.
     std::optional<ContourFit> contour;
-    if (options_.contours && node.level > 0) contour = fitContour(cube, pieces, node.slabs);
+    if (options_.contours && node.level > 0) contour = fitContour(cube, pieces, node.slabs, finest);
     if (contour) out.record.hasContour = true, out.record.contour = contour->bits;
 
     bool stop = finest;
@@ -806,7 +807,7 @@ class CellVoxelizer {
     VoxelRecord record;
     std::optional<ContourFit> contour;
     if (hasPieces(n))
-      contour = chooseContour(cube, n.directions, n.extents, slabs, options_.contourMinReduction);
+      contour = chooseContour(cube, n.directions, n.extents, slabs, options_.innerContourMinReduction);
     if (contour) record.hasContour = true, record.contour = contour->bits;
     if (errorStop_ && contour && stopsRefining(options_, n.level, *contour, n.spread)) {
       setAttributes(record, n.sums, colors_);

@@ -566,7 +566,9 @@ class StoreWriter {
       const glm::ivec3 sub = subCube(level, i, run.cubeLevel + 1);
       std::size_t j = i;
       while (j < b && subCube(level, j, run.cubeLevel + 1) == sub) ++j;
-      parts.push_back({childSlot(sub), i, j});
+      // A cell without voxels on level - 1 (all stopped above it) is no part: a tree's parents give none for
+      // its sub-cube, and both must pack the same runs.
+      if (headOf(level, i, j).parentCount > 0) parts.push_back({childSlot(sub), i, j});
       i = j;
     }
     // Even shares: a run of n slices' worth closes each group near 1/n of it instead of filling groups to

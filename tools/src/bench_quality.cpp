@@ -65,7 +65,7 @@ constexpr double kStreamViewDistance = 0.3;
 struct QualityArgs {
   std::string mesh;
   std::string levels = "8,9,10";
-  std::vector<float> contourCuts{BuildOptions{}.contourMinReduction};
+  std::vector<float> contourCuts{BuildOptions{}.leafContourMinReduction};
   int size = 512;
   int runs = 3;
   std::string view = "-0.35,-0.25,-1";
@@ -156,7 +156,7 @@ Image imageOf(Frame&& frame) {
 
 struct Setting {
   int levels = 0;
-  float contourCut = 0.0f;  // the build's contourMinReduction; renders with contours only
+  float contourCut = 0.0f;  // the build's leafContourMinReduction; renders with contours only
   float lod = 1.0f;
   bool contours = true;
   int beam = 8;
@@ -260,11 +260,11 @@ constexpr std::size_t kWholeStoreBudgetPerFileByte = 16;
 void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesystem::path& out, bool withRoot,
                 LevelScene& s) {
   const int levels = build.levels;
-  spdlog::info("building {} levels, contour cut {} ...", levels, build.contourMinReduction);
+  spdlog::info("building {} levels, contour cut {} ...", levels, build.leafContourMinReduction);
   s.transform = fitSceneCube(mesh);
   VoxelTree tree;
   s.buildSeconds = timeSeconds([&] { tree = voxelize(mesh, s.transform, build); });
-  s.store = out / fmt::format("L{}-cut{}.svo", levels, build.contourMinReduction);
+  s.store = out / fmt::format("L{}-cut{}.svo", levels, build.leafContourMinReduction);
   writeStore(
       s.store, tree, s.transform,
       {levels, build.geometryError, build.colorError, build.normalError, std::uint32_t(build.contours)});
@@ -304,7 +304,7 @@ void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads,
   LevelScene level;  // the store is scratch: gone however this ends
   BuildOptions build;
   build.levels = levels;
-  build.contourMinReduction = args.contourCuts.front();
+  build.leafContourMinReduction = args.contourCuts.front();
   buildLevel(mesh, build, out, false, level);
   const std::filesystem::path& store = level.store;
   const double finestVoxel = level.transform.size / double(std::int64_t(1) << levels);
@@ -415,7 +415,7 @@ void runQualityBench(const QualityArgs& args) {
   }
   for (std::size_t i = 0; i < args.contourCuts.size(); ++i)
     if (std::count(args.contourCuts.begin(), args.contourCuts.begin() + i, args.contourCuts[i]))
-      throw UsageError(fmt::format("--contour-cuts: {} is listed twice", args.contourCuts[i]));
+      throw UsageError(fmt::format("--leaf-contour-cuts: {} is listed twice", args.contourCuts[i]));
   const glm::dvec3 view = parseDirection(args.view, "--view");
   const int threads = resolveThreads(args.threads);
   const std::filesystem::path out = args.out;
@@ -442,7 +442,7 @@ void runQualityBench(const QualityArgs& args) {
       LevelScene level;
       BuildOptions build;
       build.levels = levels;
-      build.contourMinReduction = cut;
+      build.leafContourMinReduction = cut;
       buildLevel(mesh, build, out, true, level);
       const double buildSeconds = level.buildSeconds;
       const std::uint64_t storeBytes = level.storeBytes;
@@ -583,9 +583,9 @@ void addQualityBench(CLI::App& bench) {
       "quality", "error against render time for every quality knob, vs the exact triangle reference");
   cmd->add_option("mesh", args->mesh, "triangle mesh")->required();
   cmd->add_option("--levels", args->levels, "octree depths to build, comma-separated")->capture_default_str();
-  cmd->add_option("--contour-cuts", args->contourCuts,
-                  "contour thresholds to build each depth with (svo build --contour-min-reduction), "
-                  "comma-separated; --stream builds with the first")
+  cmd->add_option("--leaf-contour-cuts", args->contourCuts,
+                  "finest voxels' contour thresholds to build each depth with (svo build "
+                  "--leaf-contour-min-reduction), comma-separated; --stream builds with the first")
       ->delimiter(',')
       ->check(CLI::Range(0.0f, 2.0f))
       ->capture_default_str();

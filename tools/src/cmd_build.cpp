@@ -206,8 +206,12 @@ void addBuildCommand(CLI::App& app) {
       ->check(CLI::Range(1, kMaxLevels))
       ->capture_default_str();
   cmd->add_flag("--no-contours", args->noContours, "cube voxels only (no contour slabs)");
-  cmd->add_option("--contour-min-reduction", args->options.contourMinReduction,
-                  "store a contour only where it cuts more than this many voxels off the hull")
+  cmd->add_option("--leaf-contour-min-reduction", args->options.leafContourMinReduction,
+                  "store a finest voxel's contour only where it cuts more than this many voxels off the hull")
+      ->check(CLI::Range(0.0, 2.0))
+      ->capture_default_str();
+  cmd->add_option("--inner-contour-min-reduction", args->options.innerContourMinReduction,
+                  "the same for the voxels above the finest (their contours bound every voxel below)")
       ->check(CLI::Range(0.0, 2.0))
       ->capture_default_str();
   cmd->add_option("--geometry-error", args->options.geometryError,

@@ -22,12 +22,14 @@ struct BuildOptions {
   int levels = 10;       // octree depth: the finest voxels are 2^-levels of the scene cube
   bool contours = true;  // fit contours (sec. 5.2); off gives cube voxels
   // A contour is stored only where it cuts the voxel's ancestor-bounded hull, along its normal, by more than
-  // this fraction of the voxel size (sec. 5.2: "only where it reduces the approximation error enough").
-  // A quarter voxel, against 1/8 (svo bench quality --contour-cuts, 1 voxel per pixel): RMSE within 1%,
-  // silhouettes within 0.01% of the pixels; depth p99 +4-6% on the 2M terrain at 11 levels, +36% on the
-  // bunny at 8-10 levels (9: 0.67 -> 0.90 finest voxels); stores 6-17% smaller (20M terrain at 14 levels:
-  // 3.17 -> 2.90 B per leaf voxel).
-  float contourMinReduction = 0.25f;
+  // a fraction of the voxel size (sec. 5.2: "only where it reduces the approximation error enough"): one
+  // fraction for the finest voxels, one for those above. A voxel's shape is its cube cut by all its
+  // ancestors' contours (sec. 5.3), so an inner voxel's contour bounds every voxel below it and spares many
+  // of the finest their own. Against 1/8 for both (svo bench quality, 1 voxel per pixel and 4x closer):
+  // stores 9-33% smaller; depth p99 14% smaller where the finest voxels are below a pixel (bunny, 9 and 10
+  // levels), up to 23% larger where they are magnified (bunny, 9 levels 4x closer; 2M terrain: within 2%).
+  float leafContourMinReduction = 0.25f;
+  float innerContourMinReduction = 0.0f;  // any cut
   // Error-driven stop (0 = off): a voxel is not refined when its contour thickness is within
   // `geometryError` finest voxels and its attributes within the color / normal errors.
   float geometryError = 0.0f;
