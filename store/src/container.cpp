@@ -165,7 +165,6 @@ std::size_t sliceRawBytes(const SliceHead& h) {
 
 using ContourResidual = std::array<std::uint8_t, kContourBytes>;
 using NormalResidual = std::array<std::uint8_t, kNormalBytes>;
-constexpr int kContourNormalShifts[3] = {26, 20, 14};  // nx, ny, nz (format.hpp)
 
 // The position field (bits [13:7]) a contour of the child in `slot` is predicted to have: its parent's slab
 // centre plane in the child's frame. Child units are half the parent's and its centre is a quarter of the
@@ -177,11 +176,9 @@ constexpr int kContourNormalShifts[3] = {26, 20, 14};  // nx, ny, nz (format.hpp
 class ContourPositionPredictor {
  public:
   ContourPositionPredictor(bool parentHasContour, std::uint32_t parentContour) : has_(parentHasContour) {
-    const auto field = [&](int shift, int bits) {
-      return int(std::int32_t(parentContour << (32 - shift - bits)) >> (32 - bits));
-    };
-    for (int k = 0; k < 3; ++k) normal_[k] = field(kContourNormalShifts[k], 6);
-    twicePosition_ = 62 * field(7, 7);
+    const ContourFields f = contourFields(parentContour);
+    for (int k = 0; k < 3; ++k) normal_[k] = f.normal[k];
+    twicePosition_ = 62 * f.position;
   }
   std::uint32_t operator()(int slot) const {
     if (!has_) return 0;
@@ -200,19 +197,17 @@ class ContourPositionPredictor {
 
 // `predicted`: the normal fields predictedContourNormalBits gives for the voxel's normal (0 in a store
 // without normals) and the position field ContourPositionPredictor gives.
+// Fields are differences modulo their widths (packContourBits masks them).
 ContourResidual contourResidual(std::uint32_t contour, std::uint32_t predicted) {
+  const ContourFields c = contourFields(contour), p = contourFields(predicted);
   ContourResidual r;
-  for (int k = 0; k < 3; ++k)
-    r[k] =
-        std::uint8_t(((contour >> kContourNormalShifts[k]) - (predicted >> kContourNormalShifts[k])) & 63u);
-  r[3] = std::uint8_t(((contour >> 7) - (predicted >> 7)) & 127u), r[4] = std::uint8_t(contour & 127u);
+  for (int k = 0; k < 3; ++k) r[k] = std::uint8_t((c.normal[k] - p.normal[k]) & 63);
+  r[3] = std::uint8_t((c.position - p.position) & 127), r[4] = std::uint8_t(c.thickness);
   return r;
 }
 std::uint32_t contourOf(const ContourResidual& r, std::uint32_t predicted) {
-  std::uint32_t c = ((r[3] + (predicted >> 7)) & 127u) << 7 | (r[4] & 127u);
-  for (int k = 0; k < 3; ++k)
-    c |= ((r[k] + (predicted >> kContourNormalShifts[k])) & 63u) << kContourNormalShifts[k];
-  return c;
+  const ContourFields p = contourFields(predicted);
+  return packContourBits(r[0] + p.normal[0], r[1] + p.normal[1], r[2] + p.normal[2], r[3] + p.position, r[4]);
 }
 NormalResidual normalResidual(std::uint16_t code, std::uint16_t parentCode) {
   return {std::uint8_t((code >> 8) - (parentCode >> 8)), std::uint8_t(code - parentCode)};

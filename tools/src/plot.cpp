@@ -76,13 +76,15 @@ void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>
       if (!colors.count(s.name)) colors[s.name] = kPalette[colors.size() % kPalette.size()];
   const int cols = int(std::ceil(std::sqrt(double(panels.size()))));
   const int rows = int((panels.size() + cols - 1) / cols);
-  // Legend layout first: its rows take height from the panels.
-  const auto entryWidth = [](const std::string& name) { return 30 + 10 * int(name.size()); };
-  int legendRows = 1;
-  for (int lx = 20; const auto& [name, c] : colors) {
-    if (lx > 20 && lx + entryWidth(name) > width) ++legendRows, lx = 20;
-    lx += entryWidth(name);
+  // Legend layout first, wrapped to the width: its rows take height from the panels.
+  std::vector<std::pair<int, int>> legendAt;  // per series name, in `colors` order: x and row
+  for (int lx = 20, row = 0; const auto& [name, c] : colors) {
+    const int entryWidth = 30 + 10 * int(name.size());
+    if (lx > 20 && lx + entryWidth > width) ++row, lx = 20;
+    legendAt.push_back({lx, row});
+    lx += entryWidth;
   }
+  const int legendRows = legendAt.empty() ? 1 : legendAt.back().second + 1;
   const int legendHeight = legendRows * kLegendRowHeight + kLegendFooterHeight;
   const int pw = width / cols, ph = (height - legendHeight) / rows;
   const std::array<float, 3> black{0, 0, 0}, grid{0.85f, 0.85f, 0.85f};
@@ -135,12 +137,12 @@ void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>
     }
   }
   // Legend: one colored square per series name.
-  int lx = 20, ly = height - legendHeight + kLegendRowHeight + 5;
+  auto at = legendAt.begin();
   for (const auto& [name, c] : colors) {
-    if (lx > 20 && lx + entryWidth(name) > width) ly += kLegendRowHeight, lx = 20;
+    const auto [lx, row] = *at++;
+    const int ly = height - legendHeight + kLegendRowHeight + 5 + row * kLegendRowHeight;
     canvas.square(lx, ly, 6, c);
     labels.push_back({lx + 12, ly + 6, name});
-    lx += entryWidth(name);
   }
   labels.push_back({20, height - 5, "y: " + yLabel});
 

@@ -88,12 +88,21 @@ constexpr std::uint32_t packContourBits(int nx, int ny, int nz, int position, in
   return (std::uint32_t(nx & 63) << 26) | (std::uint32_t(ny & 63) << 20) | (std::uint32_t(nz & 63) << 14) |
          (std::uint32_t(position & 127) << 7) | std::uint32_t(thickness & 127);
 }
-inline Contour decodeContour(std::uint32_t bits) {
+// The integer fields packContourBits packs: normal and position signed, thickness unsigned.
+struct ContourFields {
+  int normal[3];
+  int position, thickness;
+};
+constexpr ContourFields contourFields(std::uint32_t bits) {
   const auto s = std::int32_t(bits);
+  return {{s >> 26, (s << 6) >> 26, (s << 12) >> 26}, (s << 18) >> 25, int(bits & 127u)};
+}
+inline Contour decodeContour(std::uint32_t bits) {
+  const ContourFields f = contourFields(bits);
   Contour c;
-  c.normal = glm::vec3(float(s >> 26), float((s << 6) >> 26), float((s << 12) >> 26)) / kContourNormalScale;
-  c.position = float((s << 18) >> 25) * kContourPositionStep;
-  c.thickness = float(bits & 127u) * kContourThicknessStep;
+  c.normal = glm::vec3(float(f.normal[0]), float(f.normal[1]), float(f.normal[2])) / kContourNormalScale;
+  c.position = float(f.position) * kContourPositionStep;
+  c.thickness = float(f.thickness) * kContourThicknessStep;
   return c;
 }
 // Quantizes a normal to the 6-bit grid with its largest component at +-31 (keeps the most precision).
@@ -153,7 +162,6 @@ const std::uint32_t* contourNormalPredictionTable();  // by code, as latticeNorm
 inline std::uint32_t predictedContourNormalBits(std::uint16_t code) {
   return contourNormalPredictionTable()[code];
 }
-inline constexpr std::uint32_t kContourNormalMask = ~std::uint32_t(0) << 14;
 
 // Attribute lookup entry (Fig. 7c): [7:0] attribute mask, [31:8] value pointer in 32-bit words from the start
 // of the attachment's value array. A child whose bit is clear inherits its parent's value.
