@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -34,6 +35,34 @@ constexpr double kBlockBytesPerRawByte = 3.0;
 // attribute value of the slice is in the block, and a descriptor outweighs the split bit and valid mask it
 // replaces. Used to skip requests whose blocks cannot fit; measured blocks then raise it (terrain: 1.8).
 constexpr double kLeastBlockBytesPerRawByte = 1.0;
+
+// Charges the calling thread's CPU time to one stage counter at a time: enter() closes the current stage and
+// opens the next, the destructor closes the last (early returns included).
+class StageClock {
+ public:
+  explicit StageClock(std::atomic<std::uint64_t>& first) : stage_(&first), start_(now()) {}
+  ~StageClock() { close(); }
+  StageClock(const StageClock&) = delete;
+  StageClock& operator=(const StageClock&) = delete;
+  void enter(std::atomic<std::uint64_t>& next) {
+    close();
+    stage_ = &next;
+  }
+
+ private:
+  static std::uint64_t now() {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return std::uint64_t(t.tv_sec) * 1'000'000'000u + std::uint64_t(t.tv_nsec);
+  }
+  void close() {
+    const std::uint64_t t = now();
+    stage_->fetch_add(t - start_, std::memory_order_relaxed);
+    start_ = t;
+  }
+  std::atomic<std::uint64_t>* stage_;
+  std::uint64_t start_;
+};
 
 std::uint64_t sliceKey(int voxelLevel, int cubeLevel, glm::ivec3 c) {
   return std::uint64_t(voxelLevel) << 58 | std::uint64_t(cubeLevel) << 53 | std::uint64_t(c.x) << 32 |
@@ -84,11 +113,13 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
       const BlockView::Attributes normals = BlockView::attributes(d, AttachmentType::Normal);
       for (int slot = 0; slot < 8; ++slot) {
         if (!(mask >> slot & 1u)) continue;
-        SliceVoxel c{childCoord(parent.coord, slot), 0, false, 0, parent.color, parent.normal};
-        if (auto contour = BlockView::contour(d, slot)) c.hasContour = true, c.contour = *contour;
-        if (auto v = colors.at(slot)) c.color = *v;
-        if (auto v = normals.at(slot)) c.normal = *v;
-        next.push_back(c);
+        // Written in place: a voxel assembled aside and pushed back stalled on store forwarding.
+        SliceVoxel& c = next.emplace_back();
+        c.coord = childCoord(parent.coord, slot);
+        const std::optional<std::uint32_t> contour = BlockView::contour(d, slot);
+        c.hasContour = contour.has_value(), c.contour = contour.value_or(0);
+        c.color = colors.at(slot).value_or(parent.color);
+        c.normal = normals.at(slot).value_or(parent.normal);
         nextDescriptors.push_back((d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr);
       }
     }
@@ -253,6 +284,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
     out.error = store_.path().string() + ": slice " + std::to_string(slice) + ": " + what;
   };
   // Disk, checksum and zstd, no lock held; a failed slice ends the chain, the ones before it still load.
+  StageClock clock(cpu_.read);
   std::vector<SliceBytes> raw;
   for (std::uint32_t k = 0; k < request.count; ++k) {
     const std::uint32_t slice = region.slices[first + k];
@@ -267,6 +299,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
   }
   if (raw.empty()) return out;
 
+  clock.enter(cpu_.assemble);
   std::shared_lock lock(poolMutex_);
   out.version = region.version;
   const std::uint32_t resident = region.resident;
@@ -314,6 +347,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
   }
   // The pool is read; decoding and layout need only this copy, so commits need not wait for them.
   lock.unlock();
+  clock.enter(cpu_.decode);
   for (std::uint32_t k = 0; k < raw.size(); ++k) {
     const std::uint32_t slice = region.slices[first + k];
     try {
@@ -321,6 +355,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
         throw std::runtime_error("the resident levels do not end above it");
       std::vector<SliceVoxel> added;
       store_.decodeSlice(slice, raw[k], levels.back(), added);
+      cpu_.voxelsDecoded.fetch_add(added.size(), std::memory_order_relaxed);
       levels.push_back(std::move(added));
       ++out.added;
     } catch (const std::exception& e) {
@@ -330,8 +365,10 @@ Pager::Prepared Pager::prepare(const Request& request) {
   }
   if (out.added == 0) return out;
 
+  clock.enter(cpu_.layout);
   try {
     VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
+    cpu_.voxelsLaidOut.fetch_add(tree.voxels.size(), std::memory_order_relaxed);
     std::vector<std::size_t> levelStart{0};
     for (const auto& l : levels) levelStart.push_back(levelStart.back() + l.size());
     // The record of voxel `coord` at `depth` below the cube, or nullopt.
@@ -753,6 +790,18 @@ bool Pager::converged() const {
 
 bool Pager::viewConverged() const {
   return lastViewPending_ == 0;
+}
+
+WorkerCpu Pager::workerCpu() const {
+  const auto seconds = [](const std::atomic<std::uint64_t>& nanos) {
+    return double(nanos.load(std::memory_order_relaxed)) * 1e-9;
+  };
+  return {seconds(cpu_.read),
+          seconds(cpu_.assemble),
+          seconds(cpu_.decode),
+          seconds(cpu_.layout),
+          cpu_.voxelsDecoded.load(std::memory_order_relaxed),
+          cpu_.voxelsLaidOut.load(std::memory_order_relaxed)};
 }
 
 std::vector<std::uint32_t> Pager::residentSlices() const {

@@ -280,13 +280,11 @@ class SlotPlanner {
   void place(std::uint32_t v) {
     const VoxelRecord& r = tree_.voxels[v];
     std::uint32_t children[8], count = 0, farCount = 0;
-    for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
-      if (!(r.childMask >> slot & 1u)) continue;
+    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
       if (isNonLeaf(c)) {
         children[count++] = c;
         farCount += needsFar_[c];
       }
-      ++c;
     }
     if (count == 0) return;
     const std::uint32_t first = reserve(count + farCount);
@@ -362,31 +360,34 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
          0,
          0,
          0};
-    for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
-      if (!(r.childMask >> slot & 1u)) continue;
+    // Set bits only, and only voxels with children queued (three in four voxels are leaves).
+    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
+      const std::uint8_t bit = std::uint8_t(mask & (0u - mask));
       const VoxelRecord& child = tree.voxels[c];
-      if (child.hasContour) contours.push_back(child.contour), e.contourMask |= std::uint8_t(1u << slot);
-      if (child.childMask == 0 && !child.stub) e.leafMask |= std::uint8_t(1u << slot);
-      effectiveColor[c] = effectiveColor[v];
-      effectiveNormal[c] = effectiveNormal[v];
+      if (child.hasContour) contours.push_back(child.contour), e.contourMask |= bit;
+      std::uint32_t color = effectiveColor[v], normal = effectiveNormal[v];
       if (tree.hasColors) {
-        if (inherits.color(child.color, effectiveColor[v])) {
+        if (inherits.color(child.color, color)) {
           ++stats.inheritedColors;
         } else {
-          colors.push_back(child.color), e.colorMask |= std::uint8_t(1u << slot);
-          effectiveColor[c] = child.color;
+          colors.push_back(child.color), e.colorMask |= bit;
+          color = child.color;
         }
       }
       if (tree.hasNormals) {
-        if (inherits.normal(child.normal, effectiveNormal[v])) {
+        if (inherits.normal(child.normal, normal)) {
           ++stats.inheritedNormals;
         } else {
-          normals.push_back(child.normal), e.normalMask |= std::uint8_t(1u << slot);
-          effectiveNormal[c] = child.normal;
+          normals.push_back(child.normal), e.normalMask |= bit;
+          normal = child.normal;
         }
       }
-      queue.push_back(c);
-      ++c;
+      if (child.childMask != 0) {
+        effectiveColor[c] = color, effectiveNormal[c] = normal;
+        queue.push_back(c);
+      } else if (!child.stub) {
+        e.leafMask |= bit;
+      }
     }
   }
 

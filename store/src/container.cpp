@@ -1110,7 +1110,9 @@ void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, 
     const std::uint16_t parentCode = header_.hasNormals ? codes(p.normal) : 0;
     for (int slot = 0; slot < 8; ++slot) {
       if (!(mask >> slot & 1u)) continue;
-      children.push_back({childCoord(p.coord, slot), 0, false, 0, p.color, p.normal});
+      SliceVoxel& child = children.emplace_back();  // in place: no temporary to copy (store forwarding)
+      child.coord = childCoord(p.coord, slot);
+      child.color = p.color, child.normal = p.normal;
       predicted.push_back({head.contourCount ? position(slot) : 0, parentCode});
     }
   }
@@ -1260,11 +1262,14 @@ VoxelTree treeOfLevels(const VoxelLevels& levels, bool hasColors, bool hasNormal
   tree.hasNormals = hasNormals;
   std::size_t total = 0;
   for (const auto& l : levels) total += l.size();
-  tree.voxels.reserve(total);
+  // Fields written in place: a record assembled on the stack and pushed back stalled on store forwarding
+  // (its narrow field stores read back as one wide load), a third of the pager's tree time.
+  tree.voxels.resize(total);
+  VoxelRecord* out = tree.voxels.data();
   std::size_t nextChild = levels.empty() ? 0 : levels[0].size();
   for (const auto& level : levels) {
     for (const SliceVoxel& n : level) {
-      VoxelRecord r;
+      VoxelRecord& r = *out++;
       r.childMask = n.childMask;
       r.firstChild = n.childMask ? std::uint32_t(nextChild) : 0;
       nextChild += std::size_t(std::popcount(unsigned(n.childMask)));
@@ -1272,7 +1277,6 @@ VoxelTree treeOfLevels(const VoxelLevels& levels, bool hasColors, bool hasNormal
       r.contour = n.contour;
       r.color = n.color;
       r.normal = n.normal;
-      tree.voxels.push_back(r);
     }
   }
   return tree;

@@ -64,6 +64,17 @@ struct PagerStats {
   std::size_t residentBytes = 0;
 };
 
+// CPU time the workers spent per stage since the pager opened (thread CPU time, so time a worker waited for
+// a core is not counted), and the voxels they decoded and laid out: where streaming's time goes.
+struct WorkerCpu {
+  double readSeconds = 0.0;      // pread, checksum, zstd
+  double assembleSeconds = 0.0;  // the region's resident levels read back from its block
+  double decodeSeconds = 0.0;    // slices decoded against their parent voxels
+  double layoutSeconds = 0.0;    // voxel tree, block layout, pool pages prefaulted
+  std::uint64_t voxelsDecoded = 0, voxelsLaidOut = 0;
+  double seconds() const { return readSeconds + assembleSeconds + decodeSeconds + layoutSeconds; }
+};
+
 // The view query of a camera: eye, pixel angle, LOD target and the frustum, in octree space.
 ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPixels);
 
@@ -100,6 +111,7 @@ class Pager {
   std::size_t residentBytes() const { return pool_.usedBytes(); }
   // Compressed bytes the workers have read from the store so far.
   std::uint64_t bytesRead() const { return bytesRead_.load(std::memory_order_relaxed); }
+  WorkerCpu workerCpu() const;
   std::size_t budgetBytes() const { return pool_.capacityBytes(); }
   std::vector<std::uint32_t> residentSlices() const;
   std::vector<std::uint32_t> failedSlices() const;
@@ -186,6 +198,11 @@ class Pager {
   std::vector<std::uint8_t> inView_;  // per slice: wanted and inside the view frustum
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0;
   std::atomic<std::uint64_t> bytesRead_{0};
+  // WorkerCpu's stages in nanoseconds, and its voxel counts.
+  struct StageNanos {
+    std::atomic<std::uint64_t> read{0}, assemble{0}, decode{0}, layout{0};
+    std::atomic<std::uint64_t> voxelsDecoded{0}, voxelsLaidOut{0};
+  } cpu_;
 
   mutable std::shared_mutex
       poolMutex_;             // workers read blocks shared; commits and evictions write exclusively
