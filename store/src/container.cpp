@@ -1262,14 +1262,13 @@ VoxelTree treeOfLevels(const VoxelLevels& levels, bool hasColors, bool hasNormal
   tree.hasNormals = hasNormals;
   std::size_t total = 0;
   for (const auto& l : levels) total += l.size();
-  // Fields written in place: a record assembled on the stack and pushed back stalled on store forwarding
-  // (its narrow field stores read back as one wide load), a third of the pager's tree time.
-  tree.voxels.resize(total);
-  VoxelRecord* out = tree.voxels.data();
+  tree.voxels.reserve(total);
   std::size_t nextChild = levels.empty() ? 0 : levels[0].size();
   for (const auto& level : levels) {
     for (const SliceVoxel& n : level) {
-      VoxelRecord& r = *out++;
+      // Fields written in place: a record assembled on the stack and pushed back stalled on store forwarding
+      // (its narrow field stores read back as one wide load), a third of the pager's tree time.
+      VoxelRecord& r = tree.voxels.emplace_back();
       r.childMask = n.childMask;
       r.firstChild = n.childMask ? std::uint32_t(nextChild) : 0;
       nextChild += std::size_t(std::popcount(unsigned(n.childMask)));

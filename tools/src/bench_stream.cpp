@@ -177,9 +177,9 @@ void runStreamBench(const StreamArgs& args) {
     };
     const double cpuSeconds = median([](const WorkerCpu& c) { return c.seconds(); });
     const double decoded = median([](const WorkerCpu& c) { return c.voxelsDecoded; });
-    char nanosPerVoxel[32], perCore[32], busy[32];
+    char nanosPerVoxel[32], bytesPerCpu[32], busy[32];
     std::snprintf(nanosPerVoxel, sizeof nanosPerVoxel, "%.0f ns", 1e9 * cpuSeconds / std::max(1.0, decoded));
-    std::snprintf(perCore, sizeof perCore, "%.0f MB/s", summarize(bytesPerCpuSecond).median / 1e6);
+    std::snprintf(bytesPerCpu, sizeof bytesPerCpu, "%.0f MB/s", summarize(bytesPerCpuSecond).median / 1e6);
     std::snprintf(busy, sizeof busy, "%.2f", cpuSeconds / std::max(1e-9, all.median));
     cpuTable.addRow({formatBytes(budget),
                      formatSeconds(median([](const WorkerCpu& c) { return c.readSeconds; })),
@@ -188,7 +188,7 @@ void runStreamBench(const StreamArgs& args) {
                      formatSeconds(median([](const WorkerCpu& c) { return c.layoutSeconds; })),
                      formatSeconds(cpuSeconds), busy, formatCount(std::uint64_t(decoded)),
                      formatCount(std::uint64_t(median([](const WorkerCpu& c) { return c.voxelsLaidOut; }))),
-                     nanosPerVoxel, perCore});
+                     nanosPerVoxel, bytesPerCpu});
     table.addRow({formatBytes(budget), formatSeconds(first.median), formatSeconds(view.median),
                   formatSeconds(final.median), formatBytes(viewBytes), formatSeconds(seq.median), ratio,
                   formatSeconds(all.median), formatBytes(bytes), formatSeconds(streamP99),
