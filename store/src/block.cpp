@@ -226,12 +226,19 @@ bool InheritanceRule::color(std::uint32_t a, std::uint32_t b) const {
   return true;
 }
 bool InheritanceRule::normal(std::uint32_t a, std::uint32_t b) const {
-  if (a == b) return true;
+  return normal(a, parentNormal(b));
+}
+InheritanceRule::ParentNormal InheritanceRule::parentNormal(std::uint32_t parentEffective) const {
+  const glm::vec3 q = normalDirection(parentEffective);
+  return {parentEffective, q, glm::dot(q, q)};
+}
+bool InheritanceRule::normal(std::uint32_t a, const ParentNormal& parent) const {
+  if (a == parent.bits) return true;
   if (equalOnly_) return false;
   // The angle's cosine against the threshold without normalizing either: one square root, not two
   // normalizations (this test runs per voxel in every layout).
-  const glm::vec3 p = normalDirection(a), q = normalDirection(b);
-  return glm::dot(p, q) >= normalCos_ * std::sqrt(glm::dot(p, p) * glm::dot(q, q));
+  const glm::vec3 p = normalDirection(a);
+  return glm::dot(p, parent.direction) >= normalCos_ * std::sqrt(glm::dot(p, p) * parent.lengthSquared);
 }
 
 namespace {
@@ -360,6 +367,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
          0,
          0,
          0};
+    const InheritanceRule::ParentNormal parentNormal =
+        tree.hasNormals ? inherits.parentNormal(effectiveNormal[v]) : InheritanceRule::ParentNormal{};
     // Set bits only, and only voxels with children queued (three in four voxels are leaves).
     for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
       const std::uint8_t bit = std::uint8_t(mask & (0u - mask));
@@ -375,7 +384,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
         }
       }
       if (tree.hasNormals) {
-        if (inherits.normal(child.normal, normal)) {
+        if (inherits.normal(child.normal, parentNormal)) {
           ++stats.inheritedNormals;
         } else {
           normals.push_back(child.normal), e.normalMask |= bit;

@@ -348,6 +348,9 @@ class StoreWriter {
       std::vector<Voxel> next;
       for (const Voxel& parent : levels_.back()) {
         const VoxelRecord& r = tree.voxels[parent.record];
+        const InheritanceRule::ParentNormal parentNormal =
+            tree.hasNormals && r.childMask ? inherits.parentNormal(effectiveNormal_[parent.record])
+                                           : InheritanceRule::ParentNormal{};
         for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
           if (!(r.childMask >> slot & 1u)) continue;
           if (c >= n) throw std::invalid_argument("writeStore: a child index is out of range");
@@ -356,7 +359,7 @@ class StoreWriter {
           effectiveNormal_[c] = effectiveNormal_[parent.record];
           if (tree.hasColors && !inherits.color(child.color, effectiveColor_[parent.record]))
             storesColor_[c] = 1, effectiveColor_[c] = child.color;
-          if (tree.hasNormals && !inherits.normal(child.normal, effectiveNormal_[parent.record])) {
+          if (tree.hasNormals && !inherits.normal(child.normal, parentNormal)) {
             if (latticeNormalBits(octNormalCodeOf(child.normal)) != child.normal)
               throw std::invalid_argument(
                   "writeStore: a normal is not on the store's 16-bit lattice "
