@@ -225,9 +225,6 @@ bool InheritanceRule::color(std::uint32_t a, std::uint32_t b) const {
     if (std::abs(int((a >> shift) & 255u) - int((b >> shift) & 255u)) > colorSteps_) return false;
   return true;
 }
-bool InheritanceRule::normal(std::uint32_t a, std::uint32_t b) const {
-  return normal(a, parentNormal(b));
-}
 InheritanceRule::ParentNormal InheritanceRule::parentNormal(std::uint32_t parentEffective) const {
   const glm::vec3 q = normalDirection(parentEffective);
   return {parentEffective, q, glm::dot(q, q)};

@@ -140,9 +140,8 @@ class InheritanceRule {
  public:
   explicit InheritanceRule(const LayoutOptions& options);
   bool color(std::uint32_t child, std::uint32_t parentEffective) const;
-  bool normal(std::uint32_t child, std::uint32_t parentEffective) const;
-  // The parent's side of the normal test, decoded once for all its children (the same result as above:
-  // decoding both normals for every child was a quarter of the block layout's time).
+  // The normal test takes the parent's side decoded once for all its children (decoding both normals for
+  // every child was a quarter of the block layout's time).
   struct ParentNormal {
     std::uint32_t bits;
     glm::vec3 direction;
