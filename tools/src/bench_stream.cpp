@@ -30,7 +30,8 @@ namespace {
 struct StreamArgs {
   std::string input, output = "stream-report";
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
-  int size = 512, runs = 3, pathFrames = 120, workerNice = PagerOptions{}.workerNice;
+  int size = 512, runs = 3, pathFrames = 120, workerNice = PagerOptions{}.workerNice,
+      ioThreads = PagerOptions{}.ioThreads;
   float lodPixels = 1.0f;
   double timeout = 300.0;
 };
@@ -100,6 +101,7 @@ void runStreamBench(const StreamArgs& args) {
     PagerOptions pagerOptions;
     pagerOptions.budgetBytes = budget;
     pagerOptions.workerNice = args.workerNice;
+    pagerOptions.ioThreads = args.ioThreads;
     // 1. Open to the first coarse image, cold.
     std::vector<double> firstImage;
     for (int run = 0; run < args.runs; ++run) {
@@ -198,8 +200,8 @@ void runStreamBench(const StreamArgs& args) {
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
   printTitle("svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
-             std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) +
-             " runs, worker nice " + std::to_string(args.workerNice) + ")");
+             std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs, " +
+             std::to_string(args.ioThreads) + " workers at nice " + std::to_string(args.workerNice) + ")");
   table.print();
   std::printf(
       "view converged: nothing inside the close-up's frustum left to load (bytes read: by then); all "
@@ -240,6 +242,11 @@ void addStreamBench(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--lod-pixels", args->lodPixels, "target voxel size in pixels")
       ->check(CLI::Range(0.01, 64.0))
+      ->capture_default_str();
+  cmd->add_option("--io-threads", args->ioThreads,
+                  "the pager's slice read and decode threads (view / seq falls as they are added, while "
+                  "cores are free)")
+      ->check(CLI::Range(1, 64))
       ->capture_default_str();
   cmd->add_option("--worker-nice", args->workerNice,
                   "nice value of the pager's threads: trades streaming while the camera moves for frame time")

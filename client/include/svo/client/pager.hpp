@@ -43,7 +43,7 @@ namespace svo {
 struct PagerOptions {
   std::size_t budgetBytes = std::size_t(256) << 20;  // the pool: a hard limit
   int ioThreads = 2;                                 // read + decode + layout workers
-  int maxInFlight = 8;                               // requests queued or being worked on at once
+  int maxInFlight = 8;  // requests queued or being worked on at once (raised to ioThreads if below)
   // Wall time update() may spend committing finished blocks (memcpy + pointer patches); the rest wait for
   // the next frame. Keeps streaming frames close to resident ones (issue 5: p99 <= 1.5x).
   double commitMillis = 2.0;
