@@ -160,11 +160,11 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
       }()) {
   if (options.ioThreads < 1 || options.maxInFlight < 1 || !(options.commitMillis > 0.0))
     throw std::runtime_error("pager: ioThreads, maxInFlight and commitMillis must be positive");
-  // A worker never idles for want of a request slot (svo render --io-threads 16 with the default 8).
-  options_.maxInFlight = std::max(options_.maxInFlight, options_.ioThreads);
   if (options.workerNice < 0 || options.workerNice > 19)
     throw std::runtime_error("pager: worker nice must be in [0, 19], got " +
                              std::to_string(options.workerNice));
+  // A worker never idles for want of a request slot (svo render --io-threads 16 with the default 8).
+  options_.maxInFlight = std::max(options_.maxInFlight, options_.ioThreads);
   const std::vector<SliceInfo>& slices = store_.slices();
   const std::size_t n = slices.size();
   regionOf_.assign(n, 0), indexInRegion_.assign(n, 0), failed_.assign(n, 0), inFlight_.assign(n, 0);

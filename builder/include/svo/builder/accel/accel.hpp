@@ -111,7 +111,8 @@ struct KdParams {
   double binCoefficient = 0.4;  // Sec. 3.1: 0.4·n in Tables 1 and 2; tested 1.0, 0.4, 0.3, 0.1
   double traversalCost = 1.0;   // C_T of Eq. 2
   // C_I of Eq. 2. The paper gives no value (Wald & Havran use K_I/K_T = 20/15); 0.5 rendered fastest of
-  // 0.3 ... 3.0 on the 1e4 ... 2e6-triangle spheres (2e6: 6% faster than 1.5, with half the nodes).
+  // 0.3 ... 1.5 on the 1e4 ... 2e6-triangle spheres, and of 0.5 ... 3.0 at 2e6 (there 6% faster than 1.5,
+  // with half the nodes).
   double intersectionCost = 0.5;
   std::size_t leafSize = 1;  // Sec. 3: "node split threshold 1"
   double depthBase = 8.0;    // Sec. 2.2.3: max depth 8 + 1.3·log2 N
