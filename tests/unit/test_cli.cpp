@@ -324,6 +324,39 @@ TEST_F(Cli, BenchQualityStreamWritesOneCurvePerBudget) {
   EXPECT_EQ(svo("bench quality " + tetrahedron().string() + " --budgets 4M -o " + out.string()).exitCode, 2);
 }
 
+TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
+  const fs::path mesh = dir_ / "terrain.ply", store = dir_ / "terrain.svo", out = dir_ / "bench";
+  ASSERT_EQ(svo("gen terrain --triangles 20k -o " + mesh.string()).exitCode, 0);
+  ASSERT_EQ(svo("build " + mesh.string() + " --levels 7 --slice-size 4K -o " + store.string()).exitCode, 0);
+  const CommandResult r = svo("bench stream " + store.string() +
+                              " --size 32 --runs 1 --frames 4 --budgets 4M -o " + out.string());
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  EXPECT_GT(fs::file_size(out / "error_vs_time.png"), 100u);
+  // The goal table's row: budget, sequential read, read + zstd alone, alone / seq, worker CPU to view, cores.
+  const std::size_t title = r.out.find("what view / seq <= 1.5x asks");
+  ASSERT_NE(title, std::string::npos) << r.out;
+  const std::size_t row = r.out.find("4.0 MiB", title);
+  ASSERT_NE(row, std::string::npos) << r.out;
+  std::istringstream fields(r.out.substr(row, r.out.find('\n', row) - row));
+  double budget, seq, alone, ratio, cpu, cores;
+  std::string mib, ms1, ms2, ms3;
+  char x;
+  fields >> budget >> mib >> seq >> ms1 >> alone >> ms2 >> ratio >> x >> cpu >> ms3 >> cores;
+  ASSERT_FALSE(fields.fail()) << r.out.substr(row);
+  EXPECT_EQ(ms1 + ms2 + ms3, "msmsms");
+  EXPECT_GE(seq, 0.0);  // a file left in the page cache reads in microseconds: 0.0 ms
+  EXPECT_GE(alone, 0.0);
+  EXPECT_GT(cpu, 0.0);
+  // The derived columns agree with the printed times, within the times' rounding to 0.1 ms.
+  constexpr double kHalfStep = 0.05;
+  EXPECT_GE(ratio + 0.005, (alone - kHalfStep) / (seq + kHalfStep));
+  EXPECT_LE(ratio - 0.005, (alone + kHalfStep) / std::max(1e-3, seq - kHalfStep));
+  EXPECT_GE(cores + 0.05, (cpu - kHalfStep) / (1.5 * (seq + kHalfStep)));
+  EXPECT_LE(cores - 0.05, (cpu + kHalfStep) / (1.5 * std::max(1e-3, seq - kHalfStep)));
+  expectCleanFailure(svo("bench stream " + (dir_ / "none.svo").string() + " -o " + out.string()), "none.svo",
+                     dir_ / "none.svo");
+}
+
 TEST_F(Cli, GenStiffWritesEveryCaseAndTheyBuild) {
   const fs::path dir = dir_ / "stiff";
   const CommandResult r = svo("gen stiff -o " + dir.string());

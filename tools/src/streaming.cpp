@@ -61,6 +61,7 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
       out.viewSeconds = t;
       out.viewBytesRead = pager.bytesRead();
       out.viewResidentSlices = pager.residentSlices();
+      out.viewWorkerCpu = pager.workerCpu();
     }
     const std::uint64_t hash = frameHash(step.frame);
     if (hash != lastHash) lastHash = hash, out.imageFinalSeconds = t;

@@ -32,6 +32,7 @@ struct Convergence {
   double viewSeconds = -1.0;
   std::uint64_t viewBytesRead = 0;
   std::vector<std::uint32_t> viewResidentSlices;
+  WorkerCpu viewWorkerCpu;
   // When the frames stopped changing: the first frame from which on every frame equals the converged one
   // bit for bit (later loads refined nothing this view shows). Negative when timed out.
   double imageFinalSeconds = -1.0;
