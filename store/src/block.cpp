@@ -226,6 +226,7 @@ bool InheritanceRule::color(std::uint32_t a, std::uint32_t b) const {
   return true;
 }
 InheritanceRule::ParentNormal InheritanceRule::parentNormal(std::uint32_t parentEffective) const {
+  if (equalOnly_) return {parentEffective, glm::vec3(0.0f), 0.0f};  // normal() compares the bits alone
   const glm::vec3 q = normalDirection(parentEffective);
   return {parentEffective, q, glm::dot(q, q)};
 }
@@ -247,10 +248,13 @@ struct SlotPlan {
   std::uint32_t slotCount = 0;
 };
 
+// One layout pass for a given set of far voxels. A voxel's far flag is read once, when its parent's run is
+// reserved, before the voxel's own run is: so the pass marks the voxels whose run it puts out of reach as it
+// goes, without changing its own outcome, and the caller repeats it until it marks none.
 class SlotPlanner {
  public:
-  SlotPlanner(const VoxelTree& tree, const std::vector<std::uint8_t>& needsFar)
-      : tree_(tree), needsFar_(needsFar) {}
+  SlotPlanner(const VoxelTree& tree, std::vector<std::uint8_t>& needsFar, std::uint32_t maxNearPointer)
+      : tree_(tree), needsFar_(needsFar), maxNearPointer_(maxNearPointer) {}
 
   SlotPlan plan() {
     const std::size_t n = tree_.voxels.size();
@@ -263,6 +267,8 @@ class SlotPlanner {
     plan_.slotCount = next_;
     return std::move(plan_);
   }
+  // Voxels this pass found out of reach, now marked far.
+  std::uint32_t newlyFar() const { return newlyFar_; }
 
  private:
   bool isNonLeaf(std::uint32_t v) const { return tree_.voxels[v].childMask != 0 || tree_.voxels[v].stub; }
@@ -293,6 +299,7 @@ class SlotPlanner {
     if (count == 0) return;
     const std::uint32_t first = reserve(count + farCount);
     plan_.runOf[v] = first;
+    if (!needsFar_[v] && first - plan_.slotOf[v] > maxNearPointer_) needsFar_[v] = 1, ++newlyFar_;
     std::uint32_t farSlot = first + count;
     for (std::uint32_t k = 0; k < count; ++k) {
       plan_.slotOf[children[k]] = first + k;
@@ -302,9 +309,10 @@ class SlotPlanner {
   }
 
   const VoxelTree& tree_;
-  const std::vector<std::uint8_t>& needsFar_;
+  std::vector<std::uint8_t>& needsFar_;
+  const std::uint32_t maxNearPointer_;
   SlotPlan plan_;
-  std::uint32_t next_ = 0;
+  std::uint32_t next_ = 0, newlyFar_ = 0;
 };
 
 }  // namespace
@@ -322,56 +330,46 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   // marked set only grows, so this ends; in practice after one or two extra passes.
   std::vector<std::uint8_t> needsFar(n, 0);
   SlotPlan plan;
+  std::uint64_t farVoxels = 0;
   for (;;) {
-    plan = SlotPlanner(tree, needsFar).plan();
-    bool changed = false;
-    for (std::size_t v = 0; v < n; ++v) {
-      if (tree.voxels[v].childMask == 0 || plan.runOf[v] == 0 || needsFar[v]) continue;
-      if (plan.runOf[v] - plan.slotOf[v] > options.maxNearPointer) needsFar[v] = 1, changed = true;
-    }
-    if (!changed) break;
+    SlotPlanner planner(tree, needsFar, options.maxNearPointer);
+    plan = planner.plan();
+    if (planner.newlyFar() == 0) break;
+    farVoxels += planner.newlyFar();
   }
 
   // Per non-leaf voxel: contours of its children, and which children's attributes differ from the parent's.
+  // Breadth first from the root, so each child's effective (possibly inherited) value is known from its
+  // parent; what the descriptors need is kept per queue entry, so the passes after this one read the voxels
+  // with children in queue order and skip the leaves (three in four voxels).
   const InheritanceRule inherits(options);
-  // Per-voxel scratch is written before it is read (the parent first), so it is left uninitialized.
-  const auto effectiveColor = std::make_unique_for_overwrite<std::uint32_t[]>(n);
-  const auto effectiveNormal = std::make_unique_for_overwrite<std::uint32_t[]>(n);
-  effectiveColor[0] = tree.voxels[0].color;
-  effectiveNormal[0] = tree.voxels[0].normal;
-  std::vector<std::uint32_t> contours, colors, normals;
-  contours.reserve(n), colors.reserve(tree.hasColors ? n : 0), normals.reserve(tree.hasNormals ? n : 0);
-  struct Entry {  // set for voxels with children only
+  struct Queued {
+    std::uint32_t voxel, color, normal;  // the voxel and its effective values
+  };
+  struct Entry {
     std::uint32_t contourFirst, colorFirst, normalFirst;
     std::uint8_t contourMask, colorMask, normalMask, leafMask;
   };
-  const auto entries = std::make_unique_for_overwrite<Entry[]>(n);
+  std::vector<Queued> queue;
+  std::vector<Entry> entries;
+  queue.reserve(n / 2 + 1), entries.reserve(n / 2 + 1);
+  std::vector<std::uint32_t> contours, colors, normals;
+  contours.reserve(n), colors.reserve(tree.hasColors ? n : 0), normals.reserve(tree.hasNormals ? n : 0);
   LayoutStats stats;
-  // Breadth first from the root, so each child's effective (possibly inherited) value is known from its
-  // parent.
-  std::vector<std::uint32_t> queue;
-  queue.reserve(n);
-  queue.push_back(0);
+  queue.push_back({0, tree.voxels[0].color, tree.voxels[0].normal});
   for (std::size_t qi = 0; qi < queue.size(); ++qi) {
-    const std::uint32_t v = queue[qi];
-    const VoxelRecord& r = tree.voxels[v];
-    if (r.childMask == 0) continue;
-    Entry& e = entries[v];
-    e = {std::uint32_t(contours.size()),
-         std::uint32_t(colors.size()),
-         std::uint32_t(normals.size()),
-         0,
-         0,
-         0,
-         0};
+    const Queued parent = queue[qi];
+    const VoxelRecord& r = tree.voxels[parent.voxel];
+    Entry& e = entries.emplace_back(Entry{std::uint32_t(contours.size()), std::uint32_t(colors.size()),
+                                          std::uint32_t(normals.size()), 0, 0, 0, 0});
     const InheritanceRule::ParentNormal parentNormal =
-        tree.hasNormals ? inherits.parentNormal(effectiveNormal[v]) : InheritanceRule::ParentNormal{};
-    // Set bits only, and only voxels with children queued (three in four voxels are leaves).
+        tree.hasNormals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
+    // Set bits only, and only voxels with children queued.
     for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
       const std::uint8_t bit = std::uint8_t(mask & (0u - mask));
       const VoxelRecord& child = tree.voxels[c];
       if (child.hasContour) contours.push_back(child.contour), e.contourMask |= bit;
-      std::uint32_t color = effectiveColor[v], normal = effectiveNormal[v];
+      std::uint32_t color = parent.color, normal = parent.normal;
       if (tree.hasColors) {
         if (inherits.color(child.color, color)) {
           ++stats.inheritedColors;
@@ -389,9 +387,10 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
         }
       }
       if (child.childMask != 0) {
-        effectiveColor[c] = color, effectiveNormal[c] = normal;
-        queue.push_back(c);
-      } else if (!child.stub) {
+        queue.push_back({c, color, normal});
+      } else if (child.stub) {
+        ++stats.descriptorSlots;  // all-zero stub descriptor and lookup entries (format.hpp)
+      } else {
         e.leafMask |= bit;
       }
     }
@@ -439,14 +438,11 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     if (!normals.empty()) std::memcpy(normalWords + slotCount, normals.data(), normals.size() * 4);
   }
 
-  for (std::size_t v = 0; v < n; ++v) {
+  for (std::size_t qi = 0; qi < queue.size(); ++qi) {
+    const std::uint32_t v = queue[qi].voxel;
     const VoxelRecord& r = tree.voxels[v];
-    if (r.childMask == 0) {
-      if (r.stub) ++stats.descriptorSlots;  // all-zero stub descriptor and lookup entries (format.hpp)
-      continue;
-    }
     const std::uint32_t slot = plan.slotOf[v];
-    const Entry& e = entries[v];
+    const Entry& e = entries[qi];
     std::uint32_t pointer = 0;
     bool far = false;
     if (plan.runOf[v] != 0) {
@@ -477,7 +473,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     ++stats.descriptorSlots;
   }
 
-  stats.farSlots = std::count_if(plan.farSlotOf.begin(), plan.farSlotOf.end(), [](auto s) { return s != 0; });
+  stats.farSlots = farVoxels;
   stats.pageHeaderSlots = (slotCount + kSlotsPerPage - 1) / kSlotsPerPage;
   stats.paddingSlots = slotCount - stats.descriptorSlots - stats.farSlots - stats.pageHeaderSlots;
   stats.contourWords = contours.size();
