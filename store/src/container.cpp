@@ -1101,7 +1101,11 @@ void StoreReader::decodeSlice(std::uint32_t id, std::span<const std::byte> raw, 
   NormalCodes codes;
   // At most 8 children per split voxel, whose masks are bytes of this slice: a hostile count reserves no
   // more.
-  children.reserve(firstAdded + std::min<std::size_t>(head.voxelCount, 8 * std::size_t(head.splitCount)));
+  // Geometric growth: callers append a level's slices one after another to one vector (loadTree), and an
+  // exact reserve per slice copied the whole level every time.
+  const std::size_t needed =
+      firstAdded + std::min<std::size_t>(head.voxelCount, 8 * std::size_t(head.splitCount));
+  if (needed > children.capacity()) children.reserve(std::max(needed, 2 * children.capacity()));
   for (std::size_t i = 0; i < parents.size(); ++i) {
     SliceVoxel& p = parents[i];
     if (!bitAt(splitBits, i)) continue;
@@ -1243,14 +1247,18 @@ VoxelTree StoreReader::loadTree() const {
   for (int level = 1; level <= levelCount && !slicesOf[level].empty(); ++level) {
     std::vector<SliceVoxel>& parents = levels[level - 1];
     std::vector<std::uint8_t> covered(parents.size(), 0);  // a slice has given this voxel's split bit
+    // Slices of one level cover disjoint Morton ranges of their parents and decode their children in their
+    // parents' order: decoded in the order of their parent ranges, they append the level in Morton order, in
+    // which every parent's children are contiguous and follow their parents' order (no sort of the voxels).
+    std::vector<std::pair<std::span<SliceVoxel>, std::uint32_t>> claims;
+    for (const std::uint32_t id : slicesOf[level]) claims.push_back({claimParents(id, parents, covered), id});
+    std::stable_sort(claims.begin(), claims.end(),
+                     [](const auto& a, const auto& b) { return a.first.data() < b.first.data(); });
     std::vector<SliceVoxel> voxels;
-    for (const std::uint32_t id : slicesOf[level]) {
-      decodeSlice(id, readSlice(id), claimParents(id, parents, covered), voxels);
-    }
-    // Slices of one level cover disjoint cubes: sorting restores the level's Morton order, in which every
-    // parent's children are contiguous and follow their parents' order.
-    std::sort(voxels.begin(), voxels.end(),
-              [](const SliceVoxel& a, const SliceVoxel& b) { return mortonLess(a.coord, b.coord); });
+    for (const auto& [span, id] : claims) decodeSlice(id, readSlice(id), span, voxels);
+    assert(std::is_sorted(voxels.begin(), voxels.end(), [](const SliceVoxel& a, const SliceVoxel& b) {
+      return mortonLess(a.coord, b.coord);
+    }));
     levels.push_back(std::move(voxels));
   }
   for (std::size_t l = levels.size(); l <= std::size_t(levelCount); ++l)
