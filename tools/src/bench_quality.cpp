@@ -300,6 +300,7 @@ void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesyst
 // --stream: from a cold store, frames of one camera while the store streams in; each kept frame's error
 // against the triangle reference, by elapsed time since the store was opened.
 void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads, int levels) {
+  keepFreedMemoryForReuse();
   const std::filesystem::path out = args.out;
   LevelScene level;  // the store is scratch: gone however this ends
   BuildOptions build;

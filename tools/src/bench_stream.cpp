@@ -118,6 +118,7 @@ std::vector<Camera> orbitPath(const SceneTransform& scene, int frames, int size)
 }
 
 void runStreamBench(const StreamArgs& args) {
+  keepFreedMemoryForReuse();
   requireRuns(args.runs);
   std::filesystem::create_directories(args.output);
   RenderOptions options;

@@ -64,6 +64,7 @@ std::vector<Camera> sequence(const std::string& kind, const SceneTransform& scen
 }
 
 void runStress(const StressArgs& args) {
+  keepFreedMemoryForReuse();
   bench::Table table({"budget", "sequence", "frames", "loads", "evictions", "thrash", "worst frame",
                       "p99 frame", "max resident", "converge", "failed"});
   bool violated = false;
