@@ -67,7 +67,6 @@ PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
 
 // One view from a cold start until it has converged.
 void renderConverged(const RenderArgs& args, RenderOptions options) {
-  keepFreedMemoryForReuse();
   const std::filesystem::path out = args.out;
   dropFileCache(args.in);
   const auto start = std::chrono::steady_clock::now();
@@ -95,7 +94,6 @@ void renderConverged(const RenderArgs& args, RenderOptions options) {
 
 // A camera path while streaming: frames, frames.csv, error.png.
 void renderPath(const RenderArgs& args, RenderOptions options) {
-  keepFreedMemoryForReuse();
   const std::vector<Camera> cameras = loadCameraPath(args.pathFile);
   const std::filesystem::path folder = args.out;
   std::error_code ec;
@@ -159,6 +157,7 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
 }
 
 void renderStreaming(const RenderArgs& args) {
+  keepFreedMemoryForReuse();
   RenderOptions options = args.options;
   options.cast.contours = !args.noContours;
   if (args.pathFile.empty()) {
