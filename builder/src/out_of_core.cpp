@@ -11,6 +11,7 @@
 #include <memory>
 #include <mutex>
 #include <new>
+#include <optional>
 #include <span>
 #include <stdexcept>
 #include <string>
@@ -38,6 +39,13 @@ constexpr double kVoxelsPerArea = 2.0;
 constexpr double kBytesPerCellTriangle = 320.0;
 // Besides the source and the cells: the partition's buffers (64 MiB, cell_partition.cpp) and the top levels.
 constexpr double kPartitionBytes = 80.0 * (1 << 20);
+// The in-core build's peak per voxel (voxelize's records, then writeStore's per-level arrays beside them) and
+// per triangle (the file as assimp reads it, the Mesh, the voxelizer's copy and index lists). Measured as svo
+// build's peak resident less that of a 2-level tetrahedron (147 MiB, the program and its libraries): 61-68 B
+// per voxel (20k-triangle sphere at 9 and 10 levels, npm bunny at 10, 110k-triangle CAD model at 11) and
+// 372 B per triangle (2M-triangle terrain at 8 levels); rounded up.
+constexpr double kInCorePeakBytesPerVoxel = 70.0;
+constexpr double kInCoreBytesPerTriangle = 380.0;
 // The deepest cell level --memory considers: 2^9 cells a side is 512^3 work items, far past any budget's
 // need.
 constexpr int kDeepestChosenCellLevel = 9;
@@ -157,17 +165,19 @@ nlohmann::json manifestOf(const TriangleSource& source, const BuildOptions& opti
 // The shallowest cell level whose fullest cell, by the surface area and triangles binned to it, fits the
 // memory left after the source and the partition; throws when even the deepest does not.
 int chooseCellLevel(const TriangleSource& source, const SceneTransform& transform,
-                    const BuildOptions& options, std::size_t memoryBytes, int concurrency,
+                    const BuildOptions& options, const OutOfCoreOptions& ooc, int concurrency,
                     const std::function<void(double)>& progress) {
-  const double fixed = double(source.residentBytes()) + kPartitionBytes;
+  const std::size_t memoryBytes = ooc.memoryBytes;
+  const double fixed = double(ooc.processBytes + source.residentBytes()) + kPartitionBytes;
   const double perCell = (double(memoryBytes) - fixed) / double(std::max(1, concurrency));
   const auto sizeText = [&](double bytes) {
     return bytes < double(1 << 20) ? std::to_string(std::llround(bytes / 1024.0)) + " KiB"
                                    : std::to_string(std::llround(bytes / double(1 << 20))) + " MiB";
   };
+  const std::string bound = ooc.memoryOrigin + ": " + sizeText(double(memoryBytes));
   if (perCell <= 0.0)
-    throw std::runtime_error("--memory: " + sizeText(double(memoryBytes)) + " does not hold the input (" +
-                             sizeText(fixed) + " for " + std::to_string(source.triangleCount()) +
+    throw std::runtime_error(bound + " does not hold the input (" + sizeText(fixed) + " for the program, " +
+                             std::to_string(source.triangleCount()) +
                              " triangles and the partition buffers)");
   const double finest = std::ldexp(1.0, -options.levels);  // octree units: the scene cube is [1, 2]^3
   // Area and triangles per cell of the deepest level considered (by centroid), then summed up level by level.
@@ -212,12 +222,27 @@ int chooseCellLevel(const TriangleSource& source, const SceneTransform& transfor
                                     kBytesPerCellTriangle * load.triangles);
     if (needed <= perCell) return level;
   }
-  throw std::runtime_error("--memory: " + sizeText(double(memoryBytes)) + " is too small for " +
-                           std::to_string(options.levels) + " levels of this mesh (a cell needs about " +
-                           sizeText(needed) + " next to " + sizeText(fixed) + " for the input)");
+  throw std::runtime_error(bound + " is too small for " + std::to_string(options.levels) +
+                           " levels of this mesh (a cell needs about " + sizeText(needed) + " next to " +
+                           sizeText(fixed) + " for the input)");
 }
 
 }  // namespace
+
+std::uint64_t estimateInCoreBuildBytes(const TriangleSource& source, const BuildOptions& options) {
+  const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
+  double area = 0.0;  // octree units: the scene cube is [1, 2]^3
+  source.read([&](std::span<const SourceTriangle> batch) {
+    for (const SourceTriangle& t : batch) {
+      const glm::dvec3 a = transform.toOctree(t.positions[0]), b = transform.toOctree(t.positions[1]),
+                       c = transform.toOctree(t.positions[2]);
+      area += 0.5 * glm::length(glm::cross(b - a, c - a));
+    }
+  });
+  const double finest = std::ldexp(1.0, -options.levels);
+  return std::uint64_t(kInCorePeakBytesPerVoxel * kVoxelsPerArea * area / (finest * finest) +
+                       kInCoreBytesPerTriangle * double(source.triangleCount()));
+}
 
 OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& options,
                            const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
@@ -232,31 +257,36 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   OutOfCoreReport report;
   const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
   const int concurrency = std::max(1, ooc.threads);
-  if (ooc.cellLevel > 0) {
-    report.cellLevel = ooc.cellLevel;
-  } else {
-    const auto planStart = std::chrono::steady_clock::now();
-    report.cellLevel = chooseCellLevel(source, transform, options, ooc.memoryBytes, concurrency,
-                                       [&](double f) { progress("plan", f); });
-    report.phaseSeconds["plan"] = seconds(planStart);
-  }
   const std::filesystem::path work =
       ooc.workDir.empty() ? std::filesystem::path(store.string() + ".build") : ooc.workDir;
-
-  // The work folder: kept from an interrupted run with --resume (if it is this build's), else fresh.
-  const nlohmann::json manifest = manifestOf(source, options, write, report.cellLevel);
   const std::filesystem::path manifestPath = work / "manifest.json";
-  bool reuse = false;
+  // The work folder of an interrupted run, when resuming.
+  std::optional<nlohmann::json> old;
   if (ooc.resume && std::filesystem::exists(manifestPath)) {
-    nlohmann::json old;
     try {
-      std::ifstream(manifestPath) >> old;
+      std::ifstream(manifestPath) >> old.emplace();
     } catch (const std::exception&) {
       throw std::runtime_error(manifestPath.string() + ": unreadable; delete " + work.string() +
                                " or drop --resume");
     }
+  }
+  if (ooc.cellLevel > 0) {
+    report.cellLevel = ooc.cellLevel;
+  } else if (old && old->contains("cellLevel") && (*old)["cellLevel"].is_number_integer()) {
+    report.cellLevel = (*old)["cellLevel"].get<int>();  // a resume keeps the interrupted run's cells
+  } else {
+    const auto planStart = std::chrono::steady_clock::now();
+    report.cellLevel =
+        chooseCellLevel(source, transform, options, ooc, concurrency, [&](double f) { progress("plan", f); });
+    report.phaseSeconds["plan"] = seconds(planStart);
+  }
+
+  // The work folder: kept from an interrupted run with --resume (if it is this build's), else fresh.
+  const nlohmann::json manifest = manifestOf(source, options, write, report.cellLevel);
+  bool reuse = false;
+  if (old) {
     for (const auto& [key, value] : manifest.items())
-      if (!old.contains(key) || old[key] != value)
+      if (!old->contains(key) || (*old)[key] != value)
         throw std::runtime_error("--resume: " + work.string() + " holds a build with another " + key +
                                  "; delete it or drop --resume");
     reuse = true;

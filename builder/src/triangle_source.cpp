@@ -129,6 +129,7 @@ class MeshSource : public SummarizedSource {
     }
     if (!out.empty()) batch(out);
   }
+  const Mesh* wholeMesh() const override { return &mesh_; }
 
  private:
   std::unique_ptr<Mesh> owned_;

@@ -19,7 +19,7 @@
 namespace svo {
 namespace {
 
-// Ray feedback (issue 5): a slice that rays saw stopping at too coarse a voxel ranks this many times higher
+// Ray feedback: a slice that rays saw stopping at too coarse a voxel ranks this many times higher
 // than its distance-only priority; the distance rule cannot tell a visible cube from an occluded one.
 constexpr double kFeedbackBoost = 4.0;
 // Feedback samples every kFeedbackStride-th pixel in x and y (1/64 of the rays: plenty to find the visible
@@ -149,8 +149,7 @@ ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPi
 
 Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
     : store_(path), options_(options), pool_([&] {
-        // A link's slot offset is an int32: the arena may span at most 2^31 slots (16 GiB).
-        if (options.budgetBytes > (std::size_t(1) << 34))
+        if (options.budgetBytes > kMaxBudgetBytes)
           throw std::runtime_error("budget: at most 16 GiB (got " +
                                    std::to_string(options.budgetBytes >> 20) + " MiB)");
         if (options.budgetBytes < kPageBytes)
@@ -163,6 +162,9 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
   if (options.workerNice < 0 || options.workerNice > 19)
     throw std::runtime_error("pager: worker nice must be in [0, 19], got " +
                              std::to_string(options.workerNice));
+  if (options.workersDuringFrames < 0)
+    throw std::runtime_error("pager: workers during frames must be >= 0, got " +
+                             std::to_string(options.workersDuringFrames));
   // A worker never idles for want of a request slot (svo render --io-threads 16 with the default 8).
   options_.maxInFlight = std::max(options_.maxInFlight, options_.ioThreads);
   const std::vector<SliceInfo>& slices = store_.slices();
@@ -227,13 +229,38 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
   PagerStats ignored;
   for (const std::uint32_t slice : trunk) wantedPriority_[slice] = viewPriority_[slice] = 1.0;
   if (!commit(prepared, ignored)) throw std::logic_error("pager: the trunk did not commit");
-  for (int i = 0; i < options.ioThreads; ++i) workers_.emplace_back([this](std::stop_token t) { work(t); });
+  for (int i = 0; i < options.ioThreads; ++i)
+    workers_.emplace_back([this, i](std::stop_token t) { work(i, t); });
 }
 
 Pager::~Pager() {
   for (auto& w : workers_) w.request_stop();
+  {
+    std::lock_guard lock(frameMutex_);
+    stopping_ = true;
+  }
+  frameEnded_.notify_all();
   queueReady_.notify_all();
   workers_.clear();  // joins
+}
+
+Pager::FrameScope::FrameScope(Pager& pager) : pager_(pager) {
+  std::lock_guard lock(pager_.frameMutex_);
+  pager_.frameRendering_ = true;
+}
+
+Pager::FrameScope::~FrameScope() {
+  {
+    std::lock_guard lock(pager_.frameMutex_);
+    pager_.frameRendering_ = false;
+  }
+  pager_.frameEnded_.notify_all();
+}
+
+void Pager::waitForFrameEnd(int worker) {
+  if (worker < options_.workersDuringFrames) return;
+  std::unique_lock lock(frameMutex_);
+  frameEnded_.wait(lock, [&] { return !frameRendering_ || stopping_; });
 }
 
 BlockView Pager::trunk() const {
@@ -250,7 +277,7 @@ ChildDescriptor* Pager::descriptorAt(Region& region, std::uint32_t slot) {
 // ---------------------------------------------------------------------------------------------------------
 // Workers.
 
-void Pager::work(std::stop_token stop) {
+void Pager::work(int worker, std::stop_token stop) {
   pthread_setname_np(pthread_self(), "svo-pager");  // tells the workers apart in top, perf and gdb
   // Linux nice values are per thread: a positive one yields the cores to the render threads (best effort; an
   // unprivileged process may always lower its own priority).
@@ -264,7 +291,7 @@ void Pager::work(std::stop_token stop) {
       queue_.pop_front();
       ++working_;
     }
-    Prepared prepared = prepare(request);
+    Prepared prepared = prepare(request, worker);
     {
       std::lock_guard lock(queueMutex_);
       --working_;
@@ -274,7 +301,7 @@ void Pager::work(std::stop_token stop) {
   }
 }
 
-Pager::Prepared Pager::prepare(const Request& request) {
+Pager::Prepared Pager::prepare(const Request& request, int worker) {
   Prepared out;
   out.slice = request.slice;
   out.region = regionOf_[request.slice];
@@ -290,6 +317,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
   std::vector<SliceBytes> raw;
   for (std::uint32_t k = 0; k < request.count; ++k) {
     const std::uint32_t slice = region.slices[first + k];
+    waitForFrameEnd(worker);
     try {
       raw.push_back(store_.readSlice(slice));
       bytesRead_.fetch_add(store_.slices()[slice].compressedBytes, std::memory_order_relaxed);
@@ -301,6 +329,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
   }
   if (raw.empty()) return out;
 
+  waitForFrameEnd(worker);
   clock.enter(cpu_.assemble);
   std::shared_lock lock(poolMutex_);
   out.version = region.version;
@@ -352,6 +381,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
   clock.enter(cpu_.decode);
   for (std::uint32_t k = 0; k < raw.size(); ++k) {
     const std::uint32_t slice = region.slices[first + k];
+    waitForFrameEnd(worker);
     try {
       if (region.cubeLevel + int(levels.size()) != store_.slices()[slice].voxelLevel)
         throw std::runtime_error("the resident levels do not end above it");
@@ -367,6 +397,7 @@ Pager::Prepared Pager::prepare(const Request& request) {
   }
   if (out.added == 0) return out;
 
+  waitForFrameEnd(worker);
   clock.enter(cpu_.layout);
   try {
     VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
@@ -649,6 +680,7 @@ PagerStats Pager::update(const ViewQuery& view) {
   std::fill(viewPriority_.begin(), viewPriority_.end(), 0.0);
   std::fill(inView_.begin(), inView_.end(), 0);
   for (const SliceRequest& r : scheduleSlices(store_.slices(), view)) {
+    stats.wantedRawBytes += store_.slices()[r.slice].rawBytes;
     viewPriority_[r.slice] = r.priority;
     inView_[r.slice] = r.inFrustum;
     wantedPriority_[r.slice] = r.priority * (feedbackHits_.count(r.slice) ? kFeedbackBoost : 1.0);
@@ -810,6 +842,13 @@ std::vector<std::uint32_t> Pager::residentSlices() const {
   std::vector<std::uint32_t> out;
   for (const Region& r : regions_) out.insert(out.end(), r.slices.begin(), r.slices.begin() + r.resident);
   std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::vector<std::uint32_t> Pager::wantedSlices() const {
+  std::vector<std::uint32_t> out;
+  for (std::uint32_t s = 0; s < viewPriority_.size(); ++s)
+    if (viewPriority_[s] > 0.0) out.push_back(s);
   return out;
 }
 

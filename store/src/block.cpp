@@ -409,9 +409,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   if (tree.hasNormals) cursor += (std::size_t(slotCount) + normals.size()) * 4;
   if (cursor > std::size_t(INT32_MAX) * 4 ||
       slotCount + std::max(colors.size(), normals.size()) > kMaxWordPointer)
-    throw std::runtime_error("octree too large for one block (" + std::to_string(cursor >> 20) +
-                             " MiB); the whole octree must fit one block until the paging client (block "
-                             "pool) lands: use fewer --levels");
+    throw BlockTooLarge("octree too large for one block (" + std::to_string(cursor >> 20) +
+                        " MiB; its pointers reach 2^24 words): stream it through a block pool");
 
   AlignedBytes bytes(cursor);
   std::byte* base = bytes.data();
@@ -461,9 +460,9 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       const std::size_t words =
           (contourOffset + std::size_t(e.contourFirst) * 4 - std::size_t(slot) * kSlotBytes) / 4;
       if (words > kMaxWordPointer)
-        throw std::runtime_error(
-            "octree too large for one block: contour pointer out of 24-bit reach; the whole octree must "
-            "fit one block until the paging client (block pool) lands: use fewer --levels");
+        throw BlockTooLarge(
+            "octree too large for one block (a contour pointer is out of 24-bit reach): stream it through "
+            "a block pool");
       contourPointer = std::uint32_t(words);
     }
     slots[slot] = ChildDescriptor::make(pointer, far, r.childMask, e.leafMask, contourPointer, e.contourMask);

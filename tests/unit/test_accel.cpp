@@ -20,7 +20,7 @@ namespace {
 using namespace svo::accel;
 using glm::dvec3;
 
-// Random rays per scene and structure: the 1e5. One brute-force reference per scene is shared by
+// Random rays per scene and structure: 1e5. One brute-force reference per scene is shared by
 // all structures, and ray descriptions are formatted only on failure, so the whole Accel set stays well
 // under a minute on one core in a RelWithDebInfo build.
 constexpr int kRandomRays = 100000;

@@ -21,6 +21,7 @@
 #include "svo/builder/build.hpp"
 #include "svo/client/pager.hpp"
 #include "svo/client/pool.hpp"
+#include "svo/client/whole_scene.hpp"
 
 namespace fs = std::filesystem;
 
@@ -235,6 +236,62 @@ TEST(Pager, ConvergedFrameEqualsTheWholeOctree) {
   const svo::Frame whole = svo::render(svo::readOctree(store.path), camera, options);
   EXPECT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)), 0);
   EXPECT_EQ(std::memcmp(paged.depth.data(), whole.depth.data(), paged.depth.size() * sizeof(float)), 0);
+}
+
+// A store paged whole (what the benches and commands use for octrees beyond one block) renders as its one
+// block does, at every depth, within the pool wholeStoreBudget sizes from the directory alone; its footprint
+// counts the store's voxels and allows one block.
+TEST(Pager, WholeScenePagedEqualsTheOneBlock) {
+  const TempStore& store = sphereStore();
+  const svo::StoreReader reader(store.path);
+  const svo::StoreFootprint footprint = svo::footprintOf(reader.slices());
+  EXPECT_EQ(footprint.voxels + 1, reader.loadTree().voxels.size());  // the root is in no slice
+  EXPECT_TRUE(footprint.mayFitOneBlock());
+  // One descriptor per parent voxel past the 24-bit reach of a block's relative pointers cannot fit one.
+  svo::StoreFootprint deep = footprint;
+  deep.parentVoxels = svo::kMaxWordPointer + 1;
+  EXPECT_FALSE(deep.mayFitOneBlock());
+  const std::size_t budget = svo::wholeStoreBudget(reader.slices());
+  const svo::WholeScene paged = svo::WholeScene::paged(store.path, budget);
+  ASSERT_TRUE(paged.isPaged());
+  EXPECT_LE(paged.bytes(), budget);
+  const svo::WholeScene whole(svo::readOctree(store.path));
+  ASSERT_FALSE(whole.isPaged());
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  svo::RenderOptions options;
+  options.lodPixels = 0.0f, options.threads = 1;
+  const svo::Frame a = svo::render(paged.root(), paged.transform(), camera, options);
+  const svo::Frame b = svo::render(whole.root(), whole.transform(), camera, options);
+  EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(glm::vec4)), 0);
+  EXPECT_EQ(std::memcmp(a.depth.data(), b.depth.data(), a.depth.size() * sizeof(float)), 0);
+  // A pool that cannot hold every slice is refused by name.
+  try {
+    svo::WholeScene::paged(store.path, 2 * paged.bytes() / 3);
+    ADD_FAILURE() << "a pool too small to hold the store was accepted";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(store.path.string()), std::string::npos) << e.what();
+  }
+}
+
+// While a frame renders, the workers beyond PagerOptions::workersDuringFrames wait at their next stage: with
+// none allowed, nothing is read or committed until the frame ends, and then everything loads.
+TEST(Pager, WorkersWaitForTheFrameToEnd) {
+  const TempStore& store = sphereStore();
+  svo::PagerOptions options;
+  options.workersDuringFrames = 0;
+  svo::Pager pager(store.path, options);
+  svo::ViewQuery everything = svo::viewOf(pager.transform(), cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96), 1e-9);
+  everything.frustum.clear();
+  const std::uint64_t trunkRead = pager.bytesRead();
+  {
+    const svo::Pager::FrameScope frame(pager);
+    EXPECT_GT(pager.update(everything).requested, 0u);
+    pager.waitForWork(0.2);
+    EXPECT_EQ(pager.update(everything).loaded, 0u);
+    EXPECT_EQ(pager.bytesRead(), trunkRead);
+  }
+  converge(pager, everything);
+  EXPECT_EQ(pager.residentSlices().size(), pager.store().slices().size());
 }
 
 // A close view converges inside its frustum first: then every slice the view wants inside the frustum is

@@ -32,7 +32,7 @@ namespace {
 
 using accel::Accel;
 
-// Generated scene sizes (the issue's 10^4 ... 2·10^6), trimmed by --max-n.
+// Generated scene sizes (10^4 ... 2·10^6), trimmed by --max-n.
 constexpr const char* kDefaultSizes = "10000,100000,1000000,2000000";
 constexpr const char* kDefaultScenes = "thin,field,huge-tiny,sphere";
 // Meshes used when no --mesh is given and they exist: the bunny of tools/scripts/fetch-data.sh and two
@@ -44,10 +44,10 @@ constexpr double kKdBuildSpeedup = 2.0;  // kd paper Sec. 3.1: binned ≈ 2× fa
 constexpr double kKdRenderBand = 0.10;   // kd paper Tables 1-2: traversal within about ±10%
 constexpr double kOrgCellsLo = 1.0, kOrgCellsHi = 2.0;  // ORG Sec. 3.1: rc in [1, 2]
 constexpr double kOrgRefsLo = 3.0, kOrgRefsHi = 5.0;    // ORG Sec. 3.1: rp mostly in [3, 5]
-constexpr double kOrgRenderVsKd = 1.5;      // ORG Sec. 3.2: sr vs kd-tree 0.6 ... 2.1; issue: within 1.5×
+constexpr double kOrgRenderVsKd = 1.5;      // ORG Sec. 3.2: sr vs kd-tree 0.6 ... 2.1; goal: within 1.5×
 constexpr double kOavmPointerRatio = 0.55;  // OAVM abstract: 54.45% fewer pointers
 constexpr double kOavmTimeRatio = 0.6;      // OAVM abstract: 52.37% less intersection time
-constexpr double kEmbreeBar = 0.5;          // issue: best of kd-tree, ORG, OAVM ≥ 0.5× Embree's Mrays/s
+constexpr double kEmbreeBar = 0.5;          // goal: best of kd-tree, ORG, OAVM ≥ 0.5× Embree's Mrays/s
 
 struct AccelArgs {
   std::vector<std::string> meshes;
@@ -265,8 +265,8 @@ std::vector<Claim> checkClaims(const std::vector<SceneResult>& results) {
                         tr <= kOavmTimeRatio});
     }
     if (embree) {
-      // The issue's three structures (the kd-tree with either build, ORG, OAVM); UG, RG and RG-2 are only the
-      // ORG paper's comparison structures.
+      // The three structures of the goal (the kd-tree with either build, ORG, OAVM); UG, RG and RG-2 are only
+      // the ORG paper's comparison structures.
       double best = 1e300;
       std::string who;
       for (const char* ours : {"kd-binned", "kd-sah", "org", "oavm"})

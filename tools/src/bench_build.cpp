@@ -92,8 +92,8 @@ void runBuildBench(const BuildArgs& args) {
   const SceneTransform scene = fitSceneCube(mesh);
   // The out-of-core build reads the file itself, streamed when it is binary PLY.
   const std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
-  const std::filesystem::path scratch =
-      std::filesystem::temp_directory_path() / fmt::format("svo_bench_build_{}.svo", ::getpid());
+  const ScratchPath scratchStore("svo-bench-build.svo");
+  const std::filesystem::path& scratch = scratchStore.path();
 
   Table table({"resolution", "threads", "ESVO time", "OOC time", "VDB time", "ESVO Mtri/s", "ESVO Mvox/s",
                "OOC Mvox/s", "ESVO leaves", "ESVO voxels", "ESVO MB", "VDB active", "VDB MB", "ESVO/VDB",

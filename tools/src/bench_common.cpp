@@ -1,5 +1,7 @@
 #include "bench_common.hpp"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <charconv>
 #include <cmath>
@@ -180,6 +182,29 @@ std::string formatCount(std::uint64_t count) {
     out += digits[i];
   }
   return out;
+}
+
+ScratchPath::ScratchPath(std::string_view name) {
+  const std::filesystem::path file(name);
+  path_ = std::filesystem::temp_directory_path() /
+          fmt::format("{}-{}{}", file.stem().string(), ::getpid(), file.extension().string());
+}
+
+ScratchPath::~ScratchPath() {
+  std::error_code ignored;
+  std::filesystem::remove(path_, ignored);
+}
+
+WholeScene wholeSceneOf(const VoxelTree& tree, const SceneTransform& transform,
+                        const BuildParameters& parameters, const std::filesystem::path& store,
+                        LayoutStats* layout) {
+  try {
+    return WholeScene(Octree{transform, parameters, layoutBlock(tree, {}, layout)});
+  } catch (const BlockTooLarge&) {
+  }
+  spdlog::info("{} levels exceed one block: paging the whole store through a pool ...", parameters.levels);
+  if (!std::filesystem::exists(store)) writeStore(store, tree, transform, parameters);
+  return WholeScene::paged(store, wholeStoreBudget(StoreReader(store).slices()));
 }
 
 }  // namespace svo::tools::bench

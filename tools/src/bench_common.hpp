@@ -18,6 +18,7 @@
 
 #include "commands.hpp"
 #include "svo/builder/mesh.hpp"
+#include "svo/client/whole_scene.hpp"
 
 namespace svo::tools::bench {
 
@@ -101,6 +102,27 @@ int resolveThreads(int requested, std::string_view option = "--threads");
 
 // Loads the mesh (svo::loadMesh) and logs what was read. Throws std::runtime_error on failure.
 Mesh loadBenchMesh(const std::filesystem::path& path);
+
+// A file name in the system's temporary folder, unique to this process, removed with the object however the
+// bench ends.
+class ScratchPath {
+ public:
+  explicit ScratchPath(std::string_view name);  // "svo-bench-raycast.svo" -> /tmp/svo-bench-raycast-PID.svo
+  ~ScratchPath();
+  ScratchPath(const ScratchPath&) = delete;
+  ScratchPath& operator=(const ScratchPath&) = delete;
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// A voxel tree at every depth: laid out as one block (`layout` receives its stats), or where it does not fit
+// one, paged whole from the store at `store`, which is written from the tree when absent (the caller removes
+// it after the scene).
+WholeScene wholeSceneOf(const VoxelTree& tree, const SceneTransform& transform,
+                        const BuildParameters& parameters, const std::filesystem::path& store,
+                        LayoutStats* layout = nullptr);
 
 // "12.3 ms", "1.23 s".
 std::string formatSeconds(double seconds);

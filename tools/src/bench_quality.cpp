@@ -29,17 +29,18 @@
 #include <glm/geometric.hpp>
 
 #include "bench_common.hpp"
+#include "measure.hpp"
 #include "plot.hpp"
-#include "streaming.hpp"
 #include "svo/builder/accel/accel.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
+#include "svo/client/streaming.hpp"
 
 namespace svo::tools::bench {
 namespace {
 
-// Level-of-detail settings swept (issue: 0.5, 1, 2, 4 pixels).
+// Level-of-detail settings swept (0.5, 1, 2, 4 pixels).
 constexpr float kLodSweep[] = {0.5f, 1.0f, 2.0f, 4.0f};
 // Beam settings swept: the paper's 8x8 tile, and off.
 constexpr int kBeamSweep[] = {8, 0};
@@ -52,7 +53,7 @@ constexpr double kDepthQuantile = 0.99;
 // depth tail measures the edge, not the surface. 2% still counts surfaces up to ~4 degrees from grazing at
 // 512 pixels and 40 degrees as surface.
 constexpr double kEdgeDepthJump = 0.02;
-// Goals at 1 voxel per pixel with contours (issue 6): silhouette mismatch and depth p99.
+// Goals at 1 voxel per pixel with contours: silhouette mismatch and depth p99.
 constexpr double kGoalSilhouettePercent = 1.0;
 constexpr double kGoalDepthVoxels = 1.0;
 // --stream keeps a frame for comparison when it comes this many times later than the last one kept (and
@@ -241,21 +242,15 @@ struct LevelScene {
   std::uint64_t storeBytes = 0;
   double buildSeconds = 0.0;  // voxelize + layout
   SceneTransform transform;
-  std::optional<Octree> octree;
-  std::unique_ptr<Pager> pager;
-  BlockView root() const { return octree ? octree->block.view() : pager->trunk(); }
+  std::optional<WholeScene> scene;  // with its root: every depth, one block or paged
   LevelScene() = default;
   LevelScene(const LevelScene&) = delete;
   ~LevelScene() {
-    pager.reset();
+    scene.reset();
     std::error_code ignored;
     if (!store.empty()) std::filesystem::remove(store, ignored);
   }
 };
-
-// The pool budget for a whole store: its blocks take up to ~3x the decoded slice bytes (pager.cpp), which
-// are up to ~4x the compressed file; the arena's untouched pages cost nothing.
-constexpr std::size_t kWholeStoreBudgetPerFileByte = 16;
 
 void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesystem::path& out, bool withRoot,
                 LevelScene& s) {
@@ -265,36 +260,13 @@ void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesyst
   VoxelTree tree;
   s.buildSeconds = timeSeconds([&] { tree = voxelize(mesh, s.transform, build); });
   s.store = out / fmt::format("L{}-cut{}.svo", levels, build.leafContourMinReduction);
-  writeStore(
-      s.store, tree, s.transform,
-      {levels, build.geometryError, build.colorError, build.normalError, std::uint32_t(build.contours)});
+  const BuildParameters parameters{levels, build.geometryError, build.colorError, build.normalError,
+                                   std::uint32_t(build.contours)};
+  writeStore(s.store, tree, s.transform, parameters);
   s.storeBytes = std::filesystem::file_size(s.store);
-  if (!withRoot) return;
-  try {
-    Octree octree;
-    s.buildSeconds += timeSeconds([&] { octree.block = layoutBlock(tree); });
-    octree.transform = s.transform;
-    s.octree = std::move(octree);
-    return;
-  } catch (const std::runtime_error& e) {
-    if (std::string(e.what()).find("too large for one block") == std::string::npos) throw;
-  }
-  tree = {};
-  spdlog::info("{} levels exceed one block: rendering from the store, all of it resident ...", levels);
-  PagerOptions whole;
-  whole.budgetBytes =
-      std::min(std::size_t(1) << 34, std::size_t(s.storeBytes) * kWholeStoreBudgetPerFileByte + (64u << 20));
-  s.pager = std::make_unique<Pager>(s.store, whole);
-  ViewQuery everything =
-      viewOf(s.transform, Camera::framing(s.transform, glm::dvec3(0, 0, -1), 64, 64), 1e-9);
-  everything.frustum.clear();
-  while (true) {
-    s.pager->update(everything);
-    if (s.pager->converged()) break;
-    s.pager->waitForWork(0.05);
-  }
-  if (s.pager->residentSlices().size() != s.pager->store().slices().size())
-    throw std::runtime_error(s.store.string() + ": the store does not fit " + formatBytes(whole.budgetBytes));
+  if (withRoot)
+    s.buildSeconds +=
+        timeSeconds([&] { s.scene.emplace(wholeSceneOf(tree, s.transform, parameters, s.store)); });
 }
 
 // --stream: from a cold store, frames of one camera while the store streams in; each kept frame's error
@@ -447,7 +419,7 @@ void runQualityBench(const QualityArgs& args) {
       buildLevel(mesh, build, out, true, level);
       const double buildSeconds = level.buildSeconds;
       const std::uint64_t storeBytes = level.storeBytes;
-      const BlockView root = level.root();
+      const BlockView root = level.scene->root();
       const double finestVoxel = scene.size / double(std::int64_t(1) << levels);
       for (const bool contours : {true, false}) {
         // Cube renders ignore contours: one cut's are every cut's.

@@ -48,13 +48,13 @@ struct RaycastArgs {
 
 // ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles, depth written like the
 // Embree peer does; with `beam`, each tile first runs the beam pass (sec. 6.2).
-TraceResult traceEsvo(const Octree& octree, const Camera& camera, const RenderOptions& options, int threads,
-                      bool beam) {
+TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
+                      int threads, bool beam) {
   TraceResult result;
   result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
-  const BlockView block = octree.block.view();
+  const BlockView block = scene.root();
   // Per-frame ray constants computed once, as svo::render does.
-  const PixelRays rays(octree.transform, camera, options.lodPixels);
+  const PixelRays rays(scene.transform(), camera, options.lodPixels);
   std::atomic<std::uint64_t> iterations{0};
   forEachTile(camera.width, camera.height, kTileSize, threads, [&](const PixelTile& tile) {
     iterations.fetch_add(castTile(block, rays, tile, beam, options.cast,
@@ -90,9 +90,18 @@ void addMethodRow(Table& table, const std::string& name, const Timed& timed, dou
                                   : std::string(kPeerNotBuilt)});
 }
 
-void printMemory(const BuildStats& stats, const Octree& octree) {
+void printMemory(const BuildStats& stats, const WholeScene& scene) {
   const LayoutStats& layout = stats.layout;
   const double leaves = double(std::max<std::uint64_t>(stats.leafVoxels, 1));
+  if (scene.isPaged()) {
+    printTitle(
+        fmt::format("Octree memory per leaf voxel ({} leaf voxels, paged)", formatCount(stats.leafVoxels)));
+    fmt::print(
+        "the octree exceeds one block: its blocks in the pool take {:.1f} MB, {:.2f} B per leaf voxel "
+        "(parts are split for one block only)\n",
+        double(scene.bytes()) / (1 << 20), double(scene.bytes()) / leaves);
+    return;
+  }
   const bool hasColor = layout.colorValues > 0 || layout.inheritedColors > 0;
   const double paperAttributes = (hasColor ? kPaperColorBytes : 0.0) + kPaperNormalBytes;
   const double paperTotal = kPaperHierarchyBytes + kPaperContourBytes + paperAttributes;
@@ -102,7 +111,7 @@ void printMemory(const BuildStats& stats, const Octree& octree) {
   const double total = double(layout.totalBytes) / leaves;
 
   printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, block {:.1f} MB)",
-                         formatCount(stats.leafVoxels), double(octree.block.bytes().size()) / (1 << 20)));
+                         formatCount(stats.leafVoxels), double(scene.bytes()) / (1 << 20)));
   Table table({"part", "ESVO B/voxel", "paper B/voxel", "ESVO/paper"});
   const auto row = [&](std::string name, double ours, double paper) {
     table.addRow({std::move(name), fmt::format("{:.2f}", ours), fmt::format("~{:.0f}", paper),
@@ -195,12 +204,19 @@ void runRaycastBench(const RaycastArgs& args) {
   buildOptions.levels = args.levels;
   BuildStats stats;
   spdlog::info("building the octree, {} levels ...", args.levels);
-  Octree octree;
-  const double esvoBuildSeconds = timeSeconds([&] { octree = buildOctree(mesh, buildOptions, &stats); });
-  const Camera camera = Camera::framing(octree.transform, view, args.size, args.size);
+  const SceneTransform transform = fitSceneCube(mesh);
+  const BuildParameters parameters{args.levels, 0.0f, 0.0f, 0.0f, 1};
+  // Where the octree exceeds one block it is paged whole from a scratch store, removed however this ends.
+  const ScratchPath scratch("svo-bench-raycast.svo");
+  std::optional<WholeScene> scene;
+  const double esvoBuildSeconds = timeSeconds([&] {
+    const VoxelTree tree = voxelize(mesh, transform, buildOptions, &stats);
+    scene.emplace(wholeSceneOf(tree, transform, parameters, scratch.path(), &stats.layout));
+  });
+  const Camera camera = Camera::framing(transform, view, args.size, args.size);
   camera.validate();
   const double rays = double(camera.width) * camera.height;
-  const double finestVoxel = octree.transform.size / double(std::int64_t(1) << args.levels);
+  const double finestVoxel = transform.size / double(std::int64_t(1) << args.levels);
 
   RenderOptions renderOptions;
   renderOptions.lodPixels = args.lodPixels;
@@ -210,7 +226,8 @@ void runRaycastBench(const RaycastArgs& args) {
   Timed shaded;
   {
     Frame frame;
-    shaded.seconds = timeRuns(args.runs, [&] { frame = render(octree, camera, renderOptions); });
+    shaded.seconds =
+        timeRuns(args.runs, [&] { frame = render(scene->root(), transform, camera, renderOptions); });
     shaded.last.depth = std::move(frame.depth);
     shaded.last.hits = countHits(shaded.last.depth);
     shaded.last.meanIterations = frame.meanIterations;
@@ -218,18 +235,18 @@ void runRaycastBench(const RaycastArgs& args) {
   spdlog::info("ESVO castRay only: 1 warm-up + {} runs ...", args.runs);
   Timed cast;
   cast.seconds =
-      timeRuns(args.runs, [&] { cast.last = traceEsvo(octree, camera, renderOptions, threads, false); });
+      timeRuns(args.runs, [&] { cast.last = traceEsvo(*scene, camera, renderOptions, threads, false); });
   spdlog::info("ESVO castRay with the beam pass: 1 warm-up + {} runs ...", args.runs);
   Timed beamed;
   beamed.seconds =
-      timeRuns(args.runs, [&] { beamed.last = traceEsvo(octree, camera, renderOptions, threads, true); });
+      timeRuns(args.runs, [&] { beamed.last = traceEsvo(*scene, camera, renderOptions, threads, true); });
 
   std::optional<double> peerSeconds;
   std::optional<Timed> peer;
   [[maybe_unused]] double peerBuildSeconds = 0.0;
 #ifdef SVO_BENCH_PEERS
   spdlog::info("Embree: building the BVH (quality high) ...");
-  const EmbreePeer embree(mesh, octree.transform.toWorld(glm::dvec3(1.5)));
+  const EmbreePeer embree(mesh, transform.toWorld(glm::dvec3(1.5)));
   peerBuildSeconds = embree.buildSeconds();
   spdlog::info("Embree rtcIntersect1: 1 warm-up + {} runs ...", args.runs);
   peer.emplace();
@@ -268,7 +285,7 @@ void runRaycastBench(const RaycastArgs& args) {
   fmt::print("beam pass vs none: {} of {} pixels differ in depth.\n", formatCount(beamChanged),
              formatCount(cast.last.depth.size()));
 
-  printMemory(stats, octree);
+  printMemory(stats, *scene);
   printAgreement(shaded.last.depth, peer ? &peer->last : nullptr, finestVoxel);
 }
 

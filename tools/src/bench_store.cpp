@@ -36,6 +36,7 @@
 #include <zstd.h>
 
 #include "bench_common.hpp"
+#include "machine.hpp"
 #include "store_stats.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/store/container.hpp"
@@ -47,16 +48,16 @@ namespace svo::tools::bench {
 
 namespace {
 
-// Thread counts of the build comparison: the issue's "1, 2 threads".
+// Thread counts of the build comparison: 1 and 2.
 constexpr int kBuildThreads[] = {1, 2};
 // A timed sample repeats a warm pass until it lasts this long: timer resolution and scheduler noise then
 // stay around 1% even for a store of a few slices.
 constexpr double kMinSampleSeconds = 0.2;
 // Fixed seed of the random slice order: the same order in every run and every invocation.
 constexpr std::uint64_t kShuffleSeed = 0x5EED;
-// Goals from issue 4, printed next to the measured ratios.
+// Goals of the slice store, printed next to the measured ratios.
 constexpr double kDecodeGoal = 0.8, kColdReadGoal = 0.5;
-// Slice sizes (issue 4): median at least half the target, none above 1.5x it unless its cube cannot split.
+// Slice size goals: median at least half the target, none above 1.5x it unless its cube cannot split.
 constexpr double kMedianSliceGoal = 0.5, kLargestSliceGoal = 1.5;
 // Compressed bytes the warm comparison keeps in memory: the first slices up to this much (all of a small
 // store), so that a store of any size is measured in bounded memory.
@@ -123,11 +124,6 @@ bool isStore(const std::filesystem::path& path) {
 bool resetPeakRss() {
   std::ofstream clear("/proc/self/clear_refs");
   return clear && (clear << "5").flush().good();
-}
-std::uint64_t peakRssBytes() {
-  rusage usage{};
-  ::getrusage(RUSAGE_SELF, &usage);
-  return std::uint64_t(usage.ru_maxrss) * 1024;  // kilobytes on Linux
 }
 
 // ----- the page cache of one file --------------------------------------------------------------------------
@@ -268,7 +264,7 @@ void benchBuild(const StoreArgs& args, const std::filesystem::path& storePath) {
     }
     const std::uint64_t voxels =
         std::accumulate(stats.voxelsPerLevel.begin(), stats.voxelsPerLevel.end(), std::uint64_t(0));
-    rows.push_back({"ESVO buildOctree", threads, summarize(std::move(samples)), voxels, peakRssBytes()});
+    rows.push_back({"ESVO buildOctree", threads, summarize(std::move(samples)), voxels, peakResidentBytes()});
     const AlignedBytes& bytes = octree.block.bytes();
     hashes.push_back(std::hash<std::string_view>{}(
         std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size())));
@@ -282,7 +278,8 @@ void benchBuild(const StoreArgs& args, const std::filesystem::path& storePath) {
     const std::optional<LevelSetResult> peer =
         openVdbLevelSet(mesh, scene.origin, scene.size / double(resolution), args.runs);
     if (peer)
-      rows.push_back({"OpenVDB meshToLevelSet", threads, peer->seconds, peer->activeVoxels, peakRssBytes()});
+      rows.push_back(
+          {"OpenVDB meshToLevelSet", threads, peer->seconds, peer->activeVoxels, peakResidentBytes()});
   }
 
   printTitle("Building in core: ESVO octree vs OpenVDB level set, same triangles, same resolution");
@@ -534,20 +531,12 @@ void runStoreBench(const StoreArgs& args) {
   }
   // A mesh: build it, then measure the store that was written. A store path not given is a temporary file
   // next to the system's others, removed at the end.
+  std::optional<ScratchPath> scratch;
   std::filesystem::path storePath = args.store;
-  const bool temporary = storePath.empty();
-  if (temporary)
-    storePath =
-        std::filesystem::temp_directory_path() / ("svo_bench_store_" + std::to_string(::getpid()) + ".svo");
+  if (storePath.empty())
+    storePath = scratch.emplace("svo-bench-store.svo").path();
   else
     checkWritableOutput(storePath);
-  struct Remove {
-    std::filesystem::path path;
-    ~Remove() {
-      std::error_code ignored;
-      if (!path.empty()) std::filesystem::remove(path, ignored);
-    }
-  } remove{temporary ? storePath : std::filesystem::path()};
   benchBuild(args, storePath);
   benchStore(storePath, args.runs, args.readThreads);
 }

@@ -1,4 +1,4 @@
-// `svo bench stream IN.svo`: the paging client's numbers (issue 5), each against its reference in the same
+// `svo bench stream IN.svo`: the paging client's numbers, each against its reference in the same
 // run:
 //   - open to first complete coarse image (cold file), goal < 100 ms;
 //   - a close-up view from a cold start until nothing inside its frustum is left to load, against reading the
@@ -18,6 +18,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <thread>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -28,8 +29,9 @@
 
 #include "bench_common.hpp"
 #include "commands.hpp"
+#include "measure.hpp"
 #include "plot.hpp"
-#include "streaming.hpp"
+#include "svo/client/streaming.hpp"
 
 namespace svo::tools::bench {
 namespace {
@@ -38,9 +40,27 @@ struct StreamArgs {
   std::string input, output = "stream-report";
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
   int size = 512, runs = 3, pathFrames = 120, workerNice = PagerOptions{}.workerNice,
-      ioThreads = PagerOptions{}.ioThreads;
+      ioThreads = PagerOptions{}.ioThreads, workersDuringFrames = PagerOptions{}.workersDuringFrames;
+  int backgroundLoad = 0;  // busy threads at normal priority beside the bench
   float lodPixels = 1.0f;
   double timeout = 300.0;
+};
+
+// `threads` threads that keep a core busy each at normal priority until destroyed: other programs on the
+// machine, as a viewer on a desktop always has them.
+class BackgroundLoad {
+ public:
+  explicit BackgroundLoad(int threads) {
+    for (int i = 0; i < threads; ++i)
+      threads_.emplace_back([](std::stop_token stop) {
+        volatile std::uint64_t sink = 0;
+        while (!stop.stop_requested())
+          for (int k = 0; k < 100000; ++k) sink = sink * 6364136223846793005u + 1442695040888963407u;
+      });
+  }
+
+ private:
+  std::vector<std::jthread> threads_;
 };
 
 double since(std::chrono::steady_clock::time_point start) {
@@ -122,6 +142,7 @@ void runStreamBench(const StreamArgs& args) {
   keepFreedMemoryForReuse();
   requireRuns(args.runs);
   std::filesystem::create_directories(args.output);
+  const BackgroundLoad load(args.backgroundLoad);
   RenderOptions options;
   options.lodPixels = args.lodPixels;
   Table table({"budget", "first image", "view converged", "image final", "bytes read", "sequential read",
@@ -138,14 +159,14 @@ void runStreamBench(const StreamArgs& args) {
     pagerOptions.budgetBytes = budget;
     pagerOptions.workerNice = args.workerNice;
     pagerOptions.ioThreads = args.ioThreads;
+    pagerOptions.workersDuringFrames = args.workersDuringFrames;
     // 1. Open to the first coarse image, cold.
     std::vector<double> firstImage;
     for (int run = 0; run < args.runs; ++run) {
       dropFileCache(args.input);
       const auto start = std::chrono::steady_clock::now();
       Pager pager(args.input, pagerOptions);
-      const Camera framing =
-          Camera::framing(pager.transform(), glm::dvec3(-0.35, -0.25, -1.0), args.size, args.size);
+      const Camera framing = Camera::framing(pager.transform(), kDefaultViewDirection, args.size, args.size);
       render(pager.trunk(), pager.transform(), framing, options);
       firstImage.push_back(since(start));
     }
@@ -243,9 +264,13 @@ void runStreamBench(const StreamArgs& args) {
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
-  printTitle("svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
-             std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs, " +
-             std::to_string(args.ioThreads) + " workers at nice " + std::to_string(args.workerNice) + ")");
+  printTitle(
+      "svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
+      std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs, " +
+      std::to_string(args.ioThreads) + " workers at nice " + std::to_string(args.workerNice) + ", " +
+      std::to_string(args.workersDuringFrames) + " of them during frames" +
+      (args.backgroundLoad ? fmt::format(", background load: {} busy threads", args.backgroundLoad) : "") +
+      ")");
   table.print();
   std::printf(
       "view converged: nothing inside the close-up's frustum left to load (bytes read: by then); all "
@@ -302,6 +327,15 @@ void addStreamBench(CLI::App& bench) {
   cmd->add_option("--worker-nice", args->workerNice,
                   "nice value of the pager's threads: trades streaming while the camera moves for frame time")
       ->check(CLI::Range(0, 19))
+      ->capture_default_str();
+  cmd->add_option("--workers-during-frames", args->workersDuringFrames,
+                  "pager workers that go on while a frame renders (the others wait for it to end)")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
+  cmd->add_option("--background-load", args->backgroundLoad,
+                  "busy threads at normal priority running beside the bench: streaming with other programs "
+                  "on the cores")
+      ->check(CLI::Range(0, 256))
       ->capture_default_str();
   cmd->callback([args] { runStreamBench(*args); });
 }

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <optional>
 
 #include <nlohmann/json.hpp>
 
@@ -15,6 +16,8 @@
 #include <tbb/info.h>
 
 #include "commands.hpp"
+#include "machine.hpp"
+#include "measure.hpp"
 #include "progress.hpp"
 #include "svo/builder/build.hpp"
 
@@ -48,13 +51,6 @@ double secondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-// Peak resident set of this process so far (getrusage reports KiB on Linux).
-std::uint64_t peakResidentBytes() {
-  rusage usage{};
-  ::getrusage(RUSAGE_SELF, &usage);
-  return std::uint64_t(usage.ru_maxrss) * 1024;
-}
-
 // Writes `text` to `path` through a temporary name, like every other output.
 void writeTextAtomically(const std::filesystem::path& path, const std::string& text) {
   const std::filesystem::path temp = path.string() + ".tmp." + std::to_string(::getpid());
@@ -71,8 +67,6 @@ void writeTextAtomically(const std::filesystem::path& path, const std::string& t
 
 void runBuild(const BuildArgs& args) {
   checkWritableOutput(args.out);
-  if (args.resume && args.memory == 0 && args.cellLevel == 0)
-    throw UsageError("--resume needs --memory or --cell-level (it resumes an out-of-core build)");
   if (args.cellLevel >= args.options.levels)
     throw UsageError("--cell-level must be below --levels (" + std::to_string(args.options.levels) + ")");
   const std::filesystem::path reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
@@ -80,6 +74,7 @@ void runBuild(const BuildArgs& args) {
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               args.threads > 0 ? args.threads : tbb::info::default_concurrency());
   const auto start = std::chrono::steady_clock::now();
+  const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
   nlohmann::json phases = nlohmann::json::object();
 
   auto phaseStart = std::chrono::steady_clock::now();
@@ -94,19 +89,37 @@ void runBuild(const BuildArgs& args) {
   storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
   storeOptions.inheritance = options.layout;
   std::vector<SliceInfo> slices;
-  bool hasColors = false;
-  std::uint64_t triangles = 0;
-  if (args.memory > 0 || args.cellLevel > 0 || args.resume) {
-    // Out of core: the mesh is streamed (binary PLY) or loaded once and streamed from memory.
-    const std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
-    phases["load"] = secondsSince(phaseStart);
-    logInput(source->triangleCount(), source->format(), source->droppedDegenerate());
-    hasColors = source->hasColor();
-    triangles = source->triangleCount();
-    OutOfCoreOptions ooc;
-    ooc.memoryBytes = args.memory;
-    ooc.cellLevel = args.cellLevel;
-    ooc.resume = args.resume;
+  // Both paths open the input as a source: binary PLY streams from the file, other formats load whole.
+  std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
+  phases["load"] = secondsSince(phaseStart);
+  logInput(source->triangleCount(), source->format(), source->droppedDegenerate());
+  const bool hasColors = source->hasColor();
+  const std::uint64_t triangles = source->triangleCount();
+  OutOfCoreOptions ooc;
+  ooc.memoryBytes = args.memory;
+  ooc.cellLevel = args.cellLevel;
+  ooc.resume = args.resume;
+  ooc.processBytes = processBytes;
+  if (args.memory == 0 && args.cellLevel == 0) {
+    // No bound given: in core when its estimated peak fits the machine's default share, else out of core
+    // within that share. A resume is out of core (the interrupted run's cell level, or one for the share).
+    const std::uint64_t share = defaultMemoryShare(machineMemory());
+    const std::uint64_t estimate =
+        args.resume ? 0 : processBytes + estimateInCoreBuildBytes(*source, options);
+    if (args.resume || estimate > share) {
+      ooc.memoryBytes = share;
+      ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
+      if (!args.resume)
+        spdlog::info(
+            "building out of core within {}: in core would take about {}, more than half of the "
+            "available memory (--memory sets the bound)",
+            formatBytes(share), formatBytes(estimate));
+    } else {
+      spdlog::info("building in core: about {} of the {} default bound (half of the available memory)",
+                   formatBytes(estimate), formatBytes(share));
+    }
+  }
+  if (ooc.memoryBytes > 0 || ooc.cellLevel > 0) {
     ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
     std::unique_ptr<ProgressBar> bar;
     std::string current;
@@ -122,12 +135,15 @@ void runBuild(const BuildArgs& args) {
     spdlog::info("out of core: {} cells of level {}, {} reused from an interrupted run", built.cells,
                  built.cellLevel, built.cellsReused);
   } else {
-    MeshLoadReport loadReport;
-    const Mesh mesh = loadMesh(args.mesh, &loadReport);
-    phases["load"] = secondsSince(phaseStart);
-    logInput(mesh.triangles.size(), loadReport.format, loadReport.droppedDegenerate);
-    hasColors = mesh.hasColor();
-    triangles = mesh.triangles.size();
+    // A streamed PLY source holds only its vertices: the in-core build loads the mesh whole.
+    std::optional<Mesh> loaded;
+    if (!source->wholeMesh()) {
+      source.reset();
+      phaseStart = std::chrono::steady_clock::now();
+      loaded = loadMesh(args.mesh);
+      phases["load"] = phases["load"].get<double>() + secondsSince(phaseStart);
+    }
+    const Mesh& mesh = loaded ? *loaded : *source->wholeMesh();
     phaseStart = std::chrono::steady_clock::now();
     const SceneTransform transform = fitSceneCube(mesh);
     VoxelTree tree;
@@ -233,7 +249,8 @@ void addBuildCommand(CLI::App& app) {
   cmd->add_option("--report", args->report, "JSON build report (default: OUTPUT.build.json)");
   cmd->add_option("--memory", args->memory,
                   "build out of core within about this much memory (e.g. 1G): cells spilled to OUTPUT.build, "
-                  "a cell level chosen to fit")
+                  "a cell level chosen to fit (default: in core when the estimate fits half of the available "
+                  "memory, else out of core within that half)")
       ->transform(CLI::AsSizeValue(false));
   cmd->add_option("--cell-level", args->cellLevel,
                   "build out of core with cells of this level (instead of choosing one from --memory)")

@@ -1,7 +1,8 @@
-// `svo render IN.svo -o frame.png`: ray casts the octree on all cores and writes PNG or EXR.
-// With --budget the store streams through a block pool of that size (issue 5): one view refines until it has
-// converged, or with --path a camera path renders frame by frame while the scene streams in, with a CSV row
-// per frame and a plot of the error against the converged frames over time.
+// `svo render IN.svo -o frame.png`: ray casts the octree on all cores and writes PNG or EXR. A store that
+// fits one block and the machine's memory is read whole; any other streams through a block pool (--budget, or
+// a share of the machine's memory): one view refines until it has converged, or with --path a camera path
+// renders frame by frame while the scene streams in, with a CSV row per frame and a plot of the error
+// against the converged frames over time.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -13,10 +14,13 @@
 
 #include "bench_common.hpp"
 #include "commands.hpp"
+#include "machine.hpp"
+#include "measure.hpp"
 #include "plot.hpp"
-#include "streaming.hpp"
 #include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
+#include "svo/client/streaming.hpp"
+#include "svo/client/whole_scene.hpp"
 
 namespace svo::tools {
 
@@ -27,14 +31,16 @@ glm::dvec3 vec3Of(const std::vector<double>& v) {
 
 struct RenderArgs {
   std::string in, out, cameraFile;
-  std::vector<double> eye, target, up{0.0, 1.0, 0.0}, view{-0.35, -0.25, -1.0};
+  std::vector<double> eye, target, up{0.0, 1.0, 0.0},
+      view{kDefaultViewDirection.x, kDefaultViewDirection.y, kDefaultViewDirection.z};
   double fov = 40.0;
   int width = 1024, height = 1024;
   RenderOptions options;
   bool noContours = false, aux = false;
   std::size_t budget = 0, referenceBudget = std::size_t(1) << 30;
   std::string pathFile;
-  int ioThreads = PagerOptions{}.ioThreads, workerNice = PagerOptions{}.workerNice;
+  int ioThreads = PagerOptions{}.ioThreads, workerNice = PagerOptions{}.workerNice,
+      workersDuringFrames = PagerOptions{}.workersDuringFrames;
   double timeout = 300.0;
 };
 
@@ -62,15 +68,16 @@ PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
   options.budgetBytes = budget;
   options.ioThreads = args.ioThreads;
   options.workerNice = args.workerNice;
+  options.workersDuringFrames = args.workersDuringFrames;
   return options;
 }
 
-// One view from a cold start until it has converged.
-void renderConverged(const RenderArgs& args, RenderOptions options) {
+// One view streamed until it has converged; `how` says why it streams and with which budget.
+void renderConverged(const RenderArgs& args, RenderOptions options, std::size_t budget,
+                     const std::string& how) {
   const std::filesystem::path out = args.out;
-  dropFileCache(args.in);
   const auto start = std::chrono::steady_clock::now();
-  Pager pager(args.in, pagerOptions(args.budget, args));
+  Pager pager(args.in, pagerOptions(budget, args));
   const Camera camera = cameraOf(args, pager.transform());
   options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
   const Frame first = render(pager.trunk(), pager.transform(), camera, options);
@@ -89,11 +96,11 @@ void renderConverged(const RenderArgs& args, RenderOptions options) {
               pager.residentSlices().size(), formatBytes(pager.residentBytes()).c_str(),
               formatBytes(pager.budgetBytes()).c_str(), formatBytes(pager.bytesRead()).c_str());
   for (const std::string& e : pager.takeErrors()) spdlog::warn("{}", e);
-  std::printf("wrote %s\n", args.out.c_str());
+  std::printf("wrote %s, %s\n", args.out.c_str(), how.c_str());
 }
 
 // A camera path while streaming: frames, frames.csv, error.png.
-void renderPath(const RenderArgs& args, RenderOptions options) {
+void renderPath(const RenderArgs& args, RenderOptions options, std::size_t budget, const std::string& how) {
   const std::vector<Camera> cameras = loadCameraPath(args.pathFile);
   const std::filesystem::path folder = args.out;
   std::error_code ec;
@@ -101,7 +108,7 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
   if (ec || !std::filesystem::is_directory(folder))
     throw UsageError(args.out + ": cannot create the output folder");
   checkWritableOutput(folder / "frames.csv");
-  Pager pager(args.in, pagerOptions(args.budget, args));
+  Pager pager(args.in, pagerOptions(budget, args));
   options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
 
   std::vector<StreamedFrame> frames;
@@ -153,21 +160,69 @@ void renderPath(const RenderArgs& args, RenderOptions options) {
   std::printf("%zu frames in %.2f s: frame time median %.1f ms, p99 %.1f ms; resident at most %s of %s\n",
               cameras.size(), elapsed.back(), ms.median, p99, formatBytes(maxResident).c_str(),
               formatBytes(pager.budgetBytes()).c_str());
-  std::printf("wrote %s: frame_NNNN.png, frames.csv, error.png\n", folder.c_str());
+  std::printf("wrote %s: frame_NNNN.png, frames.csv, error.png, %s\n", folder.c_str(), how.c_str());
 }
 
-void renderStreaming(const RenderArgs& args) {
+void renderStreaming(const RenderArgs& args, std::size_t budget, const std::string& how) {
   keepFreedMemoryForReuse();
   RenderOptions options = args.options;
   options.cast.contours = !args.noContours;
   if (args.pathFile.empty()) {
-    const std::string ext = std::filesystem::path(args.out).extension().string();
-    if (ext != ".png" && ext != ".exr") throw UsageError(args.out + ": output must end in .png or .exr");
-    checkWritableOutput(args.out);
-    renderConverged(args, options);
+    renderConverged(args, options, budget, how);
   } else {
-    renderPath(args, options);
+    renderPath(args, options, budget, how);
   }
+}
+
+// The whole octree as one block, one frame.
+void renderWhole(const RenderArgs& args, const Octree& octree) {
+  const Camera camera = cameraOf(args, octree.transform);
+  RenderOptions options = args.options;
+  options.cast.contours = !args.noContours && octree.parameters.contours;
+  const Frame frame = render(octree, camera, options);
+  writeFrame(args.out, frame, args.aux);
+  std::printf("wrote %s (%dx%d), read whole as one block of %s: %.3f s, %.2f Mrays/s, %.1f iterations/ray\n",
+              args.out.c_str(), frame.width, frame.height, formatBytes(octree.block.bytes().size()).c_str(),
+              frame.seconds, frame.mraysPerSecond(), frame.meanIterations);
+}
+
+void checkImageOutput(const RenderArgs& args) {
+  const std::filesystem::path out = args.out;
+  const std::string ext = out.extension().string();
+  if (ext != ".png" && ext != ".exr") throw UsageError(args.out + ": output must end in .png or .exr");
+  if (args.aux && ext != ".exr") throw UsageError("--aux needs an .exr output (PNG has no float channels)");
+  checkWritableOutput(out);
+}
+
+// Without --budget: the store whole when it fits one block and the machine's memory, else streamed through
+// a pool of a share of the machine's memory (never more than the whole store takes).
+void renderDefault(const RenderArgs& args) {
+  const std::uint64_t share = defaultMemoryShare(machineMemory());
+  std::size_t storeBudget = 0;
+  std::string why;
+  {
+    const StoreReader store(args.in);
+    const StoreFootprint footprint = footprintOf(store.slices());
+    storeBudget = wholeStoreBudget(store.slices());
+    if (!footprint.mayFitOneBlock()) {
+      why = "the octree is too large for one block";
+    } else if (footprint.wholeLoadBytes() > share) {
+      why = "reading it whole would take about " + formatBytes(footprint.wholeLoadBytes()) + ", more than " +
+            formatBytes(share) + " (the default share of memory)";
+    }
+  }
+  if (why.empty() && args.pathFile.empty()) {
+    try {
+      return renderWhole(args, readOctree(args.in));
+    } catch (const BlockTooLarge&) {
+      why = "the octree is too large for one block";
+    }
+  }
+  if (why.empty()) why = "a camera path streams";
+  const std::size_t budget = std::size_t(std::min<std::uint64_t>({share, storeBudget, kMaxBudgetBytes}));
+  renderStreaming(args, budget,
+                  "streamed through a " + formatBytes(budget) + " block pool (default: " + why +
+                      "; --budget sets the pool)");
 }
 
 }  // namespace
@@ -208,43 +263,35 @@ void addRenderCommand(CLI::App& app) {
   cmd->add_option(
          "--budget", args->budget,
          "stream the store through a block pool of this many bytes (64M, 1G): frames render from what "
-         "is resident")
+         "is resident (default: the store is read whole when it fits one block and half the available "
+         "memory, else streamed through a pool of that half)")
       ->transform(CLI::AsSizeValue(false));
   cmd->add_option("--path", args->pathFile,
-                  "with --budget: a camera path (JSON array of cameras); -o is then a folder for the frames, "
+                  "stream along a camera path (JSON array of cameras); -o is then a folder for the frames, "
                   "frames.csv and error.png");
   cmd->add_option("--reference-budget", args->referenceBudget,
                   "with --path: pool for the converged reference frames")
       ->transform(CLI::AsSizeValue(false))
       ->capture_default_str();
-  cmd->add_option("--io-threads", args->ioThreads, "with --budget: slice read and decode threads")
+  cmd->add_option("--io-threads", args->ioThreads, "when streaming: slice read and decode threads")
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
   cmd->add_option("--worker-nice", args->workerNice,
-                  "with --budget: nice value of those threads; higher gives frames more of the CPU, lower "
+                  "when streaming: nice value of those threads; higher gives frames more of the CPU, lower "
                   "streams faster while the camera moves")
       ->check(CLI::Range(0, 19))
       ->capture_default_str();
-  cmd->add_option("--timeout", args->timeout, "with --budget: seconds a view may take to converge")
+  cmd->add_option("--workers-during-frames", args->workersDuringFrames,
+                  "when streaming: workers that go on while a frame renders (the others wait for it to end)")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
+  cmd->add_option("--timeout", args->timeout, "when streaming: seconds a view may take to converge")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
   cmd->callback([args] {
-    if (args->budget > 0) return renderStreaming(*args);
-    if (!args->pathFile.empty()) throw UsageError("--path needs --budget (it streams the store)");
-    const std::filesystem::path out = args->out;
-    const std::string ext = out.extension().string();
-    if (ext != ".png" && ext != ".exr") throw UsageError(args->out + ": output must end in .png or .exr");
-    if (args->aux && ext != ".exr")
-      throw UsageError("--aux needs an .exr output (PNG has no float channels)");
-    checkWritableOutput(out);
-    const Octree octree = readOctree(args->in);
-    const Camera camera = cameraOf(*args, octree.transform);
-    RenderOptions options = args->options;
-    options.cast.contours = !args->noContours && octree.parameters.contours;
-    const Frame frame = render(octree, camera, options);
-    writeFrame(out, frame, args->aux);
-    std::printf("wrote %s (%dx%d): %.3f s, %.2f Mrays/s, %.1f iterations/ray\n", args->out.c_str(),
-                frame.width, frame.height, frame.seconds, frame.mraysPerSecond(), frame.meanIterations);
+    if (args->pathFile.empty()) checkImageOutput(*args);
+    if (args->budget == 0) return renderDefault(*args);
+    renderStreaming(*args, args->budget, "streamed through a " + formatBytes(args->budget) + " block pool");
   });
 }
 

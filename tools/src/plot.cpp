@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <stdexcept>
 
@@ -63,10 +64,58 @@ struct Label {
   std::string text;
 };
 
+// Ticks a linear axis aims for: a step of 1, 2 or 5 times a power of ten giving at least this many.
+constexpr int kLinearTicks = 5;
+
+// One axis of a panel: its range, its ticks and where a value lies in [0, 1].
+struct Axis {
+  Scale scale;
+  double lo = 1e300, hi = -1e300;  // of the values, then widened to whole ticks
+  double step = 1.0;
+  bool plottable(double v) const { return std::isfinite(v) && (scale == Scale::Linear || v > 0); }
+  double coordinate(double v) const { return scale == Scale::Log ? std::log10(v) : v; }
+  void add(double v) { lo = std::min(lo, coordinate(v)), hi = std::max(hi, coordinate(v)); }
+  bool empty() const { return lo > hi; }
+  // Decades for a log axis; for a linear one from 0 (or below, for negative values) in round steps.
+  void widen() {
+    if (scale == Scale::Log) {
+      lo = std::floor(lo), hi = std::max(std::ceil(hi), lo + 1);
+      return;
+    }
+    lo = std::min(lo, 0.0);
+    const double span = std::max(hi - lo, 1e-300);
+    const double magnitude = std::pow(10.0, std::floor(std::log10(span / kLinearTicks)));
+    step = magnitude;
+    for (const double m : {2.0, 5.0, 10.0})
+      if (span / step > 2 * kLinearTicks) step = m * magnitude;
+    lo = std::floor(lo / step) * step, hi = std::max(std::ceil(hi / step) * step, lo + step);
+  }
+  double unit(double v) const { return (coordinate(v) - lo) / (hi - lo); }
+  std::vector<double> ticks() const {
+    std::vector<double> out;
+    for (double t = lo; t <= hi + step * 1e-9; t += step)
+      out.push_back(scale == Scale::Log ? std::pow(10.0, t) : t);
+    return out;
+  }
+  std::string label(double tick) const {
+    char text[32];
+    if (scale == Scale::Log)
+      std::snprintf(text, sizeof text, "1e%d", int(std::lround(std::log10(tick))));
+    else
+      std::snprintf(text, sizeof text, "%g", tick);
+    return text;
+  }
+};
+
 }  // namespace
 
 void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>& panels,
                      const std::string& xLabel, const std::string& yLabel, int width, int height) {
+  writePlot(path, panels, xLabel, yLabel, Scale::Log, Scale::Log, width, height);
+}
+
+void writePlot(const std::filesystem::path& path, const std::vector<Panel>& panels, const std::string& xLabel,
+               const std::string& yLabel, Scale xScale, Scale yScale, int width, int height) {
   if (panels.empty()) throw std::runtime_error("plot " + path.string() + ": nothing to plot");
   Canvas canvas(width, height);
   std::vector<Label> labels;
@@ -93,31 +142,24 @@ void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>
     const int ox = int(k % cols) * pw, oy = int(k / cols) * ph;
     const int x0 = ox + kMarginLeft, x1 = ox + pw - kMarginRight, y0 = oy + kMarginTop,
               y1 = oy + ph - kMarginBottom;
-    double lx0 = 1e300, lx1 = -1e300, ly0 = 1e300, ly1 = -1e300;
+    Axis ax{xScale}, ay{yScale};
+    const auto plottable = [&](double x, double y) { return ax.plottable(x) && ay.plottable(y); };
     for (const Series& s : panel.series)
       for (auto [x, y] : s.points)
-        if (x > 0 && y > 0 && std::isfinite(x) && std::isfinite(y)) {
-          lx0 = std::min(lx0, std::log10(x)), lx1 = std::max(lx1, std::log10(x));
-          ly0 = std::min(ly0, std::log10(y)), ly1 = std::max(ly1, std::log10(y));
-        }
-    if (lx0 > lx1) continue;
-    lx0 = std::floor(lx0), lx1 = std::max(std::ceil(lx1), lx0 + 1);
-    ly0 = std::floor(ly0), ly1 = std::max(std::ceil(ly1), ly0 + 1);
-    const auto px = [&](double x) {
-      return x0 + int(std::lround((std::log10(x) - lx0) / (lx1 - lx0) * (x1 - x0)));
-    };
-    const auto py = [&](double y) {
-      return y1 - int(std::lround((std::log10(y) - ly0) / (ly1 - ly0) * (y1 - y0)));
-    };
-    for (double d = lx0; d <= lx1 + 1e-9; d += 1) {
-      const int x = px(std::pow(10.0, d));
+        if (plottable(x, y)) ax.add(x), ay.add(y);
+    if (ax.empty()) continue;
+    ax.widen(), ay.widen();
+    const auto px = [&](double x) { return x0 + int(std::lround(ax.unit(x) * (x1 - x0))); };
+    const auto py = [&](double y) { return y1 - int(std::lround(ay.unit(y) * (y1 - y0))); };
+    for (const double t : ax.ticks()) {
+      const int x = px(t);
       canvas.line(x, y0, x, y1, grid);
-      labels.push_back({x - 12, y1 + 20, "1e" + std::to_string(int(d))});
+      labels.push_back({x - 12, y1 + 20, ax.label(t)});
     }
-    for (double d = ly0; d <= ly1 + 1e-9; d += 1) {
-      const int y = py(std::pow(10.0, d));
+    for (const double t : ay.ticks()) {
+      const int y = py(t);
       canvas.line(x0, y, x1, y, grid);
-      labels.push_back({ox + 8, y + 5, "1e" + std::to_string(int(d))});
+      labels.push_back({ox + 8, y + 5, ay.label(t)});
     }
     canvas.line(x0, y1, x1, y1, black);
     canvas.line(x0, y0, x0, y1, black);
@@ -128,7 +170,7 @@ void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>
       bool first = true;
       int lastX = 0, lastY = 0;
       for (auto [x, y] : s.points) {
-        if (!(x > 0 && y > 0 && std::isfinite(x) && std::isfinite(y))) continue;
+        if (!plottable(x, y)) continue;
         const int cx = px(x), cy = py(y);
         if (!first) canvas.line(lastX, lastY, cx, cy, c, 2);
         canvas.square(cx, cy, 3, c);

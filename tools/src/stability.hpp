@@ -1,4 +1,4 @@
-// Stiff and extreme cases (issue: numerical stability): generated scenes with the rays that stress them, and
+// Stiff and extreme cases: generated scenes with the rays that stress them, and
 // the checks `svo bench stability` prints and tests/unit/test_stability.cpp asserts. Every check compares
 // against the double-precision brute-force triangle reference (svo::accel::buildBruteForce):
 //  - the ESVO ray caster gives no NaN or infinity and stays under its iteration cap;
@@ -49,7 +49,7 @@ struct StabilityBounds {
   // of [1, 2]) plus this fraction of t.
   double seeThroughOctree = 1.0 / double(1 << 19);
   double seeThroughRelative = 1e-5;
-  // Acceleration structures against brute force (issue 3's tolerance).
+  // Acceleration structures against brute force (the tolerance of the accel tests).
   double accelRelative = 1e-6;
 };
 

@@ -98,6 +98,9 @@ struct OutOfCoreOptions {
   // Peak resident bytes to stay within: picks the shallowest cell level whose fullest cell (estimated from
   // the surface area in it) fits next to the mesh. Not needed when cellLevel is given.
   std::size_t memoryBytes = 0;
+  std::string memoryOrigin = "--memory";  // what set memoryBytes, for the messages of a bound too small
+  // What the process holds besides the build (the program and its libraries), counted against memoryBytes.
+  std::size_t processBytes = 0;
   int cellLevel = 0;  // in [1, levels - 1]; 0: chosen from memoryBytes
   int threads = 1;    // cells built at once (each holds its own subtree)
   // Keep the cells an interrupted run of the same build spilled (same input and options), build the rest.
@@ -119,6 +122,11 @@ struct OutOfCoreReport {
 OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& options,
                            const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
                            const std::filesystem::path& store);
+
+// Peak bytes the in-core build (voxelize, then writeStore) of these triangles adds to the process, from their
+// surface area (voxels cross it at about two per finest voxel face, as the out-of-core build's cell estimate
+// has it) and their count. One pass over the source.
+std::uint64_t estimateInCoreBuildBytes(const TriangleSource& source, const BuildOptions& options);
 
 // voxelize + layoutBlock: the whole in-core build.
 Octree buildOctree(const Mesh& mesh, const BuildOptions& options, BuildStats* stats = nullptr);

@@ -96,6 +96,8 @@ class TriangleSource {
   // XXH3-64 of the content: an interrupted build resumes only on the same input.
   virtual std::uint64_t fingerprint() const = 0;
   virtual std::size_t residentBytes() const = 0;  // what the source holds in memory
+  // The whole mesh when the source holds it in memory (formats read whole), else null.
+  virtual const Mesh* wholeMesh() const { return nullptr; }
   // Calls `batch` with consecutive triangles, first to last.
   virtual void read(const std::function<void(std::span<const SourceTriangle>)>& batch) const = 0;
 };

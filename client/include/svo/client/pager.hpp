@@ -40,27 +40,33 @@
 
 namespace svo {
 
+// The largest pool: a link's slot offset is an int32, so the arena may span at most 2^31 slots.
+inline constexpr std::size_t kMaxBudgetBytes = std::size_t(1) << 34;
+
 struct PagerOptions {
   std::size_t budgetBytes = std::size_t(256) << 20;  // the pool: a hard limit
   int ioThreads = 2;                                 // read + decode + layout workers
   int maxInFlight = 8;  // requests queued or being worked on at once (raised to ioThreads if below)
   // Wall time update() may spend committing finished blocks (memcpy + pointer patches); the rest wait for
-  // the next frame. Keeps streaming frames close to resident ones (issue 5: p99 <= 1.5x).
+  // the next frame. Keeps streaming frames close to resident ones (goal: p99 within 1.5x of theirs).
   double commitMillis = 2.0;
-  // Nice value of the workers (0-19): frames come first. Where frames keep every core busy (a moving camera
-  // rendered back to back), the workers' CPU share trades detail arriving against frame time. On 2 cores,
-  // the 20M terrain store's orbit (svo bench stream): streaming p99 1.27-1.49x the resident p99 at nice 19,
-  // 1.61-1.77x at nice 0, with about half the slices loaded during the orbit. A still view loses nothing: its
-  // loop renders 10 frames/s and leaves the cores to the workers between them.
-  int workerNice = 19;
+  // Nice value of the workers (0-19). At 0 a still view converges at the speed of the cores the workers get
+  // whatever else runs on the machine (at 19, two busy programs on 2 cores leave them almost none); frames
+  // keep their cores through workersDuringFrames instead.
+  int workerNice = 0;
+  // Workers that go on while a frame renders (Pager::FrameScope); the others pause at their next stage until
+  // the frame ends. A moving camera's frames keep most of the cores, and a still view, rendered a few times
+  // a second, leaves the workers the time between frames.
+  int workersDuringFrames = 1;
 };
 
 // What one update() did. Counts are slices.
 struct PagerStats {
   std::uint32_t loaded = 0, evicted = 0, requested = 0, cancelled = 0, failed = 0;
-  std::uint32_t denied = 0;    // read and laid out, then dropped: no room at their priority
-  std::uint32_t wanted = 0;    // slices the view wants that are not resident
-  std::uint32_t inFlight = 0;  // queued or being worked on after the update
+  std::uint32_t denied = 0;          // read and laid out, then dropped: no room at their priority
+  std::uint32_t wanted = 0;          // slices the view wants that are not resident
+  std::uint64_t wantedRawBytes = 0;  // decoded bytes of every slice the view wants, resident or not
+  std::uint32_t inFlight = 0;        // queued or being worked on after the update
   std::size_t residentBytes = 0;
 };
 
@@ -99,6 +105,18 @@ class Pager {
   // grid of every kFeedbackStride-th pixel, raise the priority of the slice that refines that voxel (in every
   // update until the next frame's feedback).
   void feedback(const Frame& frame, const Camera& camera, double lodPixels);
+  // Marks a frame rendering from the pool, from construction to destruction: workers beyond
+  // PagerOptions::workersDuringFrames pause at their next stage meanwhile.
+  class FrameScope {
+   public:
+    explicit FrameScope(Pager& pager);
+    ~FrameScope();
+    FrameScope(const FrameScope&) = delete;
+    FrameScope& operator=(const FrameScope&) = delete;
+
+   private:
+    Pager& pager_;
+  };
   // Blocks until a worker finishes something or `seconds` pass (loops that converge a view; never a frame).
   void waitForWork(double seconds);
   // Nothing the last view wanted is missing (or everything missing failed or does not fit) and no request
@@ -114,6 +132,8 @@ class Pager {
   WorkerCpu workerCpu() const;
   std::size_t budgetBytes() const { return pool_.capacityBytes(); }
   std::vector<std::uint32_t> residentSlices() const;
+  // The slices the last update's view wanted, resident or not, in directory order.
+  std::vector<std::uint32_t> wantedSlices() const;
   std::vector<std::uint32_t> failedSlices() const;
   // Messages of slices that failed (checksum, decode) since the last call; each slice fails once and is never
   // requested again.
@@ -161,8 +181,11 @@ class Pager {
     std::string error;
   };
 
-  void work(std::stop_token stop);
-  Prepared prepare(const Request& request);
+  void work(int worker, std::stop_token stop);
+  // `worker` < 0: the caller's own thread, never paused.
+  Prepared prepare(const Request& request, int worker = -1);
+  // Pauses worker `worker` while a frame renders, unless it is one of those allowed to go on.
+  void waitForFrameEnd(int worker);
   bool commit(Prepared& prepared, PagerStats& stats);
   void evict(std::uint32_t region, PagerStats& stats);
   void link(std::uint32_t region);
@@ -214,6 +237,10 @@ class Pager {
   std::vector<std::uint8_t> inFlight_;
   std::vector<Prepared> done_;
   std::uint32_t working_ = 0;
+  std::mutex frameMutex_;
+  std::condition_variable frameEnded_;
+  bool frameRendering_ = false;
+  bool stopping_ = false;  // under frameMutex_: paused workers leave
   std::vector<std::jthread> workers_;
 };
 

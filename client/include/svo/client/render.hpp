@@ -41,6 +41,10 @@ struct Camera {
   // A camera looking at the whole scene cube from the given direction.
   static Camera framing(const SceneTransform& scene, glm::dvec3 viewDirection, int width, int height);
 };
+// The direction the commands look at a whole scene from when given no camera: from the front, slightly
+// above and to the right, so that no face of the scene cube is seen edge-on.
+inline const glm::dvec3 kDefaultViewDirection{-0.35, -0.25, -1.0};
+
 // Camera from a JSON file: {"eye":[x,y,z], "target":[..], "up":[..], "fov":deg, "width":w, "height":h}.
 Camera loadCamera(const std::filesystem::path& path);
 // A camera path: a JSON array of such objects, one per frame.

@@ -17,6 +17,7 @@
 #include <memory>
 #include <optional>
 #include <span>
+#include <stdexcept>
 #include <vector>
 
 #include "svo/store/format.hpp"
@@ -175,8 +176,14 @@ class Block {
   BlockView view_;
 };
 
+// A tree that does not fit one block: a block's relative pointers reach 2^24 words (sec. 5.1). A block pool
+// holds such a tree as many blocks (the paging client).
+struct BlockTooLarge : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
 // Lays a voxel tree out as one block (depth-first child runs, far pointers where a run is out of reach).
-// `descriptorSlot`, when given, receives each voxel's descriptor slot (0 for leaves).
+// `descriptorSlot`, when given, receives each voxel's descriptor slot (0 for leaves). Throws BlockTooLarge.
 Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, LayoutStats* stats = nullptr,
                   std::vector<std::uint32_t>* descriptorSlot = nullptr);
 

@@ -1,5 +1,5 @@
 // The view query of DESIGN.md's store: which slices a view needs, in what order. Shared by the local pager
-// and the server (issue 5) so both schedule alike. A slice of voxel level L in cube C is wanted when the
+// and the server so both schedule alike. A slice of voxel level L in cube C is wanted when the
 // voxels of level L - 1 in C would look larger than the target (--lod-pixels) from the eye: the view needs
 // the finer level there. Its priority is the released code's 2^scale / (distance to the cube + half its
 // size), in pixels: how large its parent voxels look; slices outside the view frustum are discounted. A slice

@@ -1,23 +1,22 @@
-// Streaming helpers shared by `svo render --budget`, `svo stress` and `svo bench stream`: one streamed frame
-// (pager update, render of what is resident, ray feedback), convergence loops, and a frame's error against
-// the converged frame of the same camera.
+// The streaming loop every client of the pager runs: one streamed frame (pager update, render of what is
+// resident, ray feedback), a still view converged frame by frame, and the allocator policy of a streaming
+// process.
 #pragma once
 
-#include <cstddef>
+#include <cstdint>
 #include <functional>
-#include <string>
 #include <vector>
 
 #include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
 
-namespace svo::tools {
+namespace svo {
 
 // The allocator policy of a streaming process, set once before its first pager: freed memory is kept for
-// reuse. The pager's workers allocate and free a region's voxel arrays and its new block for every load, and
-// glibc handed freed memory back to the OS (and mapped every allocation over 128 KB afresh), so each load
-// paid a page fault per 4 KB it had just freed. The process keeps at most its peak transient use; the pool
-// and its budget are unaffected. glibc only (a no-op elsewhere).
+// reuse. The pager's workers allocate and free a region's voxel arrays and its new block for every load;
+// glibc's defaults hand freed memory back to the OS and map every allocation over 128 KB afresh, so each
+// load would pay a page fault per 4 KB it had just freed. The process keeps at most its peak transient use;
+// the pool and its budget are unaffected. glibc only (a no-op elsewhere).
 void keepFreedMemoryForReuse();
 
 struct StreamedFrame {
@@ -49,25 +48,9 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
                          double timeoutSeconds, StreamedFrame* last = nullptr,
                          const std::function<void(double, StreamedFrame&)>& each = nullptr);
 
-// A close-up of the surface the centre pixel of a framing view of `root` sees, from `distance` times the
-// scene size away (a few percent: a view that needs the finest levels).
-Camera closeUp(const BlockView& root, const SceneTransform& scene, int size, double distance);
+// Loads every slice of the store that fits the pager's budget, wanted by no camera in particular: for
+// measurements that compare all depths of a store beyond one block. Returns whether all of them are
+// resident.
+bool loadEverything(Pager& pager, double timeoutSeconds);
 
-// Error of a frame against the converged frame of the same camera: RMSE of linear RGB over all pixels and the
-// share of pixels that one hits and the other misses.
-struct FrameError {
-  double rmse = 0.0;
-  double silhouettePercent = 0.0;
-};
-FrameError frameError(const Frame& frame, const Frame& converged);
-
-// Drops the file's pages from the page cache (posix_fadvise), so the next reads come from the disk.
-void dropFileCache(const std::filesystem::path& path);
-
-// The q-quantile (0..1) of the samples, nearest rank; NaN for none.
-double percentile(std::vector<double> samples, double q);
-
-// "64M" style sizes in messages.
-std::string formatBytes(std::size_t bytes);
-
-}  // namespace svo::tools
+}  // namespace svo
