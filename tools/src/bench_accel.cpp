@@ -22,8 +22,8 @@
 #include "bench_common.hpp"
 #include "bench_embree.hpp"
 #include "plot.hpp"
-#include "svo/builder/accel/accel.hpp"
-#include "svo/builder/accel/scenes.hpp"
+#include "svo/accel/accel.hpp"
+#include "svo/accel/scenes.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo::tools::bench {

@@ -31,7 +31,7 @@
 #include "bench_common.hpp"
 #include "measure.hpp"
 #include "plot.hpp"
-#include "svo/builder/accel/accel.hpp"
+#include "svo/accel/accel.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"

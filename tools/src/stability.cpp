@@ -11,7 +11,7 @@
 #include <fmt/format.h>
 #include <glm/geometric.hpp>
 
-#include "svo/builder/accel/accel.hpp"
+#include "svo/accel/accel.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/client/raycast.hpp"
 #include "svo/client/render.hpp"
