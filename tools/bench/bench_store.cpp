@@ -9,11 +9,9 @@
 //   - given a mesh: the in-core build (buildOctree + writeOctree) on 1 and 2 threads, triangles/s, voxels/s
 //     and peak RSS, against OpenVDB meshToLevelSet at the same resolution (bench_build.cpp's peer).
 #include <fcntl.h>
-#include <spawn.h>
 #include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -37,12 +35,11 @@
 
 #include "bench_common.hpp"
 #include "machine.hpp"
+#include "process.hpp"
 #include "store_stats.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/store/container.hpp"
 #include "svo/store/format.hpp"
-
-extern char** environ;
 
 namespace svo::tools::bench {
 
@@ -188,34 +185,10 @@ struct DdResult {
   double seconds = 0.0;
 };
 std::optional<DdResult> runDd(const std::filesystem::path& file) {
-  int pipeFds[2];
-  if (::pipe(pipeFds) != 0) return std::nullopt;
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_adddup2(&actions, pipeFds[1], 1);
-  posix_spawn_file_actions_adddup2(&actions, pipeFds[1], 2);
-  posix_spawn_file_actions_addclose(&actions, pipeFds[0]);
-  const std::string in = "if=" + file.string();
-  const char* argv[] = {"dd", in.c_str(), "of=/dev/null", "bs=1M", nullptr};
-  std::vector<std::string> env = {"LC_ALL=C"};
-  for (char** e = environ; *e; ++e)
-    if (std::strncmp(*e, "LC_", 3) != 0 && std::strncmp(*e, "LANG", 4) != 0) env.emplace_back(*e);
-  std::vector<char*> envp;
-  for (std::string& e : env) envp.push_back(e.data());
-  envp.push_back(nullptr);
-  pid_t pid = 0;
-  const int spawned =
-      ::posix_spawnp(&pid, "dd", &actions, nullptr, const_cast<char* const*>(argv), envp.data());
-  posix_spawn_file_actions_destroy(&actions);
-  ::close(pipeFds[1]);
-  std::string output;
-  char buffer[4096];
-  for (ssize_t n; spawned == 0 && (n = ::read(pipeFds[0], buffer, sizeof buffer)) > 0;)
-    output.append(buffer, std::size_t(n));
-  ::close(pipeFds[0]);
-  int status = 0;
-  if (spawned != 0 || ::waitpid(pid, &status, 0) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0)
-    return std::nullopt;
+  const std::optional<ProcessResult> dd =
+      runProcess({"dd", "if=" + file.string(), "of=/dev/null", "bs=1M"}, {.cLocale = true});
+  if (!dd || !dd->succeeded()) return std::nullopt;
+  const std::string& output = dd->output;
   const std::size_t line = output.rfind(" bytes");
   const std::size_t copied = output.find("copied, ", line == std::string::npos ? 0 : line);
   if (line == std::string::npos || copied == std::string::npos) return std::nullopt;

@@ -1,111 +1,149 @@
 #include "plot.hpp"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
-#include <cstdio>
+#include <fstream>
 #include <map>
+#include <optional>
 #include <stdexcept>
 
-#include <OpenImageIO/imagebuf.h>
-#include <OpenImageIO/imagebufalgo.h>
+#include <fmt/format.h>
+
+#include "process.hpp"
 
 namespace svo::tools::plot {
-
 namespace {
 
-// Distinct colors for up to 10 series (Tableau 10), then they repeat.
-constexpr std::array<std::array<float, 3>, 10> kPalette = {{{0.12f, 0.47f, 0.71f},
-                                                            {1.00f, 0.50f, 0.05f},
-                                                            {0.17f, 0.63f, 0.17f},
-                                                            {0.84f, 0.15f, 0.16f},
-                                                            {0.58f, 0.40f, 0.74f},
-                                                            {0.55f, 0.34f, 0.29f},
-                                                            {0.89f, 0.47f, 0.76f},
-                                                            {0.50f, 0.50f, 0.50f},
-                                                            {0.74f, 0.74f, 0.13f},
-                                                            {0.09f, 0.75f, 0.81f}}};
-// Panel margins in pixels: room for tick labels and titles.
-constexpr int kMarginLeft = 70, kMarginRight = 20, kMarginTop = 40, kMarginBottom = 50;
-// Legend rows (wrapped to the image width) and the line under them naming the y axis.
-constexpr int kLegendRowHeight = 25, kLegendFooterHeight = 35;
-constexpr int kFontSize = 16;
+// Line colors by series name, in order of first appearance (Tableau 10), then they repeat.
+constexpr const char* kPalette[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
+                                    "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"};
+// Text size in points at the default 1400 x 1000 pixels; DejaVu Sans is what fontconfig gives for "Sans".
+constexpr int kFontPoints = 11;
+// Line width and point size, in gnuplot's units: two-pixel antialiased lines under small round points.
+constexpr double kLineWidth = 2.0, kPointSize = 0.6;
+// The Debian package that has gnuplot with the pngcairo terminal.
+constexpr const char* kGnuplotPackage = "gnuplot-nox";
 
-struct Canvas {
-  int w, h;
-  std::vector<float> rgb;
-  Canvas(int width, int height) : w(width), h(height), rgb(std::size_t(width) * height * 3, 1.0f) {}
-  void set(int x, int y, const std::array<float, 3>& c) {
-    if (x < 0 || y < 0 || x >= w || y >= h) return;
-    float* p = &rgb[(std::size_t(y) * w + x) * 3];
-    p[0] = c[0], p[1] = c[1], p[2] = c[2];
-  }
-  // Bresenham, `thick` pixels wide.
-  void line(int x0, int y0, int x1, int y1, const std::array<float, 3>& c, int thick = 1) {
-    const int dx = std::abs(x1 - x0), dy = -std::abs(y1 - y0), sx = x0 < x1 ? 1 : -1, sy = y0 < y1 ? 1 : -1;
-    int err = dx + dy;
-    for (;;) {
-      for (int i = -(thick / 2); i <= thick / 2; ++i)
-        for (int j = -(thick / 2); j <= thick / 2; ++j) set(x0 + i, y0 + j, c);
-      if (x0 == x1 && y0 == y1) break;
-      const int e2 = 2 * err;
-      if (e2 >= dy) err += dy, x0 += sx;
-      if (e2 <= dx) err += dx, y0 += sy;
+// A gnuplot string literal: single quotes take everything literally but a doubled quote.
+std::string quoted(const std::string& text) {
+  std::string out = "'";
+  for (const char c : text) out += c == '\'' ? std::string("''") : std::string(1, c);
+  return out + "'";
+}
+
+// An RFC 4180 CSV field, quoted when it holds a comma, a quote or a line break (gnuplot reads it so).
+std::string csvField(const std::string& text) {
+  if (text.find_first_of(",\"\n") == std::string::npos) return text;
+  std::string out = "\"";
+  for (const char c : text) out += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return out + "\"";
+}
+
+bool plottable(double v, Scale scale) {
+  return std::isfinite(v) && (scale == Scale::Linear || v > 0.0);
+}
+
+// The CSV rows of one series: the first and last data row (0-based, header not counted), for `every`.
+struct Rows {
+  std::size_t first = 0, last = 0;
+};
+
+// One axis's settings: log10 with decade ticks, or linear from 0 (or from the smallest value when below).
+std::string axisCommands(const char* axis, Scale scale, double smallest) {
+  if (scale == Scale::Log)
+    return fmt::format("set logscale {0} 10\nset format {0} '10^{{%L}}'\nset m{0}tics 10\n", axis);
+  return fmt::format("unset logscale {0}\nset format {0} '%g'\nset {0}range [{1}:*]\nset m{0}tics\n", axis,
+                     std::min(0.0, smallest));
+}
+
+// The range an empty panel shows: one decade of a log axis, [0, 1] of a linear one.
+const char* emptyRange(Scale scale) {
+  return scale == Scale::Log ? "[1:10]" : "[0:1]";
+}
+
+// Panels in a grid of columns x rows, as near to square as the count allows.
+struct Layout {
+  int columns = 1, rows = 1;
+};
+Layout gridFor(std::size_t panels) {
+  const int columns = int(std::ceil(std::sqrt(double(panels))));
+  return {columns, int((panels + std::size_t(columns) - 1) / std::size_t(columns))};
+}
+
+// Writes the CSV and returns, per panel and series, its rows (or none when nothing of it is plottable).
+std::vector<std::vector<std::optional<Rows>>> writeData(const std::filesystem::path& csvPath,
+                                                        const std::vector<Panel>& panels, Scale xScale,
+                                                        Scale yScale) {
+  std::ofstream csv(csvPath);
+  csv << "panel,series,x,y\n";
+  std::vector<std::vector<std::optional<Rows>>> rows(panels.size());
+  std::size_t row = 0;
+  for (std::size_t p = 0; p < panels.size(); ++p)
+    for (const Series& s : panels[p].series) {
+      const std::size_t first = row;
+      for (const auto& [x, y] : s.points) {
+        if (!plottable(x, xScale) || !plottable(y, yScale)) continue;
+        csv << csvField(panels[p].title) << ',' << csvField(s.name) << ',' << fmt::format("{},{}", x, y)
+            << '\n';
+        ++row;
+      }
+      rows[p].push_back(row > first ? std::optional(Rows{first, row - 1}) : std::nullopt);
     }
-  }
-  void square(int x, int y, int r, const std::array<float, 3>& c) {
-    for (int i = -r; i <= r; ++i)
-      for (int j = -r; j <= r; ++j) set(x + i, y + j, c);
-  }
-};
+  csv.close();
+  if (!csv) throw std::runtime_error("plot " + csvPath.string() + ": cannot write");
+  return rows;
+}
 
-struct Label {
-  int x, y;
-  std::string text;
-};
-
-// Ticks a linear axis aims for: a step of 1, 2 or 5 times a power of ten giving at least this many.
-constexpr int kLinearTicks = 5;
-
-// One axis of a panel: its range, its ticks and where a value lies in [0, 1].
-struct Axis {
-  Scale scale;
-  double lo = 1e300, hi = -1e300;  // of the values, then widened to whole ticks
-  double step = 1.0;
-  bool plottable(double v) const { return std::isfinite(v) && (scale == Scale::Linear || v > 0); }
-  double coordinate(double v) const { return scale == Scale::Log ? std::log10(v) : v; }
-  void add(double v) { lo = std::min(lo, coordinate(v)), hi = std::max(hi, coordinate(v)); }
-  bool empty() const { return lo > hi; }
-  // Decades for a log axis; for a linear one from 0 (or below, for negative values) in round steps.
-  void widen() {
-    if (scale == Scale::Log) {
-      lo = std::floor(lo), hi = std::max(std::ceil(hi), lo + 1);
-      return;
+// The gnuplot script that draws `png` from `csv`: shared axis settings, then one plot per panel of a
+// multiplot grid, each series from its rows of the CSV.
+std::string script(const std::filesystem::path& png, const std::filesystem::path& csv,
+                   const std::vector<Panel>& panels,
+                   const std::vector<std::vector<std::optional<Rows>>>& rows, const std::string& xLabel,
+                   const std::string& yLabel, Scale xScale, Scale yScale, int width, int height) {
+  std::map<std::string, std::string> colors;
+  for (const Panel& p : panels)
+    for (const Series& s : p.series)
+      if (!colors.count(s.name)) colors[s.name] = kPalette[colors.size() % std::size(kPalette)];
+  double smallestX = 0.0, smallestY = 0.0;
+  for (const Panel& p : panels)
+    for (const Series& s : p.series)
+      for (const auto& [x, y] : s.points)
+        if (plottable(x, xScale) && plottable(y, yScale))
+          smallestX = std::min(smallestX, x), smallestY = std::min(smallestY, y);
+  const Layout grid = gridFor(panels.size());
+  std::string gp = fmt::format(
+      "# Draws {} from {} (columns panel, series, x, y); run in this folder: gnuplot {}\n"
+      "set terminal pngcairo size {},{} enhanced font 'Sans,{}'\nset output {}\n"
+      "set datafile separator comma\nset grid xtics ytics lc rgb '#dddddd'\nset key below noenhanced\n"
+      "set xlabel {} noenhanced\nset ylabel {} noenhanced\n{}{}set multiplot layout {},{}\n",
+      png.filename().string(), csv.filename().string(), png.stem().string() + ".gp", width, height,
+      kFontPoints, quoted(png.filename().string()), quoted(xLabel), quoted(yLabel),
+      axisCommands("x", xScale, smallestX), axisCommands("y", yScale, smallestY), grid.rows, grid.columns);
+  for (std::size_t p = 0; p < panels.size(); ++p) {
+    gp += fmt::format("set title {} noenhanced\n", quoted(panels[p].title));
+    std::vector<std::string> plots;
+    for (std::size_t s = 0; s < panels[p].series.size(); ++s) {
+      const std::optional<Rows>& r = rows[p][s];
+      if (!r) continue;
+      const Series& series = panels[p].series[s];
+      plots.push_back(fmt::format(
+          "{} skip 1 every ::{}::{} using 3:4 with linespoints lw {} pt 7 ps {} lc rgb '{}' title {}",
+          quoted(csv.filename().string()), r->first, r->last, kLineWidth, kPointSize, colors[series.name],
+          quoted(series.name)));
     }
-    lo = std::min(lo, 0.0);
-    const double span = std::max(hi - lo, 1e-300);
-    const double magnitude = std::pow(10.0, std::floor(std::log10(span / kLinearTicks)));
-    step = magnitude;
-    for (const double m : {2.0, 5.0, 10.0})
-      if (span / step > 2 * kLinearTicks) step = m * magnitude;
-    lo = std::floor(lo / step) * step, hi = std::max(std::ceil(hi / step) * step, lo + step);
+    // A panel with nothing to draw keeps its place in the grid, with its title and axes and a line saying so.
+    if (plots.empty()) {
+      gp += fmt::format("set label 1 {} at graph 0.5,0.5 center\nplot {} {} NaN notitle\nunset label 1\n",
+                        quoted("nothing to draw (no finite value, or none above 0 on a log axis)"),
+                        emptyRange(xScale), emptyRange(yScale));
+      continue;
+    }
+    gp += "plot ";
+    for (std::size_t k = 0; k < plots.size(); ++k) gp += (k ? ", \\\n     " : "") + plots[k];
+    gp += "\n";
   }
-  double unit(double v) const { return (coordinate(v) - lo) / (hi - lo); }
-  std::vector<double> ticks() const {
-    std::vector<double> out;
-    for (double t = lo; t <= hi + step * 1e-9; t += step)
-      out.push_back(scale == Scale::Log ? std::pow(10.0, t) : t);
-    return out;
-  }
-  std::string label(double tick) const {
-    char text[32];
-    if (scale == Scale::Log)
-      std::snprintf(text, sizeof text, "1e%d", int(std::lround(std::log10(tick))));
-    else
-      std::snprintf(text, sizeof text, "%g", tick);
-    return text;
-  }
-};
+  return gp + "unset multiplot\n";
+}
 
 }  // namespace
 
@@ -117,91 +155,29 @@ void writeLogLogPlot(const std::filesystem::path& path, const std::vector<Panel>
 void writePlot(const std::filesystem::path& path, const std::vector<Panel>& panels, const std::string& xLabel,
                const std::string& yLabel, Scale xScale, Scale yScale, int width, int height) {
   if (panels.empty()) throw std::runtime_error("plot " + path.string() + ": nothing to plot");
-  Canvas canvas(width, height);
-  std::vector<Label> labels;
-  std::map<std::string, std::array<float, 3>> colors;
-  for (const Panel& p : panels)
-    for (const Series& s : p.series)
-      if (!colors.count(s.name)) colors[s.name] = kPalette[colors.size() % kPalette.size()];
-  const int cols = int(std::ceil(std::sqrt(double(panels.size()))));
-  const int rows = int((panels.size() + cols - 1) / cols);
-  // Legend layout first, wrapped to the width: its rows take height from the panels.
-  std::vector<std::pair<int, int>> legendAt;  // per series name, in `colors` order: x and row
-  for (int lx = 20, row = 0; const auto& [name, c] : colors) {
-    const int entryWidth = 30 + 10 * int(name.size());
-    if (lx > 20 && lx + entryWidth > width) ++row, lx = 20;
-    legendAt.push_back({lx, row});
-    lx += entryWidth;
+  const std::filesystem::path folder = path.has_parent_path() ? path.parent_path() : ".";
+  std::filesystem::path csv = path, gp = path;
+  csv.replace_extension(".csv");
+  gp.replace_extension(".gp");
+  const auto rows = writeData(csv, panels, xScale, yScale);
+  {
+    std::ofstream out(gp);
+    out << script(path, csv, panels, rows, xLabel, yLabel, xScale, yScale, width, height);
+    if (!out.flush()) throw std::runtime_error("plot " + gp.string() + ": cannot write");
   }
-  const int legendRows = legendAt.empty() ? 1 : legendAt.back().second + 1;
-  const int legendHeight = legendRows * kLegendRowHeight + kLegendFooterHeight;
-  const int pw = width / cols, ph = (height - legendHeight) / rows;
-  const std::array<float, 3> black{0, 0, 0}, grid{0.85f, 0.85f, 0.85f};
-  for (std::size_t k = 0; k < panels.size(); ++k) {
-    const Panel& panel = panels[k];
-    const int ox = int(k % cols) * pw, oy = int(k / cols) * ph;
-    const int x0 = ox + kMarginLeft, x1 = ox + pw - kMarginRight, y0 = oy + kMarginTop,
-              y1 = oy + ph - kMarginBottom;
-    Axis ax{xScale}, ay{yScale};
-    const auto plottable = [&](double x, double y) { return ax.plottable(x) && ay.plottable(y); };
-    for (const Series& s : panel.series)
-      for (auto [x, y] : s.points)
-        if (plottable(x, y)) ax.add(x), ay.add(y);
-    if (ax.empty()) continue;
-    ax.widen(), ay.widen();
-    const auto px = [&](double x) { return x0 + int(std::lround(ax.unit(x) * (x1 - x0))); };
-    const auto py = [&](double y) { return y1 - int(std::lround(ay.unit(y) * (y1 - y0))); };
-    for (const double t : ax.ticks()) {
-      const int x = px(t);
-      canvas.line(x, y0, x, y1, grid);
-      labels.push_back({x - 12, y1 + 20, ax.label(t)});
-    }
-    for (const double t : ay.ticks()) {
-      const int y = py(t);
-      canvas.line(x0, y, x1, y, grid);
-      labels.push_back({ox + 8, y + 5, ay.label(t)});
-    }
-    canvas.line(x0, y1, x1, y1, black);
-    canvas.line(x0, y0, x0, y1, black);
-    labels.push_back({x0, oy + 25, panel.title});
-    labels.push_back({(x0 + x1) / 2 - 40, y1 + 40, xLabel});
-    for (const Series& s : panel.series) {
-      const auto& c = colors[s.name];
-      bool first = true;
-      int lastX = 0, lastY = 0;
-      for (auto [x, y] : s.points) {
-        if (!plottable(x, y)) continue;
-        const int cx = px(x), cy = py(y);
-        if (!first) canvas.line(lastX, lastY, cx, cy, c, 2);
-        canvas.square(cx, cy, 3, c);
-        first = false, lastX = cx, lastY = cy;
-      }
-    }
+  const std::optional<ProcessResult> gnuplot =
+      runProcess({"gnuplot", gp.filename().string()}, {.workingDirectory = folder});
+  if (!gnuplot)
+    throw std::runtime_error(fmt::format("plot {}: gnuplot not found (install the Debian package {})",
+                                         path.string(), kGnuplotPackage));
+  if (!gnuplot->succeeded()) {
+    std::error_code ignored;
+    std::filesystem::remove(path, ignored);
+    std::string message = gnuplot->output;
+    std::replace(message.begin(), message.end(), '\n', ' ');
+    throw std::runtime_error(fmt::format("plot {}: gnuplot {} exited with {}: {}", path.string(), gp.string(),
+                                         gnuplot->exitCode, message));
   }
-  // Legend: one colored square per series name.
-  auto at = legendAt.begin();
-  for (const auto& [name, c] : colors) {
-    const auto [lx, row] = *at++;
-    const int ly = height - legendHeight + kLegendRowHeight + 5 + row * kLegendRowHeight;
-    canvas.square(lx, ly, 6, c);
-    labels.push_back({lx + 12, ly + 6, name});
-  }
-  labels.push_back({20, height - 5, "y: " + yLabel});
-
-  OIIO::ImageSpec spec(width, height, 3, OIIO::TypeDesc::FLOAT);
-  OIIO::ImageBuf buf(spec, canvas.rgb.data());
-  OIIO::ImageBuf out;
-  out.copy(buf);
-  const float textColor[3] = {0, 0, 0};
-  for (const Label& l : labels)  // without a usable font the plot is still written, unlabeled
-    OIIO::ImageBufAlgo::render_text(out, l.x, l.y, l.text, kFontSize, "DejaVuSans", textColor);
-  out.set_write_format(OIIO::TypeDesc::UINT8);
-  const std::filesystem::path tmp = path.string() + ".tmp.png";
-  if (!out.write(tmp.string(), OIIO::TypeDesc::UINT8, "png"))
-    throw std::runtime_error("plot " + path.string() + ": " + out.geterror());
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) throw std::runtime_error("plot " + path.string() + ": " + ec.message());
 }
 
 }  // namespace svo::tools::plot
