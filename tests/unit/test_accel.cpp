@@ -11,8 +11,8 @@
 #include <gtest/gtest.h>
 #include <glm/geometric.hpp>
 
-#include "svo/builder/accel/accel.hpp"
-#include "svo/builder/accel/scenes.hpp"
+#include "svo/accel/accel.hpp"
+#include "svo/accel/scenes.hpp"
 #include "svo/builder/mesh.hpp"
 
 namespace {

@@ -14,6 +14,7 @@
 #include <sstream>
 #include <string>
 
+#include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
 #include "reference.hpp"
@@ -45,6 +46,32 @@ std::vector<std::string> lines(const std::string& text) {
   std::istringstream in(text);
   for (std::string line; std::getline(in, line);) out.push_back(line);
   return out;
+}
+
+// A plot as the plot driver leaves it: a PNG of `width` x `height` pixels that OpenImageIO reads, and beside
+// it its data, NAME.csv. Returns the data rows (panel,series,x,y) after checking the header.
+std::vector<std::string> plotRows(const fs::path& png, int width, int height) {
+  const auto input = OIIO::ImageInput::open(png.string());
+  EXPECT_TRUE(input) << png << ": " << OIIO::geterror();
+  if (input) {
+    EXPECT_EQ(input->spec().width, width) << png;
+    EXPECT_EQ(input->spec().height, height) << png;
+  }
+  fs::path csv = png;
+  csv.replace_extension(".csv");
+  std::vector<std::string> rows = lines(slurp(csv));
+  EXPECT_FALSE(rows.empty()) << csv;
+  if (rows.empty()) return rows;
+  EXPECT_EQ(rows.front(), "panel,series,x,y") << csv;
+  rows.erase(rows.begin());
+  return rows;
+}
+
+// The rows of `rows` that belong to the series `name` (second field, unquoted names only).
+std::size_t countSeries(const std::vector<std::string>& rows, const std::string& name) {
+  return std::size_t(std::count_if(rows.begin(), rows.end(), [&](const std::string& row) {
+    return row.find("," + name + ",") != std::string::npos;
+  }));
 }
 
 class Cli : public ::testing::Test {
@@ -334,6 +361,9 @@ TEST_F(Cli, BenchQualityWritesReportPlotAndImages) {
     EXPECT_TRUE(fs::exists(out / png)) << png;
     EXPECT_GT(fs::file_size(out / png), 100u) << png;
   }
+  // Three panels (RMSE, depth, silhouette), each with its Pareto front: at least one point per panel.
+  const std::vector<std::string> plotted = plotRows(out / "error-vs-time.png", 1400, 1000);
+  EXPECT_GE(countSeries(plotted, "Pareto front"), 3u);
   expectCleanFailure(svo("bench quality " + tetrahedron().string() + " --levels 4,x -o " + out.string()),
                      "--levels", dir_ / "nothing");
 }
@@ -362,6 +392,12 @@ TEST_F(Cli, BenchQualityStreamWritesOneCurvePerBudget) {
     EXPECT_TRUE(std::is_sorted(times.begin(), times.end())) << budget;
   }
   EXPECT_GT(fs::file_size(out / "error-vs-time-streaming.png"), 100u);
+  // One curve per budget in each of the three panels, every frame kept a point (errors clamped up to 1e-4).
+  std::size_t frames = 0;
+  for (const auto& [budget, times] : timesOf) frames += times.size();
+  const std::vector<std::string> plotted = plotRows(out / "error-vs-time-streaming.png", 1400, 1000);
+  EXPECT_EQ(plotted.size(), 3 * frames);
+  EXPECT_EQ(countSeries(plotted, "128.0 KiB") + countSeries(plotted, "4.0 MiB"), 3 * frames);
   EXPECT_EQ(svo("bench quality " + tetrahedron().string() + " --budgets 4M -o " + out.string()).exitCode, 2);
 }
 
@@ -376,6 +412,10 @@ TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
   ASSERT_EQ(r.exitCode, 0) << r.err;
   EXPECT_NE(r.out.find("background load: 1 busy threads"), std::string::npos) << r.out;
   EXPECT_GT(fs::file_size(out / "error_vs_time.png"), 100u);
+  // The first run's frames of the 4M close-up, RMSE against the converged one (clamped up to 1e-4).
+  const std::vector<std::string> plotted = plotRows(out / "error_vs_time.png", 1000, 700);
+  EXPECT_GE(countSeries(plotted, "4.0 MiB"), 1u);
+  EXPECT_EQ(countSeries(plotted, "4.0 MiB"), plotted.size());
   // The goal table's row: budget, sequential read, read + zstd alone, alone / seq, worker CPU to view, cores.
   const std::size_t title = r.out.find("what view / seq <= 1.5x asks");
   ASSERT_NE(title, std::string::npos) << r.out;
@@ -443,6 +483,9 @@ TEST_F(Cli, BenchAccelWritesTablesMarkdownAndPlot) {
     EXPECT_NE(r.out.find(word), std::string::npos) << word << "\n" << r.out;
   EXPECT_NE(slurp(md).find("| org |"), std::string::npos);
   EXPECT_GT(fs::file_size(png), 0u);
+  // Build time per triangle against N: a panel per generated scene, a point per structure and scene size.
+  const std::vector<std::string> plotted = plotRows(png, 1400, 1000);
+  for (const char* structure : {"kd-binned", "org", "oavm"}) EXPECT_EQ(countSeries(plotted, structure), 2u);
   expectCleanFailure(svo("bench accel --structures bvh --markdown " + md.string() + "x"), "bvh",
                      md.string() + "x");
   expectCleanFailure(svo("bench accel --scenes nowhere --markdown " + md.string() + "x"), "nowhere",
@@ -538,6 +581,8 @@ TEST_F(Cli, StreamingRenderStressAndTheirBadInput) {
   ASSERT_EQ(path.exitCode, 0) << path.err;
   EXPECT_TRUE(fs::exists(dir_ / "frames" / "frame_0001.png"));
   EXPECT_TRUE(fs::exists(dir_ / "frames" / "error.png"));
+  // Errors against the converged frames, per frame; an exact match (0) has no place on the log axis.
+  EXPECT_LE(plotRows(dir_ / "frames" / "error.png", 1400, 600).size(), 4u);
   const std::string csv = slurp(dir_ / "frames" / "frames.csv");
   EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 3) << csv;  // header + 2 frames
 
@@ -600,6 +645,12 @@ TEST_F(Cli, StreamingRenderStressAndTheirBadInput) {
   EXPECT_EQ(soakRows[0], "seconds,budget,sequence,loads,evictions,cancelled,reloads,max_resident,rss_bytes");
   EXPECT_GT(std::stoull(soakRows.back().substr(soakRows.back().rfind(',') + 1)), 0u) << soakRows.back();
   EXPECT_TRUE(fs::exists(soak / "soak_rss.png"));
+  // A point per soak row: seconds and the resident set in MiB, as soak.csv has them.
+  const std::vector<std::string> rssPoints = plotRows(soak / "soak_rss.png", 1000, 700);
+  ASSERT_EQ(rssPoints.size(), soakRows.size() - 1);
+  const std::string& lastRow = soakRows.back();
+  const double lastRss = std::stod(lastRow.substr(lastRow.rfind(',') + 1)) / double(1 << 20);
+  EXPECT_NEAR(std::stod(rssPoints.back().substr(rssPoints.back().rfind(',') + 1)), lastRss, 1e-6 * lastRss);
 
   // Bad input: a budget below the trunk, a path that is not an array, a stress soak without time.
   expectCleanFailure(svo("render " + store.string() + " --budget 1K -o " + (dir_ / "x.png").string()),

@@ -1,4 +1,4 @@
-// Every stiff and extreme case of tools/src/stability.hpp at test size: no NaN or infinity, no ray at the
+// Every stiff and extreme case of tools/bench/stability.hpp at test size: no NaN or infinity, no ray at the
 // iteration cap, no see-through, hit points within a voxel diagonal of the mesh, and every acceleration
 // structure equal to the brute-force reference (the bounds are StabilityBounds', stated there).
 #include <gtest/gtest.h>

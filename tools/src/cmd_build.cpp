@@ -1,5 +1,4 @@
 // `svo build MESH -o out.svo --levels N`: mesh -> octree -> .svo, with progress and a size summary.
-#include <sys/resource.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -22,17 +21,6 @@
 #include "svo/builder/build.hpp"
 
 namespace svo::tools {
-
-// Fails before any work when the output folder is missing or not writable.
-void checkWritableOutput(const std::filesystem::path& out) {
-  const std::filesystem::path dir = out.has_parent_path() ? out.parent_path() : ".";
-  if (!std::filesystem::is_directory(dir))
-    throw UsageError(out.string() + ": folder " + dir.string() + " does not exist");
-  if (::access(dir.c_str(), W_OK) != 0)
-    throw UsageError(out.string() + ": folder " + dir.string() + " is not writable");
-  if (std::filesystem::is_directory(out)) throw UsageError(out.string() + ": is a folder");
-}
-
 namespace {
 
 struct BuildArgs {

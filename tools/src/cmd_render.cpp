@@ -12,11 +12,11 @@
 
 #include <spdlog/spdlog.h>
 
-#include "bench_common.hpp"
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
 #include "plot.hpp"
+#include "report.hpp"
 #include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
 #include "svo/client/streaming.hpp"
@@ -155,7 +155,7 @@ void renderPath(const RenderArgs& args, RenderOptions options, std::size_t budge
                         {{"error against the converged frame while streaming", {rmse}},
                          {"silhouette mismatch while streaming", {silhouette}}},
                         "elapsed seconds", "error", 1400, 600);
-  const bench::Summary ms = bench::summarize(frameMs);
+  const Summary ms = summarize(frameMs);
   const double p99 = percentile(frameMs, 0.99);
   std::printf("%zu frames in %.2f s: frame time median %.1f ms, p99 %.1f ms; resident at most %s of %s\n",
               cameras.size(), elapsed.back(), ms.median, p99, formatBytes(maxResident).c_str(),

@@ -18,11 +18,11 @@
 #include <spdlog/spdlog.h>
 #include <glm/geometric.hpp>
 
-#include "bench_common.hpp"
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
 #include "plot.hpp"
+#include "report.hpp"
 #include "svo/client/streaming.hpp"
 #include "svo/client/whole_scene.hpp"
 
@@ -237,10 +237,10 @@ std::vector<std::string> rowOf(const std::string& budget, const std::string& kin
 
 const std::vector<std::string> kKinds = {"teleport", "zoom", "flight"};
 
-bench::Table stressTable() {
-  return bench::Table({"budget", "sequence", "frames", "wanted (view)", "wanted (all)", "loads", "evictions",
-                       "cancelled", "re-loads", "thrash", "worst frame", "p99 frame", "max resident",
-                       "converge", "failed"});
+Table stressTable() {
+  return Table({"budget", "sequence", "frames", "wanted (view)", "wanted (all)", "loads", "evictions",
+                "cancelled", "re-loads", "thrash", "worst frame", "p99 frame", "max resident", "converge",
+                "failed"});
 }
 
 PagerOptions pagerOptionsFor(std::size_t budget) {
@@ -251,7 +251,7 @@ PagerOptions pagerOptionsFor(std::size_t budget) {
 
 void runStress(const StressArgs& args) {
   keepFreedMemoryForReuse();
-  bench::Table table = stressTable();
+  Table table = stressTable();
   bool violated = false;
   std::vector<std::string> unstressed, trunkBound;
   std::uint64_t storeDecoded = 0;
@@ -289,9 +289,8 @@ void runStress(const StressArgs& args) {
       (everLoaded.size() <= 1 ? trunkBound : unstressed)
           .push_back(text + " (trunk " + formatBytes(trunkBytes) + ")");
   }
-  bench::printTitle("svo stress " + args.input + " (" + std::to_string(args.size) + "^2 frames, LOD " +
-                    fmt::format("{:g}", args.lodPixels) + " px; store decoded " + formatBytes(storeDecoded) +
-                    ")");
+  printTitle("svo stress " + args.input + " (" + std::to_string(args.size) + "^2 frames, LOD " +
+             fmt::format("{:g}", args.lodPixels) + " px; store decoded " + formatBytes(storeDecoded) + ")");
   table.print();
   std::printf(
       "wanted (view): decoded bytes of the slices the most demanding frame wanted; wanted (all): of every "
@@ -314,7 +313,7 @@ void runSoak(const StressArgs& args) {
   const std::filesystem::path csvPath = std::filesystem::path(args.output) / "soak.csv";
   std::ofstream csv(csvPath);
   csv << "seconds,budget,sequence,loads,evictions,cancelled,reloads,max_resident,rss_bytes\n";
-  bench::Table table = stressTable();
+  Table table = stressTable();
   RenderOptions render;
   render.lodPixels = args.lodPixels;
   const auto start = std::chrono::steady_clock::now();
@@ -362,7 +361,7 @@ void runSoak(const StressArgs& args) {
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "soak_rss.png";
   plot::writePlot(plotPath, {{"resident set of the process during the soak, per budget", curves}}, "seconds",
                   "resident set (MiB)", plot::Scale::Linear, plot::Scale::Linear, 1000, 700);
-  bench::printTitle("svo stress " + args.input + " soak, " + fmt::format("{:g}", args.minutes) + " minutes");
+  printTitle("svo stress " + args.input + " soak, " + fmt::format("{:g}", args.minutes) + " minutes");
   table.print();
   std::printf("wrote %s and %s\n", csvPath.c_str(), plotPath.c_str());
   for (const std::string& leak : leaks) throw std::runtime_error("stress soak: " + leak);

@@ -5,6 +5,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "bench.hpp"
 #include "commands.hpp"
 
 int main(int argc, char** argv) {

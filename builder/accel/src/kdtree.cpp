@@ -95,13 +95,12 @@ Box clipped(const Box& b, const Box& node) {
 }
 
 // ----- binned analytic SAH (Algorithms 1 and 2) --------------------------------------------------------
-// Why it traverses slower than the exact SAH on our scenes (measured, svo bench accel, 2e5 triangles:
-// sphere 7.7 vs 3.4 references per triangle, flat field 38 vs 1.0): Eq. 5 models the START/END events of
-// a bin as spread evenly over it, so its minimum usually falls strictly inside a bin, between triangle box
-// walls, and the plane cuts every triangle it crosses; meshes whose triangles share vertex coordinates
-// (tessellated sphere, regular field) have all events of a bin on a few coordinates, where the exact SAH
-// puts its planes without cutting anything. Searching the longest axis only (Sec. 2.2) adds to it. Leaf
-// size, C_I (0.8 ... 3) and the bin coefficient (0.4, 1.0) do not close the gap.
+// Why it traverses slower than the exact SAH (more references per triangle in svo bench accel): Eq. 5
+// models the START/END events of a bin as spread evenly over it, so its minimum usually falls strictly
+// inside a bin, between triangle box walls, and the plane cuts every triangle it crosses; meshes whose
+// triangles share vertex coordinates (tessellated sphere, regular field) have all events of a bin on a few
+// coordinates, where the exact SAH puts its planes without cutting anything. Searching the longest axis only
+// (Sec. 2.2) adds to it. Leaf size, C_I (0.8 ... 3) and the bin coefficient (0.4, 1.0) do not close the gap.
 class BinnedSplitter {
  public:
   BinnedSplitter(const KdParams& p) : p_(p) {}
@@ -447,7 +446,7 @@ class KdTree final : public Accel {
     double t0, t1;
     if (!clipRay(r, root_, fat_, t0, t1)) return false;
     // Only rays with a zero direction component need the test for planes parallel to them; the others skip
-    // it at every node (with the origin taken relative to the grid below: 1e4-triangle sphere 8% faster).
+    // it at every node.
     if (r.d.x == 0.0 || r.d.y == 0.0 || r.d.z == 0.0) return descend<true>(r, t0, t1, best, visit);
     return descend<false>(r, t0, t1, best, visit);
   }
@@ -470,8 +469,8 @@ class KdTree final : public Accel {
     };
     std::uint32_t index = 0;
     const double fat = fat_;
-    // Per-axis terms in plain arrays: glm's vec3 operator[] is a switch, so indexing by a node's axis cost
-    // mispredicted branches at every node (1e6-triangle sphere: 8% of the render time).
+    // Per-axis terms in plain arrays: glm's vec3 operator[] is a switch, so indexing it by a node's axis
+    // costs mispredicted branches at every node.
     // The origin relative to the split grid, once per ray, so a node's plane enters as its float. This rounds
     // differently from (grid + split) - origin, by about an ulp of the coordinates as that expression's own
     // rounding does; the margin's kFatUlps covers both.
@@ -503,8 +502,8 @@ class KdTree final : public Accel {
           const double ts = (double(node->split()) - fromGrid[a]) * inv[a];
           const double margin = tol[a];
           // The child met first along +t is fixed by the direction's sign (left where it is positive), so the
-          // spans of t alone decide, with no comparison of the origin against the plane (its branch
-          // mispredicted wherever the origin lies off to either side; 1e6-triangle sphere: 4% faster).
+          // spans of t alone decide, with no comparison of the origin against the plane (a branch that
+          // mispredicts wherever the origin lies off to either side).
           std::uint32_t nearChild = left, farChild = right;
           if (d < 0.0) std::swap(nearChild, farChild);
           if (ts > t1 + margin) {
@@ -513,7 +512,7 @@ class KdTree final : public Accel {
             index = farChild;
           } else {
             // The far child is often far away in memory (depth-first order); fetch it while the near side
-            // runs (1e6-triangle sphere: 3% faster).
+            // runs.
             __builtin_prefetch(&nodes_[farChild]);
             push(farChild, std::max(t0, ts - margin), t1);
             index = nearChild;

@@ -1,4 +1,4 @@
-#include "svo/builder/accel/scenes.hpp"
+#include "svo/accel/scenes.hpp"
 
 #include <cmath>
 #include <numbers>

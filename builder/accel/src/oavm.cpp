@@ -1,118 +1,18 @@
-// Octrees after Yuan et al., "Ray tracing acceleration structure based on octree adaptive volume merging"
-// (Acta Optica Sinica 2017): the OAVM octree (Sec. 2.1 nodes addressed by level and Morton code, Sec. 2.2
-// empty-leaf merging into shared boxes with the direction attribute D, type-1/type-2 nodes, Sec. 2.3
-// Liang-Barsky clipping, Sec. 2.4 neighbour lookup from the code, Sec. 3 local update) and the classic
-// pointer octree it is compared with. Both subdivide space identically (same leaves, same references).
+// The OAVM octree after Yuan et al., "Ray tracing acceleration structure based on octree adaptive volume
+// merging" (Acta Optica Sinica 2017): nodes addressed by level and Morton code (Sec. 2.1), empty-leaf merging
+// into shared boxes with the direction attribute D, type-1/type-2 nodes (Sec. 2.2), Liang-Barsky clipping
+// (Sec. 2.3), neighbour lookup from the code (Sec. 2.4) and local update (Sec. 3).
 #include <algorithm>
 #include <cassert>
 #include <cmath>
 #include <stdexcept>
 #include <string>
 
-#include "common.hpp"
+#include "octree_space.hpp"
 
 namespace svo::accel {
-
-namespace {
-// Morton codes interleave 21 bits per axis into 63 bits: the deepest level an octree can have.
-constexpr int kMaxLevels = 21;
-}  // namespace
-
-void OctreeParams::validate() const {
-  using detail::require;
-  require(leafSize >= 1, "octree leaf size must be >= 1");
-  require(maxLevel == -1 || (maxLevel >= 0 && maxLevel <= kMaxLevels),
-          "octree max level must be -1 or in [0, 21]");
-  require(std::isfinite(maxGrowth) && maxGrowth >= 1.0, "octree max growth must be >= 1");
-}
-
 namespace detail {
 namespace {
-
-using U64 = std::uint64_t;
-
-// ----- Morton codes (Sec. 2.1): parent = code >> 3, child = 8·code + F, F = x | y << 1 | z << 2 -----------
-U64 spread(U64 v) {
-  v &= 0x1fffff;
-  v = (v | v << 32) & 0x1f00000000ffffULL;
-  v = (v | v << 16) & 0x1f0000ff0000ffULL;
-  v = (v | v << 8) & 0x100f00f00f00f00fULL;
-  v = (v | v << 4) & 0x10c30c30c30c30c3ULL;
-  v = (v | v << 2) & 0x1249249249249249ULL;
-  return v;
-}
-U64 morton(U64 x, U64 y, U64 z) {
-  return spread(x) | spread(y) << 1 | spread(z) << 2;
-}
-U64 compact(U64 v) {
-  v &= 0x1249249249249249ULL;
-  v = (v ^ (v >> 2)) & 0x10c30c30c30c30c3ULL;
-  v = (v ^ (v >> 4)) & 0x100f00f00f00f00fULL;
-  v = (v ^ (v >> 8)) & 0x1f0000ff0000ffULL;
-  v = (v ^ (v >> 16)) & 0x1f00000000ffffULL;
-  v = (v ^ (v >> 32)) & 0x1fffff;
-  return v;
-}
-glm::u64vec3 demorton(U64 code) {
-  return {compact(code), compact(code >> 1), compact(code >> 2)};
-}
-
-// Integer box in finest-level units, [lo, hi).
-struct IBox {
-  glm::u64vec3 lo{0}, hi{0};
-};
-
-// ----- the shared subdivision ----------------------------------------------------------------------------
-struct Space {
-  dvec3 lo{0.0};
-  double size = 1.0;  // root cube edge
-  int maxLevel = 0;
-  double fine = 1.0;  // edge of a finest-level cell
-  Box worldBox(const IBox& b) const { return Box{lo + dvec3(b.lo) * fine, lo + dvec3(b.hi) * fine}; }
-  IBox cell(int level, U64 code) const {
-    const glm::u64vec3 c = demorton(code);
-    const int shift = maxLevel - level;
-    return IBox{c << U64(shift), (c + U64(1)) << U64(shift)};
-  }
-};
-
-Space makeSpace(const Box& bounds, std::size_t n, int maxLevel) {
-  Space s;
-  Box b = bounds;
-  if (b.empty()) b = Box{dvec3(0.0), dvec3(1.0)};
-  const dvec3 e = b.extent();
-  s.size = std::max({e.x, e.y, e.z});
-  if (!(s.size > 0.0)) s.size = std::max(1.0, std::abs(b.lo.x) + std::abs(b.lo.y) + std::abs(b.lo.z)) * 1e-9;
-  s.lo = b.lo;
-  if (maxLevel < 0) {
-    // The kd-tree's 8 + 1.3·log2 N depth rule, in octree levels (three binary splits per level).
-    const double lg = std::log2(double(std::max<std::size_t>(n, 2)));
-    maxLevel = int(std::lround((8.0 + 1.3 * lg) / 3.0));
-  }
-  s.maxLevel = std::clamp(maxLevel, 0, kMaxLevels);
-  s.fine = s.size / double(U64(1) << s.maxLevel);
-  return s;
-}
-
-bool overlapsCell(const TriangleStore& store, std::uint32_t id, const Box& cell) {
-  const Box fatCell = grow(cell, store.fat);
-  return boxesOverlap(store.boxes[id], fatCell) && triangleOverlapsBox(store.tris[id], fatCell);
-}
-
-// Decides whether a node is subdivided and gives each child its triangles; empty `children` means a leaf.
-bool subdivide(const TriangleStore& store, const Space& space, const OctreeParams& p, int level, U64 code,
-               const std::vector<std::uint32_t>& prims, std::vector<std::uint32_t> children[8]) {
-  if (prims.size() <= p.leafSize || level >= space.maxLevel) return false;
-  std::size_t total = 0;
-  for (int f = 0; f < 8; ++f) {
-    children[f].clear();
-    const Box cell = space.worldBox(space.cell(level + 1, code * 8 + U64(f)));
-    for (std::uint32_t id : prims)
-      if (overlapsCell(store, id, cell)) children[f].push_back(id);
-    total += children[f].size();
-  }
-  return double(total) <= p.maxGrowth * double(prims.size());
-}
 
 // Liang-Barsky (Sec. 2.3, Eq. 6): u·p_k <= q_k, p = (-i, i, -j, j, -k, k), q = (x0 - xmin, xmax - x0, ...).
 // u1 = max over p_k < 0 of q_k / p_k, u2 = min over p_k > 0; `exitAxis` is the axis giving u2.
@@ -618,153 +518,8 @@ void Oavm::checkInvariants() const {
   }
 }
 
-// ===== classic pointer octree
-// ================================================================================
-struct CNode {
-  std::uint32_t children[8];  // all kNoTriangle for a leaf
-  std::uint32_t parent = kNoTriangle;
-  std::uint32_t first = 0, count = 0;
-  Box box;
-  bool leaf() const { return children[0] == kNoTriangle; }
-};
-
-class ClassicOctree final : public Accel {
- public:
-  ClassicOctree(const Triangles& triangles, const OctreeParams& params) : store_(triangles), p_(params) {
-    params.validate();
-    space_ = makeSpace(store_.bounds, store_.valid.size(), p_.maxLevel);
-    store_.fat = store_.computeFat(Box{space_.lo, space_.lo + space_.size});
-    std::vector<std::uint32_t> prims;
-    const Box root{space_.lo, space_.lo + space_.size};
-    for (std::uint32_t id : store_.valid)
-      if (overlapsCell(store_, id, root)) prims.push_back(id);
-    build(0, 0, std::move(prims), kNoTriangle);
-  }
-  std::string name() const override { return "octree"; }
-
-  Hit closestHit(const Ray& ray) const override {
-    return closestHitBy(store_, ray,
-                        [&](const RayCtx& r, const Hit& best, auto&& v) { return walk(r, best, v); });
-  }
-  bool anyHit(const Ray& ray) const override {
-    return anyHitBy(store_, ray,
-                    [&](const RayCtx& r, const Hit& best, auto&& v) { return walk(r, best, v); });
-  }
-  std::vector<std::uint32_t> boxQuery(const Box& box) const override {
-    std::vector<std::uint32_t> out;
-    if (!box.empty() && !store_.valid.empty()) collect(0, grow(box, store_.fat), out);
-    return filterBoxQuery(store_, std::move(out), box);
-  }
-  Stats stats() const override {
-    Stats s;
-    s.triangles = store_.valid.size();
-    s.cells = nodes_.size();
-    s.references = refs_.size();
-    s.maxDepth = maxDepth_;
-    for (const CNode& n : nodes_) {
-      if (n.leaf()) {
-        ++s.leaves;
-        if (n.count == 0)
-          ++s.emptyLeaves;
-        else
-          ++s.pointers;  // triangle list
-      } else {
-        s.pointers += 8;  // child pointers
-      }
-      if (n.parent != kNoTriangle) ++s.pointers;
-    }
-    s.bytes = nodes_.size() * sizeof(CNode) + refs_.size() * sizeof(std::uint32_t);
-    return s;
-  }
-  std::vector<Plane> planes(std::size_t limit) const override;
-
- private:
-  std::uint32_t build(int level, U64 code, std::vector<std::uint32_t> prims, std::uint32_t parent) {
-    const std::uint32_t index = std::uint32_t(nodes_.size());
-    nodes_.emplace_back();
-    std::fill(std::begin(nodes_[index].children), std::end(nodes_[index].children), kNoTriangle);
-    nodes_[index].parent = parent;
-    nodes_[index].box = space_.worldBox(space_.cell(level, code));
-    maxDepth_ = std::max<std::size_t>(maxDepth_, level);
-    std::vector<std::uint32_t> children[8];
-    if (!subdivide(store_, space_, p_, level, code, prims, children)) {
-      nodes_[index].first = std::uint32_t(refs_.size());
-      nodes_[index].count = std::uint32_t(prims.size());
-      refs_.insert(refs_.end(), prims.begin(), prims.end());
-      return index;
-    }
-    { std::vector<std::uint32_t>().swap(prims); }
-    for (int f = 0; f < 8; ++f) {
-      const std::uint32_t c = build(level + 1, code * 8 + U64(f), std::move(children[f]), index);
-      nodes_[index].children[f] = c;
-    }
-    return index;
-  }
-
-  template <class Visit>
-  bool walk(const RayCtx& r, const Hit& best, Visit&& f) const {
-    double t0, t1;
-    return clipRay(r, nodes_[0].box, store_.fat, t0, t1) && visit(r, 0, best, f);
-  }
-
-  // Recursive front to back: children sorted by entry distance, skipped once the best hit is nearer.
-  template <class Visit>
-  bool visit(const RayCtx& r, std::uint32_t index, const Hit& best, Visit&& f) const {
-    const CNode& n = nodes_[index];
-    if (n.leaf()) {
-      for (std::uint32_t k = 0; k < n.count; ++k)
-        if (f(refs_[n.first + k])) return true;
-      return false;
-    }
-    std::pair<double, std::uint32_t> order[8];
-    int count = 0;
-    for (int c = 0; c < 8; ++c) {
-      double t0, t1;
-      if (clipRay(r, nodes_[n.children[c]].box, store_.fat, t0, t1)) {
-        int k = count++;
-        while (k > 0 && order[k - 1].first > t0) order[k] = order[k - 1], --k;
-        order[k] = {t0, n.children[c]};
-      }
-    }
-    for (int k = 0; k < count; ++k) {
-      if (order[k].first > best.t) break;
-      if (visit(r, order[k].second, best, f)) return true;
-    }
-    return false;
-  }
-
-  void collect(std::uint32_t index, const Box& q, std::vector<std::uint32_t>& out) const {
-    const CNode& n = nodes_[index];
-    if (!boxesOverlap(q, n.box)) return;
-    if (n.leaf())
-      return void(out.insert(out.end(), refs_.begin() + n.first, refs_.begin() + n.first + n.count));
-    for (std::uint32_t c : n.children) collect(c, q, out);
-  }
-
-  TriangleStore store_;
-  OctreeParams p_;
-  Space space_;
-  std::vector<CNode> nodes_;
-  std::vector<std::uint32_t> refs_;
-  std::size_t maxDepth_ = 0;
-};
-
-std::vector<Accel::Plane> ClassicOctree::planes(std::size_t limit) const {
-  std::vector<Plane> out;
-  for (const CNode& n : nodes_)
-    if (!n.leaf())
-      for (int a = 0; a < 3 && out.size() < limit; ++a)
-        out.push_back(Plane{a, nodes_[n.children[7]].box.lo[a]});
-  return out;
-}
-
 }  // namespace
 }  // namespace detail
-
-std::unique_ptr<Accel> buildClassicOctree(const Triangles& triangles, const OctreeParams& params) {
-  params.validate();
-  return std::make_unique<detail::ClassicOctree>(triangles, params);
-}
 
 std::unique_ptr<OavmOctree> OavmOctree::build(const Triangles& triangles, const OctreeParams& params,
                                               const Box& bounds) {

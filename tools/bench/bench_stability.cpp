@@ -1,4 +1,4 @@
-// `svo bench stability`: one row per stiff case (tools/src/stability.hpp): max and mean error against the
+// `svo bench stability`: one row per stiff case (stability.hpp): max and mean error against the
 // double-precision reference, iterations, pass or fail against the stated bounds, so a regression shows at
 // a glance. Exits non-zero when a case fails.
 #include <fmt/format.h>

@@ -11,7 +11,7 @@
 #include <fmt/format.h>
 #include <glm/geometric.hpp>
 
-#include "svo/builder/accel/accel.hpp"
+#include "svo/accel/accel.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/client/raycast.hpp"
 #include "svo/client/render.hpp"
@@ -147,6 +147,56 @@ bool finite(const glm::vec3& v) {
   return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
 }
 
+// Two tiny triangles (1e-6 of the scene) at opposite corners: 23 levels stay small.
+StiffCase fullDepthCase() {
+  Mesh m;
+  addTriangle(m, dvec3(0.0), dvec3(1e-6, 0, 0), dvec3(0, 1e-6, 0.3e-6));
+  addTriangle(m, dvec3(1.0), dvec3(1.0 - 1e-6, 1.0, 1.0), dvec3(1.0, 1.0 - 0.7e-6, 1.0 - 1e-6));
+  StiffCase c = makeCase("23 levels",
+                         "the full 23 levels: voxels of 2^-23, the float mantissa's last bit; cube voxels (a "
+                         "float ray is itself only known to half a finest voxel there)",
+                         m, 23, 2);
+  // Aim at the tiny triangles from several sides, from ~500 finest voxels away: the caster's t is a float,
+  // so a voxel of 2^-23 is only resolved where t itself is small (t's ulp is t x 2^-24).
+  for (const glm::uvec3& t : m.triangles) {
+    const dvec3 centroid = (m.positions[t.x] + m.positions[t.y] + m.positions[t.z]) / 3.0;
+    for (const dvec3 d : {dvec3(0, 0, -1), dvec3(0, 0, 1), dvec3(1, 1, 1), dvec3(-0.3, 0.2, -1)})
+      c.rays.push_back({centroid - 1e-4 * d, d});
+  }
+  c.contours = false;
+  return c;
+}
+
+// The ORG paper's worst case: two huge triangles among many tiny ones.
+StiffCase hugeAmongTinyCase(int detail) {
+  Mesh m;
+  addTriangle(m, dvec3(-1, -1, -1), dvec3(1, -1, -1), dvec3(0, 1, 1));
+  addTriangle(m, dvec3(-1, 1, -1), dvec3(1, 1, -1), dvec3(0, -1, 1));
+  std::mt19937_64 rng(10);
+  std::uniform_real_distribution<double> u(-1.0, 1.0), small(-1e-3, 1e-3);
+  for (int k = 0; k < 10000 * detail * detail; ++k) {
+    const dvec3 p(u(rng), u(rng), u(rng));
+    addTriangle(m, p, p + dvec3(small(rng), small(rng), small(rng)),
+                p + dvec3(small(rng), small(rng), small(rng)));
+  }
+  return makeCase("huge among tiny", "2 scene-sized triangles among 10^4 x detail^2 tiny ones", std::move(m),
+                  8, 10);
+}
+
+// A field of thin grass blades on the ground.
+StiffCase grassCase(int detail) {
+  Mesh m;
+  addTriangle(m, dvec3(-1, 0, -1), dvec3(1, 0, -1), dvec3(1, 0, 1));
+  addTriangle(m, dvec3(-1, 0, -1), dvec3(1, 0, 1), dvec3(-1, 0, 1));
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0), lean(-0.1, 0.1);
+  for (int k = 0; k < 2000 * detail; ++k) {
+    const dvec3 base(u(rng), 0.0, u(rng));
+    addTriangle(m, base, base + dvec3(2e-3, 0, 0), base + dvec3(lean(rng), 0.2 + 0.1 * lean(rng), lean(rng)));
+  }
+  return makeCase("grass", "thin blades (2e-3 wide, 0.2 tall) on a ground plane", std::move(m), 9, 11);
+}
+
 }  // namespace
 
 std::vector<StiffCase> stiffCases(int detail) {
@@ -156,26 +206,7 @@ std::vector<StiffCase> stiffCases(int detail) {
   cases.push_back(makeCase(
       "grid rays", "axis-parallel rays along voxel faces, edges, corners; +-0, 1e-30, denormal components",
       ball, 8, 1));
-  {
-    // Two tiny triangles (1e-6 of the scene) at opposite corners: 23 levels stay small.
-    Mesh m;
-    addTriangle(m, dvec3(0.0), dvec3(1e-6, 0, 0), dvec3(0, 1e-6, 0.3e-6));
-    addTriangle(m, dvec3(1.0), dvec3(1.0 - 1e-6, 1.0, 1.0), dvec3(1.0, 1.0 - 0.7e-6, 1.0 - 1e-6));
-    StiffCase c =
-        makeCase("23 levels",
-                 "the full 23 levels: voxels of 2^-23, the float mantissa's last bit; cube voxels (a "
-                 "float ray is itself only known to half a finest voxel there)",
-                 m, 23, 2);
-    // Aim at the tiny triangles from several sides, from ~500 finest voxels away: the caster's t is a float,
-    // so a voxel of 2^-23 is only resolved where t itself is small (t's ulp is t x 2^-24).
-    for (const glm::uvec3& t : m.triangles) {
-      const dvec3 centroid = (m.positions[t.x] + m.positions[t.y] + m.positions[t.z]) / 3.0;
-      for (const dvec3 d : {dvec3(0, 0, -1), dvec3(0, 0, 1), dvec3(1, 1, 1), dvec3(-0.3, 0.2, -1)})
-        c.rays.push_back({centroid - 1e-4 * d, d});
-    }
-    c.contours = false;
-    cases.push_back(std::move(c));
-  }
+  cases.push_back(fullDepthCase());
   for (const auto& [name, offset, scale] :
        {std::tuple{"offset 1e6", 1e6, 1.0}, std::tuple{"offset 1e-6", 1e-6, 1.0},
         std::tuple{"scale 1e6", 0.0, 1e6}, std::tuple{"scale 1e-6", 0.0, 1e-6}}) {
@@ -241,36 +272,8 @@ std::vector<StiffCase> stiffCases(int detail) {
           {dvec3(-2.0, -0.9 + 0.028 * k, 0.01), dvec3(1.0, 0.001 * (k % 5), -0.004 - 0.001 * (k % 3))});
     cases.push_back(std::move(c));
   }
-  {
-    // The ORG paper's worst case: two huge triangles among many tiny ones.
-    Mesh m;
-    addTriangle(m, dvec3(-1, -1, -1), dvec3(1, -1, -1), dvec3(0, 1, 1));
-    addTriangle(m, dvec3(-1, 1, -1), dvec3(1, 1, -1), dvec3(0, -1, 1));
-    std::mt19937_64 rng(10);
-    std::uniform_real_distribution<double> u(-1.0, 1.0), small(-1e-3, 1e-3);
-    for (int k = 0; k < 10000 * detail * detail; ++k) {
-      const dvec3 p(u(rng), u(rng), u(rng));
-      addTriangle(m, p, p + dvec3(small(rng), small(rng), small(rng)),
-                  p + dvec3(small(rng), small(rng), small(rng)));
-    }
-    cases.push_back(makeCase("huge among tiny", "2 scene-sized triangles among 10^4 x detail^2 tiny ones",
-                             std::move(m), 8, 10));
-  }
-  {
-    // A field of thin grass blades on the ground.
-    Mesh m;
-    addTriangle(m, dvec3(-1, 0, -1), dvec3(1, 0, -1), dvec3(1, 0, 1));
-    addTriangle(m, dvec3(-1, 0, -1), dvec3(1, 0, 1), dvec3(-1, 0, 1));
-    std::mt19937_64 rng(11);
-    std::uniform_real_distribution<double> u(-1.0, 1.0), lean(-0.1, 0.1);
-    for (int k = 0; k < 2000 * detail; ++k) {
-      const dvec3 base(u(rng), 0.0, u(rng));
-      addTriangle(m, base, base + dvec3(2e-3, 0, 0),
-                  base + dvec3(lean(rng), 0.2 + 0.1 * lean(rng), lean(rng)));
-    }
-    cases.push_back(
-        makeCase("grass", "thin blades (2e-3 wide, 0.2 tall) on a ground plane", std::move(m), 9, 11));
-  }
+  cases.push_back(hugeAmongTinyCase(detail));
+  cases.push_back(grassCase(detail));
   return cases;
 }
 

@@ -28,7 +28,6 @@
 #include <glm/geometric.hpp>
 
 #include "bench_common.hpp"
-#include "commands.hpp"
 #include "measure.hpp"
 #include "plot.hpp"
 #include "svo/client/streaming.hpp"
@@ -115,7 +114,7 @@ double readAndDecompress(const StoreReader& store, const std::vector<std::uint32
   return since(start);
 }
 
-// Issue 5's goal for a cold close-up: view converged within this many times the sequential read.
+// The goal for a cold close-up: the view converged within this many times the sequential read of its slices.
 constexpr double kViewOverSequentialGoal = 1.5;
 
 // The close-up stands this fraction of the scene size from the surface: near enough that a 256-512 pixel
@@ -138,6 +137,125 @@ std::vector<Camera> orbitPath(const SceneTransform& scene, int frames, int size)
   return out;
 }
 
+PagerOptions pagerOptionsOf(const StreamArgs& args, std::size_t budget) {
+  PagerOptions options;
+  options.budgetBytes = budget;
+  options.workerNice = args.workerNice;
+  options.ioThreads = args.ioThreads;
+  options.workersDuringFrames = args.workersDuringFrames;
+  return options;
+}
+
+// Seconds from opening the cold store to the first coarse image, per run.
+std::vector<double> measureFirstImage(const StreamArgs& args, const PagerOptions& pagerOptions,
+                                      const RenderOptions& options) {
+  std::vector<double> firstImage;
+  for (int run = 0; run < args.runs; ++run) {
+    dropFileCache(args.input);
+    const auto start = std::chrono::steady_clock::now();
+    Pager pager(args.input, pagerOptions);
+    const Camera framing = Camera::framing(pager.transform(), kDefaultViewDirection, args.size, args.size);
+    render(pager.trunk(), pager.transform(), framing, options);
+    firstImage.push_back(since(start));
+  }
+  return firstImage;
+}
+
+// The close-up from a cold start, per run: until the view converges (nothing inside the frustum left to
+// load), the bytes read by then and the same bytes read sequentially; then until everything around it is
+// in too; the workers' CPU; and the first run's error against the converged frame over time.
+struct CloseUp {
+  std::vector<double> viewConverge, converge, imageFinal, sequential, decompressed, viewCpu,
+      bytesPerCpuSecond;
+  std::vector<WorkerCpu> cpu;
+  std::uint64_t viewBytes = 0, bytes = 0;
+  plot::Series errorCurve;
+};
+CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
+                       const RenderOptions& options) {
+  CloseUp r;
+  r.errorCurve.name = formatBytes(pagerOptions.budgetBytes);
+  for (int run = 0; run < args.runs; ++run) {
+    dropFileCache(args.input);
+    Pager pager(args.input, pagerOptions);
+    const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
+    std::vector<std::pair<double, Frame>> frames;
+    const Convergence c =
+        convergeView(pager, camera, options, args.timeout, nullptr, [&](double t, StreamedFrame& step) {
+          if (run == 0) frames.push_back({t, std::move(step.frame)});
+        });
+    if (!c.converged())
+      throw std::runtime_error(args.input + ": the close-up did not converge within the timeout");
+    r.viewConverge.push_back(c.viewSeconds);
+    r.converge.push_back(c.seconds);
+    r.imageFinal.push_back(c.imageFinalSeconds);
+    r.viewBytes = c.viewBytesRead;
+    r.bytes = pager.bytesRead();
+    r.cpu.push_back(pager.workerCpu());
+    r.bytesPerCpuSecond.push_back(double(r.bytes) / std::max(1e-9, r.cpu.back().seconds()));
+    r.sequential.push_back(readSequentially(pager.store(), c.viewResidentSlices));
+    r.decompressed.push_back(readAndDecompress(pager.store(), c.viewResidentSlices, args.ioThreads));
+    r.viewCpu.push_back(c.viewWorkerCpu.seconds());
+    if (run == 0)
+      for (const auto& [t, frame] : frames)
+        r.errorCurve.points.push_back(
+            {t, std::max(kSmallestPlottedError, frameError(frame, frames.back().second).rmse)});
+  }
+  return r;
+}
+
+// A camera path streaming from a cold file, against the same path with everything each frame wants
+// resident; per run, as one stall decides a p99.
+struct PathTimes {
+  std::vector<double> streamP99s, residentP99s, p99Ratios;
+  std::size_t maxResident = 0;
+};
+PathTimes measurePath(const StreamArgs& args, const PagerOptions& pagerOptions,
+                      const RenderOptions& options) {
+  PathTimes r;
+  for (int run = 0; run < args.runs; ++run) {
+    dropFileCache(args.input);
+    Pager pager(args.input, pagerOptions);
+    std::vector<double> streaming, resident;
+    for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
+      const StreamedFrame step = streamFrame(pager, c, options);
+      streaming.push_back(step.seconds());
+      r.maxResident = std::max(r.maxResident, step.stats.residentBytes);
+    }
+    for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
+      convergeView(pager, c, options, args.timeout);
+      resident.push_back(streamFrame(pager, c, options).seconds());
+    }
+    r.streamP99s.push_back(percentile(streaming, 0.99));
+    r.residentP99s.push_back(percentile(resident, 0.99));
+    r.p99Ratios.push_back(r.streamP99s.back() / r.residentP99s.back());
+  }
+  return r;
+}
+
+// Where the workers' time went until the close-up had converged (medians per stage over the runs).
+void addCpuRow(Table& table, std::size_t budget, const CloseUp& closeUp) {
+  const auto median = [&](auto field) {
+    std::vector<double> values;
+    for (const WorkerCpu& c : closeUp.cpu) values.push_back(double(field(c)));
+    return summarize(values).median;
+  };
+  const double cpuSeconds = median([](const WorkerCpu& c) { return c.seconds(); });
+  const double decoded = median([](const WorkerCpu& c) { return c.voxelsDecoded; });
+  char nanosPerVoxel[32], bytesPerCpu[32], busy[32];
+  std::snprintf(nanosPerVoxel, sizeof nanosPerVoxel, "%.0f ns", 1e9 * cpuSeconds / std::max(1.0, decoded));
+  std::snprintf(bytesPerCpu, sizeof bytesPerCpu, "%.0f MB/s",
+                summarize(closeUp.bytesPerCpuSecond).median / 1e6);
+  std::snprintf(busy, sizeof busy, "%.2f", cpuSeconds / std::max(1e-9, summarize(closeUp.converge).median));
+  table.addRow({formatBytes(budget), formatSeconds(median([](const WorkerCpu& c) { return c.readSeconds; })),
+                formatSeconds(median([](const WorkerCpu& c) { return c.assembleSeconds; })),
+                formatSeconds(median([](const WorkerCpu& c) { return c.decodeSeconds; })),
+                formatSeconds(median([](const WorkerCpu& c) { return c.layoutSeconds; })),
+                formatSeconds(cpuSeconds), busy, formatCount(std::uint64_t(decoded)),
+                formatCount(std::uint64_t(median([](const WorkerCpu& c) { return c.voxelsLaidOut; }))),
+                nanosPerVoxel, bytesPerCpu});
+}
+
 void runStreamBench(const StreamArgs& args) {
   keepFreedMemoryForReuse();
   requireRuns(args.runs);
@@ -155,111 +273,30 @@ void runStreamBench(const StreamArgs& args) {
                    "cores for " + goal});
   std::vector<plot::Series> curves;
   for (const std::size_t budget : args.budgets) {
-    PagerOptions pagerOptions;
-    pagerOptions.budgetBytes = budget;
-    pagerOptions.workerNice = args.workerNice;
-    pagerOptions.ioThreads = args.ioThreads;
-    pagerOptions.workersDuringFrames = args.workersDuringFrames;
-    // 1. Open to the first coarse image, cold.
-    std::vector<double> firstImage;
-    for (int run = 0; run < args.runs; ++run) {
-      dropFileCache(args.input);
-      const auto start = std::chrono::steady_clock::now();
-      Pager pager(args.input, pagerOptions);
-      const Camera framing = Camera::framing(pager.transform(), kDefaultViewDirection, args.size, args.size);
-      render(pager.trunk(), pager.transform(), framing, options);
-      firstImage.push_back(since(start));
-    }
-    // 2. Close-up from cold: the view converges (nothing inside the frustum left to load), the bytes read by
-    // then, the same bytes read sequentially; then everything around it; error over time.
-    std::vector<double> viewConverge, converge, imageFinal, sequential, decompressed, viewCpu;
-    std::vector<WorkerCpu> cpu;
-    std::vector<double> bytesPerCpuSecond;
-    std::uint64_t viewBytes = 0, bytes = 0;
-    plot::Series curve{formatBytes(budget), {}};
-    for (int run = 0; run < args.runs; ++run) {
-      dropFileCache(args.input);
-      Pager pager(args.input, pagerOptions);
-      const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
-      std::vector<std::pair<double, Frame>> frames;
-      const Convergence c =
-          convergeView(pager, camera, options, args.timeout, nullptr, [&](double t, StreamedFrame& step) {
-            if (run == 0) frames.push_back({t, std::move(step.frame)});
-          });
-      if (!c.converged())
-        throw std::runtime_error(args.input + ": the close-up did not converge within the timeout");
-      viewConverge.push_back(c.viewSeconds);
-      converge.push_back(c.seconds);
-      imageFinal.push_back(c.imageFinalSeconds);
-      viewBytes = c.viewBytesRead;
-      bytes = pager.bytesRead();
-      cpu.push_back(pager.workerCpu());
-      bytesPerCpuSecond.push_back(double(bytes) / std::max(1e-9, cpu.back().seconds()));
-      sequential.push_back(readSequentially(pager.store(), c.viewResidentSlices));
-      decompressed.push_back(readAndDecompress(pager.store(), c.viewResidentSlices, args.ioThreads));
-      viewCpu.push_back(c.viewWorkerCpu.seconds());
-      if (run == 0)
-        for (const auto& [t, frame] : frames)
-          curve.points.push_back({t, std::max(1e-4, frameError(frame, frames.back().second).rmse)});
-    }
-    curves.push_back(curve);
-    // 3. A camera path streaming from a cold file, against the same path with everything each frame wants
-    // resident; per run, as one stall decides a p99.
-    std::vector<double> streamP99s, residentP99s, p99Ratios;
-    std::size_t maxResident = 0;
-    for (int run = 0; run < args.runs; ++run) {
-      dropFileCache(args.input);
-      Pager pager(args.input, pagerOptions);
-      std::vector<double> streaming, resident;
-      for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
-        const StreamedFrame step = streamFrame(pager, c, options);
-        streaming.push_back(step.seconds());
-        maxResident = std::max(maxResident, step.stats.residentBytes);
-      }
-      for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
-        convergeView(pager, c, options, args.timeout);
-        resident.push_back(streamFrame(pager, c, options).seconds());
-      }
-      streamP99s.push_back(percentile(streaming, 0.99));
-      residentP99s.push_back(percentile(resident, 0.99));
-      p99Ratios.push_back(streamP99s.back() / residentP99s.back());
-    }
-    const Summary first = summarize(firstImage), view = summarize(viewConverge), all = summarize(converge),
-                  seq = summarize(sequential), final = summarize(imageFinal);
-    const double streamP99 = summarize(streamP99s).median, residentP99 = summarize(residentP99s).median;
+    const PagerOptions pagerOptions = pagerOptionsOf(args, budget);
+    const std::vector<double> firstImage = measureFirstImage(args, pagerOptions, options);
+    const CloseUp closeUp = measureCloseUp(args, pagerOptions, options);
+    curves.push_back(closeUp.errorCurve);
+    const PathTimes path = measurePath(args, pagerOptions, options);
+    const Summary first = summarize(firstImage), view = summarize(closeUp.viewConverge),
+                  all = summarize(closeUp.converge), seq = summarize(closeUp.sequential),
+                  final = summarize(closeUp.imageFinal);
+    const double streamP99 = summarize(path.streamP99s).median,
+                 residentP99 = summarize(path.residentP99s).median;
     char ratio[32], p99ratio[32];
     std::snprintf(ratio, sizeof ratio, "%.2fx", view.median / seq.median);
-    std::snprintf(p99ratio, sizeof p99ratio, "%.2fx", summarize(p99Ratios).median);
-    // Where the workers' time went until the close-up had converged (medians per stage over the runs).
-    const auto median = [&](auto field) {
-      std::vector<double> values;
-      for (const WorkerCpu& c : cpu) values.push_back(double(field(c)));
-      return summarize(values).median;
-    };
-    const double cpuSeconds = median([](const WorkerCpu& c) { return c.seconds(); });
-    const double decoded = median([](const WorkerCpu& c) { return c.voxelsDecoded; });
-    char nanosPerVoxel[32], bytesPerCpu[32], busy[32];
-    std::snprintf(nanosPerVoxel, sizeof nanosPerVoxel, "%.0f ns", 1e9 * cpuSeconds / std::max(1.0, decoded));
-    std::snprintf(bytesPerCpu, sizeof bytesPerCpu, "%.0f MB/s", summarize(bytesPerCpuSecond).median / 1e6);
-    std::snprintf(busy, sizeof busy, "%.2f", cpuSeconds / std::max(1e-9, all.median));
-    cpuTable.addRow({formatBytes(budget),
-                     formatSeconds(median([](const WorkerCpu& c) { return c.readSeconds; })),
-                     formatSeconds(median([](const WorkerCpu& c) { return c.assembleSeconds; })),
-                     formatSeconds(median([](const WorkerCpu& c) { return c.decodeSeconds; })),
-                     formatSeconds(median([](const WorkerCpu& c) { return c.layoutSeconds; })),
-                     formatSeconds(cpuSeconds), busy, formatCount(std::uint64_t(decoded)),
-                     formatCount(std::uint64_t(median([](const WorkerCpu& c) { return c.voxelsLaidOut; }))),
-                     nanosPerVoxel, bytesPerCpu});
-    const double alone = summarize(decompressed).median, toView = summarize(viewCpu).median;
+    std::snprintf(p99ratio, sizeof p99ratio, "%.2fx", summarize(path.p99Ratios).median);
+    addCpuRow(cpuTable, budget, closeUp);
+    const double alone = summarize(closeUp.decompressed).median, toView = summarize(closeUp.viewCpu).median;
     char aloneRatio[32], cores[32];
     std::snprintf(aloneRatio, sizeof aloneRatio, "%.2fx", alone / seq.median);
     std::snprintf(cores, sizeof cores, "%.1f", toView / (kViewOverSequentialGoal * seq.median));
     goalTable.addRow({formatBytes(budget), formatSeconds(seq.median), formatSeconds(alone), aloneRatio,
                       formatSeconds(toView), cores});
     table.addRow({formatBytes(budget), formatSeconds(first.median), formatSeconds(view.median),
-                  formatSeconds(final.median), formatBytes(viewBytes), formatSeconds(seq.median), ratio,
-                  formatSeconds(all.median), formatBytes(bytes), formatSeconds(streamP99),
-                  formatSeconds(residentP99), p99ratio, formatBytes(maxResident)});
+                  formatSeconds(final.median), formatBytes(closeUp.viewBytes), formatSeconds(seq.median),
+                  ratio, formatSeconds(all.median), formatBytes(closeUp.bytes), formatSeconds(streamP99),
+                  formatSeconds(residentP99), p99ratio, formatBytes(path.maxResident)});
   }
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},

@@ -1,5 +1,6 @@
-// Minimal report plots for `svo bench`: line charts on log or linear axes, rasterized into a pixel buffer
-// and written as PNG with OpenImageIO (labels drawn with its text renderer when a font is available).
+// Report plots drawn by gnuplot (Debian package gnuplot-nox, pngcairo terminal): line charts on log or linear
+// axes, panels side by side, a legend per panel. Each plot's data goes beside it as CSV, with the gnuplot
+// script that draws the PNG from it (`gnuplot NAME.gp` in that folder draws it again).
 #pragma once
 
 #include <filesystem>
@@ -12,7 +13,7 @@ namespace svo::tools::plot {
 struct Series {
   std::string name;
   std::vector<std::pair<double, double>>
-      points;  // (x, y), finite (and > 0 on a log axis); others are skipped
+      points;  // (x, y); only finite ones (and > 0 on a log axis) are drawn
 };
 
 enum class Scale { Log, Linear };
@@ -22,9 +23,10 @@ struct Panel {
   std::vector<Series> series;
 };
 
-// Panels side by side in a grid (columns × rows as needed), one color per series name (the same across
-// panels), a legend. Log axes have decade ticks; linear ones start at 0 and step by 1, 2 or 5 times a power
-// of ten. Throws std::runtime_error naming the path on failure.
+// Writes `path` (PNG), and beside it NAME.csv (columns panel, series, x, y: the points drawn) and NAME.gp.
+// Panels fill a grid (columns x rows as needed); a series name keeps its color in every panel. Log axes
+// have decade ticks; linear ones start at 0 (or below, for negative values). Throws std::runtime_error with
+// one line naming the path: gnuplot missing (naming its package), or gnuplot's exit status and message.
 void writePlot(const std::filesystem::path& path, const std::vector<Panel>& panels, const std::string& xLabel,
                const std::string& yLabel, Scale xScale, Scale yScale, int width = 1400, int height = 1000);
 // writePlot with both axes log10.

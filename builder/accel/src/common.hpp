@@ -12,7 +12,7 @@
 #include <glm/geometric.hpp>
 #include <glm/vec3.hpp>
 
-#include "svo/builder/accel/accel.hpp"
+#include "svo/accel/accel.hpp"
 
 namespace svo::accel::detail {
 
@@ -56,8 +56,8 @@ class TriangleStore {
 
 bool validTriangle(const dvec3& a, const dvec3& b, const dvec3& c);
 
-// Ray with precomputed reciprocals. Inline, like clipRay: out of line, the per-ray set-up was a quarter of a
-// kd-tree ray's time on the 1e5-triangle sphere (svo bench accel).
+// Ray with precomputed reciprocals. Inline, like clipRay: the per-ray set-up is a large share of a short
+// kd-tree ray's time.
 struct RayCtx {
   dvec3 o, d, inv;
   double tMin, tMax;

@@ -1,12 +1,10 @@
-// Shared pieces of `svo bench`: argument validation, repeated timing with median / min / max, and plain
-// terminal tables. The benches themselves live in bench_raycast.cpp (Embree peer), bench_build.cpp (OpenVDB
-// peer) and bench_store.cpp (slice store I/O, builds on 1 and 2 threads); heavy peer headers stay inside
-// those .cpp files.
+// Shared pieces of `svo bench`: argument validation, repeated timing with median / min / max, scratch files
+// and scenes. Each bench is one bench_*.cpp; the peers' headers (Embree, OpenVDB) stay inside the .cpp files
+// that use them.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
-#include <cstdio>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -16,14 +14,18 @@
 #include <CLI/CLI.hpp>
 #include <glm/vec3.hpp>
 
-#include "commands.hpp"
+#include "report.hpp"
 #include "svo/builder/mesh.hpp"
 #include "svo/client/whole_scene.hpp"
+#include "usage.hpp"
 
 namespace svo::tools::bench {
 
 // Shown in place of a peer's numbers when the binary was built without SVO_BENCH_PEERS.
 inline constexpr std::string_view kPeerNotBuilt = "peer not built";
+
+// Errors drawn on a log axis are clamped up to this, so that an exact match stays on the plot.
+inline constexpr double kSmallestPlottedError = 1e-4;
 
 // Registered by addBenchCommands (bench_common.cpp).
 void addRaycastBench(CLI::App& bench);    // bench_raycast.cpp
@@ -33,11 +35,6 @@ void addStabilityBench(CLI::App& bench);  // bench_stability.cpp
 void addQualityBench(CLI::App& bench);    // bench_quality.cpp
 void addStoreBench(CLI::App& bench);      // bench_store.cpp
 void addStreamBench(CLI::App& bench);     // bench_stream.cpp
-
-// Median, smallest and largest of a set of samples (seconds, or any other unit).
-struct Summary {
-  double median = 0.0, min = 0.0, max = 0.0;
-};
 
 // ----- the OpenVDB peer of a build (bench_build.cpp; shared by `bench build` and `bench store`) ----------
 // OpenVDB's default narrow-band half width, in voxels (LEVEL_SET_HALF_WIDTH).
@@ -52,9 +49,6 @@ struct LevelSetResult {
 // Threads: what the calling context allows TBB. nullopt when built without SVO_BENCH_PEERS.
 std::optional<LevelSetResult> openVdbLevelSet(const Mesh& mesh, glm::dvec3 corner, double voxelSize,
                                               int runs);
-// Throws std::invalid_argument when `samples` is empty. The median of an even count is the mean of the two
-// middle samples.
-Summary summarize(std::vector<double> samples);
 
 // Wall-clock seconds of one call of `f`.
 template <class F>
@@ -72,22 +66,6 @@ Summary timeRuns(int runs, F&& run) {
   for (int i = 0; i < runs; ++i) samples.push_back(timeSeconds(run));
   return summarize(std::move(samples));
 }
-
-// A table printed with aligned columns: the first column left-aligned, the others right-aligned.
-class Table {
- public:
-  explicit Table(std::vector<std::string> headers);
-  // Rows shorter than the header are padded with empty cells; longer ones throw std::invalid_argument.
-  void addRow(std::vector<std::string> cells);
-  void print(std::FILE* out = stdout) const;
-
- private:
-  std::vector<std::string> headers_;
-  std::vector<std::vector<std::string>> rows_;
-};
-
-// Prints a section title underlined, with a blank line before it.
-void printTitle(std::string_view title, std::FILE* out = stdout);
 
 // ----- argument validation: each throws UsageError with one line naming the option -----------------------
 void requireRuns(int runs, std::string_view option = "--runs");
@@ -123,10 +101,5 @@ class ScratchPath {
 WholeScene wholeSceneOf(const VoxelTree& tree, const SceneTransform& transform,
                         const BuildParameters& parameters, const std::filesystem::path& store,
                         LayoutStats* layout = nullptr);
-
-// "12.3 ms", "1.23 s".
-std::string formatSeconds(double seconds);
-// "12,345,678".
-std::string formatCount(std::uint64_t count);
 
 }  // namespace svo::tools::bench

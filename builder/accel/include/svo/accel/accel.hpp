@@ -2,7 +2,8 @@
 // query, statistics. Every structure answers exactly what the brute-force reference answers: the same
 // triangle (ties on t broken by the smaller triangle id) and the same t, because all of them run the same
 // double-precision ray/triangle kernel and the same triangle/box test; the structures only choose which
-// triangles to test. Specification: ../shared/papers/{kdtree-*,org-*,oavm-*}.
+// triangles to test. Specification: the kd-tree (Qian, Liang & Zhang 2012), ORG grid (Li & Wang 2011) and
+// OAVM octree (Yuan et al. 2017) papers.
 #pragma once
 
 #include <cstddef>
@@ -110,9 +111,8 @@ struct KdParams {
   BinPolicy binPolicy = BinPolicy::kLinear;
   double binCoefficient = 0.4;  // Sec. 3.1: 0.4·n in Tables 1 and 2; tested 1.0, 0.4, 0.3, 0.1
   double traversalCost = 1.0;   // C_T of Eq. 2
-  // C_I of Eq. 2. The paper gives no value (Wald & Havran use K_I/K_T = 20/15); 0.5 rendered fastest of
-  // 0.3 ... 1.5 on the 1e4 ... 2e6-triangle spheres, and of 0.5 ... 3.0 at 2e6 (there 6% faster than 1.5,
-  // with half the nodes).
+  // C_I of Eq. 2. The paper gives no value (Wald & Havran use K_I/K_T = 20/15); 0.5 renders fastest of
+  // 0.3 ... 3.0 on the 1e4 ... 2e6-triangle spheres of svo bench accel.
   double intersectionCost = 0.5;
   std::size_t leafSize = 1;  // Sec. 3: "node split threshold 1"
   double depthBase = 8.0;    // Sec. 2.2.3: max depth 8 + 1.3·log2 N

@@ -9,11 +9,9 @@
 //   - given a mesh: the in-core build (buildOctree + writeOctree) on 1 and 2 threads, triangles/s, voxels/s
 //     and peak RSS, against OpenVDB meshToLevelSet at the same resolution (bench_build.cpp's peer).
 #include <fcntl.h>
-#include <spawn.h>
 #include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -37,12 +35,11 @@
 
 #include "bench_common.hpp"
 #include "machine.hpp"
+#include "process.hpp"
 #include "store_stats.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/store/container.hpp"
 #include "svo/store/format.hpp"
-
-extern char** environ;
 
 namespace svo::tools::bench {
 
@@ -188,34 +185,10 @@ struct DdResult {
   double seconds = 0.0;
 };
 std::optional<DdResult> runDd(const std::filesystem::path& file) {
-  int pipeFds[2];
-  if (::pipe(pipeFds) != 0) return std::nullopt;
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_adddup2(&actions, pipeFds[1], 1);
-  posix_spawn_file_actions_adddup2(&actions, pipeFds[1], 2);
-  posix_spawn_file_actions_addclose(&actions, pipeFds[0]);
-  const std::string in = "if=" + file.string();
-  const char* argv[] = {"dd", in.c_str(), "of=/dev/null", "bs=1M", nullptr};
-  std::vector<std::string> env = {"LC_ALL=C"};
-  for (char** e = environ; *e; ++e)
-    if (std::strncmp(*e, "LC_", 3) != 0 && std::strncmp(*e, "LANG", 4) != 0) env.emplace_back(*e);
-  std::vector<char*> envp;
-  for (std::string& e : env) envp.push_back(e.data());
-  envp.push_back(nullptr);
-  pid_t pid = 0;
-  const int spawned =
-      ::posix_spawnp(&pid, "dd", &actions, nullptr, const_cast<char* const*>(argv), envp.data());
-  posix_spawn_file_actions_destroy(&actions);
-  ::close(pipeFds[1]);
-  std::string output;
-  char buffer[4096];
-  for (ssize_t n; spawned == 0 && (n = ::read(pipeFds[0], buffer, sizeof buffer)) > 0;)
-    output.append(buffer, std::size_t(n));
-  ::close(pipeFds[0]);
-  int status = 0;
-  if (spawned != 0 || ::waitpid(pid, &status, 0) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0)
-    return std::nullopt;
+  const std::optional<ProcessResult> dd =
+      runProcess({"dd", "if=" + file.string(), "of=/dev/null", "bs=1M"}, {.cLocale = true});
+  if (!dd || !dd->succeeded()) return std::nullopt;
+  const std::string& output = dd->output;
   const std::size_t line = output.rfind(" bytes");
   const std::size_t copied = output.find("copied, ", line == std::string::npos ? 0 : line);
   if (line == std::string::npos || copied == std::string::npos) return std::nullopt;
@@ -317,86 +290,83 @@ void benchBuild(const StoreArgs& args, const std::filesystem::path& storePath) {
 
 // ----- the store measurements ------------------------------------------------------------------------------
 
-void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
-  const StoreReader reader(path);
-  const StoreHeader& h = reader.header();
+// Warm decoding: readSlice against plain zstd on the same bytes in memory, over the first slices up to
+// kWarmSampleBytes.
+struct WarmDecoding {
+  Paired timing;  // a: readSlice, b: ZSTD_decompress
+  std::size_t slices = 0;
+  std::uint64_t compressedBytes = 0, rawBytes = 0, sink = 0;
+};
+WarmDecoding measureWarmDecoding(const StoreReader& reader, const CachedFile& file,
+                                 std::uint32_t largestSlice, int runs) {
+  const std::filesystem::path& path = reader.path();
   const std::vector<SliceInfo>& slices = reader.slices();
-  if (slices.empty()) throw std::runtime_error(path.string() + ": the store has no slices to measure");
-  const CachedFile file(path);
-  LevelSummary total;
-  for (const SliceInfo& s : slices) add(total, summarizeSlice(s, h));
-
-  // Bytes per leaf voxel, per part: raw bytes exactly, disk bytes by each slice's compression ratio.
-  spdlog::info("{}: counting leaf voxels (svo verify's walk, one slice chain in memory) ...", path.string());
-  std::uint64_t leaves = 0;
-  reader.verify(nullptr, &leaves);
-  double diskHierarchy = 0, diskContours = 0, diskColors = 0, diskNormals = 0;
-  for (const SliceInfo& s : slices) {
-    const LevelSummary l = summarizeSlice(s, h);
-    const double ratio = l.rawBytes ? double(l.diskBytes) / double(l.rawBytes) : 0.0;
-    diskHierarchy += ratio * double(l.hierarchyBytes), diskContours += ratio * double(l.contourBytes);
-    diskColors += ratio * double(l.colorBytes), diskNormals += ratio * double(l.normalBytes);
+  WarmDecoding r;
+  while (r.slices < slices.size() &&
+         (r.slices == 0 || r.compressedBytes + slices[r.slices].compressedBytes <= kWarmSampleBytes)) {
+    r.compressedBytes += slices[r.slices].compressedBytes;
+    r.rawBytes += slices[r.slices].rawBytes;
+    ++r.slices;
   }
-
-  // 1. Warm decoding: readSlice against plain zstd on the same bytes in memory, over the first slices up to
-  // kWarmSampleBytes.
-  std::size_t warmSlices = 0;
-  std::uint64_t warmCompressed = 0, warmRaw = 0;
-  while (warmSlices < slices.size() &&
-         (warmSlices == 0 || warmCompressed + slices[warmSlices].compressedBytes <= kWarmSampleBytes)) {
-    warmCompressed += slices[warmSlices].compressedBytes;
-    warmRaw += slices[warmSlices].rawBytes;
-    ++warmSlices;
-  }
-  std::vector<std::vector<char>> compressed(warmSlices);
-  for (std::size_t i = 0; i < warmSlices; ++i) {
+  std::vector<std::vector<char>> compressed(r.slices);
+  for (std::size_t i = 0; i < r.slices; ++i) {
     compressed[i].resize(slices[i].compressedBytes);
     if (::pread(file.fd(), compressed[i].data(), compressed[i].size(), off_t(slices[i].offset)) !=
         ssize_t(compressed[i].size()))
       throw std::runtime_error(path.string() + ": cannot read slice " + std::to_string(i));
   }
-  std::uint64_t sink = 0;
-  spdlog::info("slice decoding, warm: {} of {} slices, {} runs ...", warmSlices, slices.size(), runs);
+  spdlog::info("slice decoding, warm: {} of {} slices, {} runs ...", r.slices, slices.size(), runs);
   const auto readPass = [&] {
-    for (std::uint32_t id = 0; id < warmSlices; ++id) sink += reader.readSlice(id).size();
+    for (std::uint32_t id = 0; id < r.slices; ++id) r.sink += reader.readSlice(id).size();
   };
-  std::vector<char> out(total.largestSlice);
+  std::vector<char> out(largestSlice);
   const auto zstdPass = [&] {
-    for (std::size_t i = 0; i < warmSlices; ++i) {
+    for (std::size_t i = 0; i < r.slices; ++i) {
       const std::size_t n =
           ZSTD_decompress(out.data(), slices[i].rawBytes, compressed[i].data(), compressed[i].size());
       if (ZSTD_isError(n))
         throw std::runtime_error(path.string() + ": slice " + std::to_string(i) + " does not decompress");
-      sink += n;
+      r.sink += n;
     }
   };
-  const Paired decoding = timePaired(runs, readPass, zstdPass);
-  const Summary &ours = decoding.a, &plain = decoding.b;
+  r.timing = timePaired(runs, readPass, zstdPass);
+  return r;
+}
 
-  // 2. Cold reads: random slice order against dd's sequential read.
+// Cold reads in a fixed random slice order, readSlice and bare pread, each with one reader and with
+// `readThreads` readers, against dd's sequential read; the page cache is dropped before every run.
+struct ColdReads {
+  std::vector<int> readerCounts;
+  std::vector<std::vector<double>> readSlice, pread;  // seconds per run, per reader count
+  std::optional<Summary> dd;                          // none when dd failed
+  std::uint64_t ddBytes = 0;
+  double maxResident = 0.0;  // largest share of the file still cached at a run's start
+  std::uint64_t sink = 0;
+};
+ColdReads measureColdReads(const StoreReader& reader, const CachedFile& file, int runs, int readThreads) {
+  const std::vector<SliceInfo>& slices = reader.slices();
   std::vector<std::uint32_t> order(slices.size());
   std::iota(order.begin(), order.end(), 0u);
   std::shuffle(order.begin(), order.end(), std::mt19937_64(kShuffleSeed));
-  // Cold runs: readSlice and bare pread, each with one reader and with --read-threads readers.
-  const std::vector<int> readerCounts =
-      readThreads > 1 ? std::vector<int>{1, readThreads} : std::vector<int>{1};
-  std::vector<std::vector<double>> coldSlice(readerCounts.size()), coldPread(readerCounts.size());
+  ColdReads r;
+  r.readerCounts = readThreads > 1 ? std::vector<int>{1, readThreads} : std::vector<int>{1};
+  r.readSlice.resize(r.readerCounts.size());
+  r.pread.resize(r.readerCounts.size());
   std::vector<double> ddSeconds, residents;
   std::uint32_t largestCompressed = 0;
   for (const SliceInfo& s : slices) largestCompressed = std::max(largestCompressed, s.compressedBytes);
-  std::uint64_t ddBytes = 0;
   bool ddRan = true;
   std::atomic<std::size_t> readSink{0};
   spdlog::info("cold reads: random slice order vs dd, {} runs ...", runs);
   for (int i = 0; i < runs; ++i) {
-    for (std::size_t c = 0; c < readerCounts.size(); ++c) {
+    for (std::size_t c = 0; c < r.readerCounts.size(); ++c) {
       file.drop();
       residents.push_back(file.resident());
-      coldSlice[c].push_back(timeConcurrentReads(
-          order, readerCounts[c], [&](std::uint32_t id) { readSink += reader.readSlice(id).size(); }));
+      r.readSlice[c].push_back(timeConcurrentReads(
+          order, r.readerCounts[c], [&](std::uint32_t id) { readSink += reader.readSlice(id).size(); }));
       file.drop();
       residents.push_back(file.resident());
-      coldPread[c].push_back(timeConcurrentReads(order, readerCounts[c], [&](std::uint32_t id) {
+      r.pread[c].push_back(timeConcurrentReads(order, r.readerCounts[c], [&](std::uint32_t id) {
         thread_local std::vector<char> buffer;
         buffer.resize(largestCompressed);
         readSink += std::size_t(
@@ -405,55 +375,56 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
     }
     file.drop();
     residents.push_back(file.resident());
-    if (const std::optional<DdResult> dd = runDd(path)) {
+    if (const std::optional<DdResult> dd = runDd(reader.path())) {
       ddSeconds.push_back(dd->seconds);
-      ddBytes = dd->bytes;
+      r.ddBytes = dd->bytes;
     } else {
       ddRan = false;
     }
   }
-  sink += readSink;
-  const std::optional<Summary> dd = ddRan ? std::optional(summarize(ddSeconds)) : std::nullopt;
-  const double maxResident = *std::max_element(residents.begin(), residents.end());
+  r.sink = readSink;
+  if (ddRan) r.dd = summarize(ddSeconds);
+  r.maxResident = *std::max_element(residents.begin(), residents.end());
+  return r;
+}
 
-  printTitle("Slice store: read, verify, decode");
-  fmt::print(
-      "{}: {} MiB, {} slices ({} decoded MiB, slice size {} B), {} levels, attachments:{}{}; median of {} "
-      "runs\n",
-      path.string(), mib(double(h.fileBytes)), slices.size(), mib(double(total.rawBytes)), h.sliceBytes,
-      h.parameters.levels, h.hasColors ? " color" : "",
-      h.hasNormals ? " normal" : (h.hasColors ? "" : " none"), runs);
-  const double raw = double(total.rawBytes), disk = double(total.diskBytes), warm = double(warmRaw);
-  if (warmSlices < slices.size())
+void printDecoding(const WarmDecoding& warm, std::size_t slices) {
+  const double raw = double(warm.rawBytes);
+  const Summary &ours = warm.timing.a, &plain = warm.timing.b;
+  if (warm.slices < slices)
     fmt::print("warm rows: the first {} of {} slices ({} MiB compressed, held in memory for zstd)\n",
-               warmSlices, slices.size(), mib(double(warmCompressed)));
+               warm.slices, slices, mib(double(warm.compressedBytes)));
   Table decode({"warm page cache", "decoded MB/s", "min/max", "time", "vs zstd", "goal"});
-  decode.addRow({"StoreReader::readSlice (read + XXH3 + zstd)", mbs(warm, ours.median),
-                 fmt::format("{} / {}", mbs(warm, ours.max), mbs(warm, ours.min)), formatSeconds(ours.median),
-                 fmt::format("{:.2f}x", decoding.ratio), fmt::format(">= {:.1f}x", kDecodeGoal)});
-  decode.addRow({"ZSTD_decompress, same bytes in memory", mbs(warm, plain.median),
-                 fmt::format("{} / {}", mbs(warm, plain.max), mbs(warm, plain.min)),
+  decode.addRow({"StoreReader::readSlice (read + XXH3 + zstd)", mbs(raw, ours.median),
+                 fmt::format("{} / {}", mbs(raw, ours.max), mbs(raw, ours.min)), formatSeconds(ours.median),
+                 fmt::format("{:.2f}x", warm.timing.ratio), fmt::format(">= {:.1f}x", kDecodeGoal)});
+  decode.addRow({"ZSTD_decompress, same bytes in memory", mbs(raw, plain.median),
+                 fmt::format("{} / {}", mbs(raw, plain.max), mbs(raw, plain.min)),
                  formatSeconds(plain.median), "1.00x", ""});
   decode.print();
+}
 
+void printColdReads(const ColdReads& cold, double diskBytes, std::size_t slices) {
   Table coldTable({"cold file (page cache dropped)", "file MB/s", "min/max", "time", "vs dd", "goal"});
   const auto coldRow = [&](const std::string& name, const Summary& s, double bytes, bool goal) {
-    coldTable.addRow({name, mbs(bytes, s.median),
-                      fmt::format("{} / {}", mbs(bytes, s.max), mbs(bytes, s.min)), formatSeconds(s.median),
-                      dd ? fmt::format("{:.2f}x", megabytesPerSecond(bytes, s.median) /
-                                                      megabytesPerSecond(double(ddBytes), dd->median))
-                         : std::string("dd failed"),
-                      goal ? fmt::format(">= {:.1f}x", kColdReadGoal) : std::string()});
+    coldTable.addRow(
+        {name, mbs(bytes, s.median), fmt::format("{} / {}", mbs(bytes, s.max), mbs(bytes, s.min)),
+         formatSeconds(s.median),
+         cold.dd ? fmt::format("{:.2f}x", megabytesPerSecond(bytes, s.median) /
+                                              megabytesPerSecond(double(cold.ddBytes), cold.dd->median))
+                 : std::string("dd failed"),
+         goal ? fmt::format(">= {:.1f}x", kColdReadGoal) : std::string()});
   };
-  for (std::size_t c = 0; c < readerCounts.size(); ++c) {
+  for (std::size_t c = 0; c < cold.readerCounts.size(); ++c) {
     const std::string readers =
-        readerCounts[c] == 1 ? "1 reader" : fmt::format("{} readers", readerCounts[c]);
-    coldRow(fmt::format("readSlice, random slice order, {}", readers), summarize(coldSlice[c]), disk,
-            c + 1 == readerCounts.size());
-    coldRow(fmt::format("pread only, random slice order, {}", readers), summarize(coldPread[c]), disk, false);
+        cold.readerCounts[c] == 1 ? "1 reader" : fmt::format("{} readers", cold.readerCounts[c]);
+    coldRow(fmt::format("readSlice, random slice order, {}", readers), summarize(cold.readSlice[c]),
+            diskBytes, c + 1 == cold.readerCounts.size());
+    coldRow(fmt::format("pread only, random slice order, {}", readers), summarize(cold.pread[c]), diskBytes,
+            false);
   }
-  if (dd)
-    coldRow("dd if=FILE of=/dev/null bs=1M", *dd, double(ddBytes), false);
+  if (cold.dd)
+    coldRow("dd if=FILE of=/dev/null bs=1M", *cold.dd, double(cold.ddBytes), false);
   else
     coldTable.addRow({"dd if=FILE of=/dev/null bs=1M", "dd failed"});
   coldTable.print();
@@ -465,42 +436,53 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
       "before every run; at most {:.1f}% of its pages were still cached at a run's start (mincore). A "
       "virtual\n"
       "disk may still be cached by its host. Random order: a fixed shuffle of all {} slices.\n",
-      100.0 * maxResident, slices.size());
+      100.0 * cold.maxResident, slices);
+}
 
+void printSliceSizes(const std::vector<SliceInfo>& slices, const StoreHeader& h) {
   printTitle("Slice sizes");
-  {
-    // Slices whose cube is one voxel of the level above cannot split; the goals are about the others.
-    std::vector<double> splittable;
-    std::size_t unsplittable = 0, overLimit = 0;
-    for (const SliceInfo& s : slices) {
-      const double size = double(s.rawBytes) / double(h.sliceBytes);
-      if (!s.canSplit()) {
-        ++unsplittable;
-        continue;
-      }
-      splittable.push_back(size);
-      overLimit += size > kLargestSliceGoal;
+  // Slices whose cube is one voxel of the level above cannot split; the goals are about the others.
+  std::vector<double> splittable;
+  std::size_t unsplittable = 0, overLimit = 0;
+  for (const SliceInfo& s : slices) {
+    const double size = double(s.rawBytes) / double(h.sliceBytes);
+    if (!s.canSplit()) {
+      ++unsplittable;
+      continue;
     }
-    std::sort(splittable.begin(), splittable.end());
-    const auto quantile = [&](double q) {
-      return splittable.empty() ? 0.0 : splittable[std::size_t(q * double(splittable.size() - 1) + 0.5)];
-    };
-    Table sizes({"decoded slice size / target", "p10", "median", "p90", "largest", "above 1.5x", "goal"});
-    sizes.addRow({fmt::format("{} slices that can split", splittable.size()),
-                  fmt::format("{:.2f}", quantile(0.1)), fmt::format("{:.2f}", quantile(0.5)),
-                  fmt::format("{:.2f}", quantile(0.9)), fmt::format("{:.2f}", quantile(1.0)),
-                  std::to_string(overLimit),
-                  fmt::format("median >= {:.1f}, none above {:.1f}", kMedianSliceGoal, kLargestSliceGoal)});
-    sizes.print();
-    fmt::print("target: {} B decoded; {} more slices hold the children of a single voxel (cannot split)\n",
-               h.sliceBytes, unsplittable);
+    splittable.push_back(size);
+    overLimit += size > kLargestSliceGoal;
   }
+  std::sort(splittable.begin(), splittable.end());
+  const auto quantile = [&](double q) {
+    return splittable.empty() ? 0.0 : splittable[std::size_t(q * double(splittable.size() - 1) + 0.5)];
+  };
+  Table sizes({"decoded slice size / target", "p10", "median", "p90", "largest", "above 1.5x", "goal"});
+  sizes.addRow({fmt::format("{} slices that can split", splittable.size()),
+                fmt::format("{:.2f}", quantile(0.1)), fmt::format("{:.2f}", quantile(0.5)),
+                fmt::format("{:.2f}", quantile(0.9)), fmt::format("{:.2f}", quantile(1.0)),
+                std::to_string(overLimit),
+                fmt::format("median >= {:.1f}, none above {:.1f}", kMedianSliceGoal, kLargestSliceGoal)});
+  sizes.print();
+  fmt::print("target: {} B decoded; {} more slices hold the children of a single voxel (cannot split)\n",
+             h.sliceBytes, unsplittable);
+}
 
+// Bytes per leaf voxel, per part: raw bytes exactly, disk bytes by each slice's compression ratio.
+void printBytesPerLeaf(const StoreReader& reader, const LevelSummary& total, std::uint64_t leaves) {
+  const StoreHeader& h = reader.header();
+  double diskHierarchy = 0, diskContours = 0, diskColors = 0, diskNormals = 0;
+  for (const SliceInfo& s : reader.slices()) {
+    const LevelSummary l = summarizeSlice(s, h);
+    const double ratio = l.rawBytes ? double(l.diskBytes) / double(l.rawBytes) : 0.0;
+    diskHierarchy += ratio * double(l.hierarchyBytes), diskContours += ratio * double(l.contourBytes);
+    diskColors += ratio * double(l.colorBytes), diskNormals += ratio * double(l.normalBytes);
+  }
   printTitle("Bytes per leaf voxel");
   fmt::print("{} leaf voxels (voxels without children), {} voxels in all\n", formatCount(leaves),
              formatCount(total.voxels + 1));
   Table bytes({"part", "raw B/leaf", "disk B/leaf", "disk share"});
-  const double fileBytes = double(h.fileBytes);
+  const double fileBytes = double(h.fileBytes), raw = double(total.rawBytes), disk = double(total.diskBytes);
   const auto bytesRow = [&](const std::string& name, double rawPart, double diskPart) {
     bytes.addRow({name, fmt::format("{:.3f}", rawPart / double(leaves)),
                   fmt::format("{:.3f}", diskPart / double(leaves)),
@@ -519,7 +501,34 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
       "among its parts in proportion to their raw sizes (zstd compresses a slice as a whole). Goal: <= 3 B "
       "per\n"
       "leaf voxel on disk with contours and attributes.\n");
-  if (sink == 0) fmt::print("(nothing read)\n");
+}
+
+void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
+  const StoreReader reader(path);
+  const StoreHeader& h = reader.header();
+  const std::vector<SliceInfo>& slices = reader.slices();
+  if (slices.empty()) throw std::runtime_error(path.string() + ": the store has no slices to measure");
+  const CachedFile file(path);
+  LevelSummary total;
+  for (const SliceInfo& s : slices) add(total, summarizeSlice(s, h));
+  spdlog::info("{}: counting leaf voxels (svo verify's walk, one slice chain in memory) ...", path.string());
+  std::uint64_t leaves = 0;
+  reader.verify(nullptr, &leaves);
+
+  const WarmDecoding warm = measureWarmDecoding(reader, file, total.largestSlice, runs);
+  const ColdReads cold = measureColdReads(reader, file, runs, readThreads);
+  printTitle("Slice store: read, verify, decode");
+  fmt::print(
+      "{}: {} MiB, {} slices ({} decoded MiB, slice size {} B), {} levels, attachments:{}{}; median of {} "
+      "runs\n",
+      path.string(), mib(double(h.fileBytes)), slices.size(), mib(double(total.rawBytes)), h.sliceBytes,
+      h.parameters.levels, h.hasColors ? " color" : "",
+      h.hasNormals ? " normal" : (h.hasColors ? "" : " none"), runs);
+  printDecoding(warm, slices.size());
+  printColdReads(cold, double(total.diskBytes), slices.size());
+  printSliceSizes(slices, h);
+  printBytesPerLeaf(reader, total, leaves);
+  if (warm.sink + cold.sink == 0) fmt::print("(nothing read)\n");
 }
 
 void runStoreBench(const StoreArgs& args) {

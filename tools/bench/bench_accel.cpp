@@ -22,8 +22,8 @@
 #include "bench_common.hpp"
 #include "bench_embree.hpp"
 #include "plot.hpp"
-#include "svo/builder/accel/accel.hpp"
-#include "svo/builder/accel/scenes.hpp"
+#include "svo/accel/accel.hpp"
+#include "svo/accel/scenes.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo::tools::bench {
@@ -296,28 +296,28 @@ std::vector<Claim> checkClaims(const std::vector<SceneResult>& results) {
   return claims;
 }
 
-void runAccelBench(const AccelArgs& args) {
-  if (args.size < 1 || args.size > 16384)
-    throw UsageError(fmt::format("--size must be in [1, 16384] (got {})", args.size));
-  requireRuns(args.runs);
-  if (args.maxN < 1) throw UsageError(fmt::format("--max-n must be >= 1 (got {})", args.maxN));
-  const int threads = resolveThreads(args.threads);
-  AccelArgs a = args;
-  a.threads = threads;
-  const glm::dvec3 view = parseDirection(args.view, "--view");
-  std::vector<std::string> structures =
-      args.structures.empty() ? accel::structureNames() : splitList(args.structures);
-  const auto known = accel::structureNames();
+std::vector<std::string> parseStructures(const std::string& text) {
+  const std::vector<std::string> known = accel::structureNames();
+  if (text.empty()) return known;
   std::string knownList;
   for (const auto& k : known) knownList += (knownList.empty() ? "" : ",") + k;
+  const std::vector<std::string> structures = splitList(text);
   for (const auto& s : structures)
     if (std::find(known.begin(), known.end(), s) == known.end())
       throw UsageError("--structures: unknown '" + s + "' (known: " + knownList + ")");
-  std::vector<accel::SceneKind> kinds;
-  std::map<accel::SceneKind, std::int64_t> kindCap;  // "thin:100000": no larger thin scene
-  for (const auto& spec : splitList(args.scenes)) {
+  return structures;
+}
+
+// A generated scene kind and the most triangles it may have ("thin:100000": no larger thin scene).
+struct SceneSpec {
+  accel::SceneKind kind;
+  std::int64_t cap = 0;
+};
+std::vector<SceneSpec> parseScenes(const std::string& text, std::int64_t maxN) {
+  std::vector<SceneSpec> specs;
+  for (const auto& spec : splitList(text)) {
     const std::string name = spec.substr(0, spec.find(':'));
-    std::int64_t cap = args.maxN;
+    std::int64_t cap = maxN;
     if (spec.find(':') != std::string::npos) {
       char* end = nullptr;
       const double v = std::strtod(spec.c_str() + spec.find(':') + 1, &end);
@@ -326,50 +326,98 @@ void runAccelBench(const AccelArgs& args) {
     }
     bool found = false;
     for (auto k : accel::allScenes())
-      if (accel::sceneName(k) == name) kinds.push_back(k), kindCap[k] = cap, found = true;
+      if (accel::sceneName(k) == name) specs.push_back({k, cap}), found = true;
     if (!found) throw UsageError(fmt::format("--scenes: unknown scene '{}'", name));
   }
+  return specs;
+}
+
+std::vector<std::int64_t> parseSizes(const std::string& text, std::int64_t maxN) {
   std::vector<std::int64_t> sizes;
-  for (const auto& t : splitList(args.sizes)) {
+  for (const auto& t : splitList(text)) {
     char* end = nullptr;
     const double v = std::strtod(t.c_str(), &end);
     if (!end || *end || !(v >= 1)) throw UsageError(fmt::format("--sizes: '{}' is not a count >= 1", t));
-    if (std::int64_t(v) <= args.maxN) sizes.push_back(std::int64_t(v));
+    if (std::int64_t(v) <= maxN) sizes.push_back(std::int64_t(v));
   }
+  return sizes;
+}
+
+// The meshes named by --mesh (an error when one does not load), else the default meshes that load.
+std::vector<SceneResult> runMeshes(const AccelArgs& args, const std::vector<std::string>& structures,
+                                   const glm::dvec3& view) {
   std::vector<std::string> meshes = args.meshes;
   if (meshes.empty())
     for (const char* m : kDefaultMeshes)
       if (std::filesystem::exists(m)) meshes.push_back(m);
-
   std::vector<SceneResult> results;
   for (const auto& path : meshes) {
     Mesh mesh;
     try {
       mesh = loadBenchMesh(path);
     } catch (const std::exception& e) {
-      if (!args.meshes.empty()) throw;  // named on the command line: an error
+      if (!args.meshes.empty()) throw;
       spdlog::warn("skipping default mesh: {}", e.what());
       continue;
     }
     if (std::int64_t(mesh.triangles.size()) > args.maxN) continue;
     results.push_back(
-        runScene(std::filesystem::path(path).filename().string(), "mesh", mesh, structures, a, view));
+        runScene(std::filesystem::path(path).filename().string(), "mesh", mesh, structures, args, view));
   }
-  for (auto kind : kinds)
+  return results;
+}
+
+// Build microseconds per triangle against N, one panel per generated scene kind; returns the report's line.
+std::string plotBuildTimes(const std::string& path, const std::vector<SceneSpec>& scenes,
+                           const std::vector<SceneResult>& results) {
+  std::vector<plot::Panel> panels;
+  for (const SceneSpec& scene : scenes) {
+    plot::Panel panel{accel::sceneName(scene.kind), {}};
+    std::map<std::string, plot::Series> series;
+    for (const SceneResult& r : results)
+      if (r.kind == accel::sceneName(scene.kind))
+        for (const Row& row : r.rows) {
+          auto& s = series[row.structure];
+          s.name = row.structure;
+          s.points.push_back({double(r.triangles), row.buildSeconds / double(r.triangles) * 1e6});
+        }
+    for (auto& [k, s] : series) panel.series.push_back(s);
+    if (!panel.series.empty()) panels.push_back(panel);
+  }
+  if (panels.empty() || path.empty()) return {};
+  plot::writeLogLogPlot(path, panels, "triangles N", "build time per triangle (microseconds)");
+  fmt::print("plot: {}\n", path);
+  return fmt::format("\n![build time per triangle against N]({})\n",
+                     std::filesystem::path(path).filename().string());
+}
+
+void runAccelBench(const AccelArgs& args) {
+  if (args.size < 1 || args.size > 16384)
+    throw UsageError(fmt::format("--size must be in [1, 16384] (got {})", args.size));
+  requireRuns(args.runs);
+  if (args.maxN < 1) throw UsageError(fmt::format("--max-n must be >= 1 (got {})", args.maxN));
+  AccelArgs a = args;
+  a.threads = resolveThreads(args.threads);
+  const glm::dvec3 view = parseDirection(args.view, "--view");
+  const std::vector<std::string> structures = parseStructures(args.structures);
+  const std::vector<SceneSpec> scenes = parseScenes(args.scenes, args.maxN);
+  const std::vector<std::int64_t> sizes = parseSizes(args.sizes, args.maxN);
+
+  std::vector<SceneResult> results = runMeshes(a, structures, view);
+  for (const SceneSpec& scene : scenes)
     for (auto n : sizes) {
-      if (n > kindCap[kind]) continue;
-      const Mesh mesh = accel::makeScene(kind, std::size_t(n), args.seed);
+      if (n > scene.cap) continue;
+      const Mesh mesh = accel::makeScene(scene.kind, std::size_t(n), args.seed);
       results.push_back(
-          runScene(fmt::format("{} {}", accel::sceneName(kind), formatCount(mesh.triangles.size())),
-                   accel::sceneName(kind), mesh, structures, a, view));
+          runScene(fmt::format("{} {}", accel::sceneName(scene.kind), formatCount(mesh.triangles.size())),
+                   accel::sceneName(scene.kind), mesh, structures, a, view));
     }
 
   std::string md = fmt::format(
       "# svo bench accel\n\n{}×{} primary rays per scene, {} thread(s), median of {} render run(s); build "
-      "timed "
-      "once. `≠ first`: pixels whose triangle differs from the first structure's (Embree: float "
+      "timed once. `≠ first`: pixels whose triangle differs from the first structure's (Embree: float "
       "precision).\n\n",
-      args.size, args.size, threads, args.runs);
+      args.size, args.size, a.threads, args.runs);
   for (const SceneResult& r : results) {
     printTitle(fmt::format("{}: {} triangles", r.name, formatCount(r.triangles)));
     Table table(kHeaders);
@@ -379,38 +427,16 @@ void runAccelBench(const AccelArgs& args) {
     md += fmt::format("## {} ({} triangles)\n\n", r.name, formatCount(r.triangles)) +
           markdownTable(kHeaders, cells) + "\n";
   }
-  const auto claims = checkClaims(results);
   printTitle("Paper claims on these numbers");
   Table ct({"claim", "scene", "measured", "verdict"});
   std::vector<std::vector<std::string>> mdClaims;
-  for (const Claim& c : claims) {
+  for (const Claim& c : checkClaims(results)) {
     ct.addRow({c.claim, c.scene, c.value, c.holds ? "confirmed" : "refuted"});
     mdClaims.push_back({c.claim, c.scene, c.value, c.holds ? "confirmed" : "refuted"});
   }
   ct.print();
   md += "## Paper claims\n\n" + markdownTable({"claim", "scene", "measured", "verdict"}, mdClaims);
-
-  // Plot: build µs per triangle against N, one panel per generated scene kind.
-  std::vector<plot::Panel> panels;
-  for (auto kind : kinds) {
-    plot::Panel panel{accel::sceneName(kind), {}};
-    std::map<std::string, plot::Series> series;
-    for (const SceneResult& r : results)
-      if (r.kind == accel::sceneName(kind))
-        for (const Row& row : r.rows) {
-          auto& s = series[row.structure];
-          s.name = row.structure;
-          s.points.push_back({double(r.triangles), row.buildSeconds / double(r.triangles) * 1e6});
-        }
-    for (auto& [k, s] : series) panel.series.push_back(s);
-    if (!panel.series.empty()) panels.push_back(panel);
-  }
-  if (!panels.empty() && !args.plotPath.empty()) {
-    plot::writeLogLogPlot(args.plotPath, panels, "triangles N", "build time per triangle (microseconds)");
-    md += fmt::format("\n![build time per triangle against N]({})\n",
-                      std::filesystem::path(args.plotPath).filename().string());
-    fmt::print("plot: {}\n", args.plotPath);
-  }
+  md += plotBuildTimes(args.plotPath, scenes, results);
   if (!args.markdown.empty()) {
     std::ofstream out(args.markdown);
     out << md;

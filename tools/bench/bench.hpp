@@ -1,0 +1,11 @@
+// `svo bench`: the benchmarks, each against a peer measured in the same run.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace svo::tools {
+
+// Registers `svo bench raycast`, `build`, `accel`, `stability`, `quality`, `store` and `stream` on `bench`.
+void addBenchCommands(CLI::App& bench);
+
+}  // namespace svo::tools
