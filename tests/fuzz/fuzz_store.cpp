@@ -9,7 +9,7 @@
 #include <string>
 
 #include "scratch_file.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_reader.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   static const std::filesystem::path path = svofuzz::scratchPath("svo_fuzz_store_", ".svo");

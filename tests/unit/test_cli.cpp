@@ -17,7 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "reference.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_reader.hpp"
 
 namespace fs = std::filesystem;
 

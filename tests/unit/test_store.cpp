@@ -1,4 +1,4 @@
-// The slice store (store/container.hpp) against independent references:
+// The slice store (store/store_writer.hpp, store_reader.hpp) against independent references:
 //  - round trip: the store loaded whole and laid out gives the in-core builder's block byte for byte, for
 //    slice sizes from the smallest to one that never splits, with and without colors;
 //  - the slice hierarchy: voxel counts per level equal a breadth-first count of the source tree, slices of a
@@ -24,7 +24,8 @@
 
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_reader.hpp"
+#include "svo/store/store_writer.hpp"
 
 namespace fs = std::filesystem;
 

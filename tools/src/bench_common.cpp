@@ -14,6 +14,7 @@
 #include <tbb/info.h>
 
 #include "svo/store/format.hpp"
+#include "svo/store/store_writer.hpp"
 
 namespace svo::tools {
 

@@ -39,8 +39,9 @@
 #include "machine.hpp"
 #include "store_stats.hpp"
 #include "svo/builder/build.hpp"
-#include "svo/store/container.hpp"
 #include "svo/store/format.hpp"
+#include "svo/store/store_reader.hpp"
+#include "svo/store/store_writer.hpp"
 
 extern char** environ;
 
