@@ -350,6 +350,14 @@ std::vector<std::uint8_t> cubeSlice0() {
   return raw;
 }
 
+// Levels 1 and 2 of the cube's surface, the same in both cube stores: 8 corner voxels at level 1, and below
+// them 8 corners, 24 edge and 24 face voxels (see CubeDecodesAsWorkedOutByHand).
+void checkCubeTop(const std::string& bytes) {
+  checkEntry(bytes, 0, {1, 0, 7, 1, 8, 0, 0, 8, 52, svo::SliceInfo::kNoSlice});
+  checkEntry(bytes, 1, {2, 0, 7, 8, 56, 0, 0, 48, 151, 0});
+  EXPECT_EQ(rawSlice(bytes, 0), cubeSlice0());
+}
+
 }  // namespace
 
 TEST(StoreFixtures, CubeDecodesAsWorkedOutByHand) {
@@ -359,11 +367,9 @@ TEST(StoreFixtures, CubeDecodesAsWorkedOutByHand) {
   // Level L has n^3 - (n - 2)^3 voxels, n = 2^L; a corner voxel has 7 children (6 store a normal: the one
   // in the corner inherits), an edge voxel 6 (4), a face voxel 4 (0). Level 1: 8 corners; level 2: 8
   // corners, 24 edge, 24 face voxels; level 3: 8, 72, 216.
-  checkEntry(bytes, 0, {1, 0, 7, 1, 8, 0, 0, 8, 52, svo::SliceInfo::kNoSlice});
-  checkEntry(bytes, 1, {2, 0, 7, 8, 56, 0, 0, 48, 151, 0});
+  checkCubeTop(bytes);
   checkEntry(bytes, 2, {3, 0, 7, 56, 296, 0, 0, 144, 457, 1});
   checkEntry(bytes, 3, {4, 0, 7, 296, 1352, 0, 0, 336, 1375, 2});
-  EXPECT_EQ(rawSlice(bytes, 0), cubeSlice0());
   // Slice 1 by hand up to its normals: octant s misses its child 7 - s (the cube's inside); its child s
   // (in the cube's corner, index s or s - 1 among its 7) inherits the octant's normal.
   std::vector<std::uint8_t> slice1 = head(8, 8, 56, 0, 0, 48, 2);
@@ -490,11 +496,9 @@ TEST(StoreFixtures, RunsDecodeAsWorkedOutByHand) {
   // Level 3 of the whole cube takes 457 bytes > 256: its 8 octants (each 7 parents, 37 voxels, 18 normals)
   // pack into runs. k octants take 32 + ceil(7k/8) + 7k + 2 ceil(37k/8) + 36k bytes: 86, 140, 192, 246, 300,
   // ...; the share is 457 / 2 = 228.5, so each run grows while it fits and nears the share: 0-3 and 4-7.
-  checkEntry(bytes, 0, {1, 0, 7, 1, 8, 0, 0, 8, 52, svo::SliceInfo::kNoSlice});
-  checkEntry(bytes, 1, {2, 0, 7, 8, 56, 0, 0, 48, 151, 0});
+  checkCubeTop(bytes);
   checkEntry(bytes, 2, {3, 0, 3, 28, 148, 0, 0, 72, 246, 1});
   checkEntry(bytes, 3, {3, 4, 7, 28, 148, 0, 0, 72, 246, 1});
-  EXPECT_EQ(rawSlice(bytes, 0), cubeSlice0());
 
   const svo::StoreReader reader = readerOf(f);
   EXPECT_FALSE(reader.slices()[2].wholeCube());
