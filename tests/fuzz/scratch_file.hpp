@@ -1,5 +1,5 @@
-// The readers under fuzzing take paths: each input is written to one scratch file per fuzzing process, in
-// memory where /dev/shm exists.
+// The PLY reader under fuzzing takes a path: each input is written to one scratch file per fuzzing process,
+// in memory where /dev/shm exists. (The store reader reads its inputs from memory: fuzz_store.cpp.)
 #pragma once
 
 #include <unistd.h>

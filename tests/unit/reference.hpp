@@ -16,8 +16,8 @@
 
 #include "svo/builder/mesh.hpp"
 #include "svo/store/block.hpp"
-#include "svo/store/container.hpp"
 #include "svo/store/format.hpp"
+#include "svo/store/store_types.hpp"
 
 namespace svotest {
 

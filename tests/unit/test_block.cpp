@@ -13,6 +13,7 @@
 #include <optional>
 #include <random>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 
 #include <glm/geometric.hpp>
@@ -392,32 +393,37 @@ TEST(Block, FarPointers) {
       svo::LayoutStats stats;
       const svo::Block block = svo::layoutBlock(tree, options, &stats);
       SCOPED_TRACE("reach " + std::to_string(reach));
-      EXPECT_GT(stats.farSlots, 0u);
       EXPECT_EQ(compareTrees(tree, svo::readBlock(block.view()), true, true), "");
       EXPECT_EQ(checkLookups(block.view(), tree, 0), "");
       EXPECT_EQ(checkPageHeaders(block.view()), "");
-      // Every near pointer respects the reach.
+      // Every near pointer respects the reach; each descriptor with its far bit set has one far slot.
+      std::uint64_t farDescriptors = 0;
       std::function<void(const svo::ChildDescriptor*)> rec = [&](const svo::ChildDescriptor* d) {
         EXPECT_LE(d->childPointer(), reach);
+        farDescriptors += d->far();
         for (int s = 0; s < 8; ++s)
           if ((d->nonLeafMask() >> s) & 1) rec(svo::BlockView::child(d, s));
       };
       rec(block.view().root());
+      EXPECT_GT(farDescriptors, 0u);
+      EXPECT_EQ(stats.farSlots, farDescriptors);
       // Same tree laid out with the default reach: same decoded result.
       const svo::Block plain = svo::layoutBlock(tree);
       EXPECT_EQ(compareTrees(svo::readBlock(plain.view()), svo::readBlock(block.view()), true, true), "");
     }
   }
-  // A reach too small to hold even a far pointer is refused cleanly, or works.
+  // A reach that cannot hold a run of 8 descriptors and their 8 far slots (under 16), or past the 15-bit
+  // field, is refused as a bad option.
   std::mt19937_64 rng2(14);
   const svo::VoxelTree tree = randomTree(rng2, {});
-  for (std::uint32_t reach : {0u, 1u, 2u, 8u}) {
+  for (std::uint32_t reach : {0u, 1u, 2u, 8u, 15u, svo::kMaxNearPointer + 1}) {
     svo::LayoutOptions options;
     options.maxNearPointer = reach;
     try {
-      const svo::Block block = svo::layoutBlock(tree, options);
-      EXPECT_EQ(compareTrees(tree, svo::readBlock(block.view()), true, true), "");
-    } catch (const std::exception&) {
+      (void)svo::layoutBlock(tree, options);
+      ADD_FAILURE() << "reach " << reach << " was laid out";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_STREQ(e.what(), "layoutBlock: maxNearPointer must be in [16, 32767]") << "reach " << reach;
     }
   }
 }
@@ -512,13 +518,18 @@ TEST(Block, InheritanceThresholdDoesNotDrift) {
           << "voxel " << i;
 }
 
-TEST(Block, RootOnlyTreeIsRefusedOrRoundTrips) {
-  svo::VoxelTree tree;
-  tree.voxels.push_back({});
-  try {
-    const svo::Block block = svo::layoutBlock(tree);
-    EXPECT_EQ(svo::readBlock(block.view()).voxels.size(), 1u);
-  } catch (const std::exception&) {
+// A block holds the root's descriptor, so a tree without voxels below its root (or without a root) is
+// refused as bad input, not laid out.
+TEST(Block, RootOnlyTreeIsRefused) {
+  for (const std::size_t voxels : {0u, 1u}) {
+    svo::VoxelTree tree;
+    tree.voxels.resize(voxels);
+    try {
+      (void)svo::layoutBlock(tree);
+      ADD_FAILURE() << "a tree of " << voxels << " voxels was laid out";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_STREQ(e.what(), "layoutBlock: the tree has no voxels below the root") << voxels << " voxels";
+    }
   }
 }
 

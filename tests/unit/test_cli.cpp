@@ -18,7 +18,7 @@
 #include <nlohmann/json.hpp>
 
 #include "reference.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_reader.hpp"
 
 namespace fs = std::filesystem;
 

@@ -11,7 +11,7 @@
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/builder/gen.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_writer.hpp"
 
 namespace fs = std::filesystem;
 

@@ -17,6 +17,7 @@
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/builder/gen.hpp"
+#include "svo/store/store_reader.hpp"
 
 namespace fs = std::filesystem;
 

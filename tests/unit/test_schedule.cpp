@@ -15,6 +15,7 @@
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/store/schedule.hpp"
+#include "svo/store/store_reader.hpp"
 
 namespace fs = std::filesystem;
 

@@ -15,6 +15,7 @@
 
 #include "bench.hpp"
 #include "svo/store/format.hpp"
+#include "svo/store/store_writer.hpp"
 
 namespace svo::tools {
 

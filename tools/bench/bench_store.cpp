@@ -38,8 +38,9 @@
 #include "process.hpp"
 #include "store_stats.hpp"
 #include "svo/builder/build.hpp"
-#include "svo/store/container.hpp"
 #include "svo/store/format.hpp"
+#include "svo/store/store_reader.hpp"
+#include "svo/store/store_writer.hpp"
 
 namespace svo::tools::bench {
 

@@ -5,7 +5,7 @@
 
 #include <cstdint>
 
-#include "svo/store/container.hpp"
+#include "svo/store/codec.hpp"
 
 namespace svo::tools {
 

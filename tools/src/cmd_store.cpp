@@ -14,7 +14,7 @@
 #include "commands.hpp"
 #include "progress.hpp"
 #include "store_stats.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_reader.hpp"
 
 namespace svo::tools {
 namespace {

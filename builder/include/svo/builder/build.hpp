@@ -14,7 +14,7 @@
 
 #include "svo/builder/mesh.hpp"
 #include "svo/store/block.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_writer.hpp"
 
 namespace svo {
 

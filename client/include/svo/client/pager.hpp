@@ -1,7 +1,7 @@
 // The paging client (paper sec. 7, DESIGN.md): streams a store's slices into a block pool of a fixed budget
 // while frames are ray cast from what is resident.
 //
-// A *region* is what one slice covers (a cube, or a packed run of its sub-cubes: container.hpp) with its
+// A *region* is what one slice covers (a cube, or a packed run of its sub-cubes: store_types.hpp) with its
 // chain of slices (one per level until it splits). Each resident region is one block in the pool holding the
 // cube's voxel and its subtree (only the run's sub-cubes for a run) down to the deepest resident slice;
 // loading the region's next slice rebuilds only that block. The region of the root cube is the trunk, the
@@ -35,8 +35,8 @@
 
 #include "svo/client/pool.hpp"
 #include "svo/client/render.hpp"
-#include "svo/store/container.hpp"
 #include "svo/store/schedule.hpp"
+#include "svo/store/store_reader.hpp"
 
 namespace svo {
 

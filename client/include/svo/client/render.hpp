@@ -13,7 +13,7 @@
 
 #include "svo/client/beam.hpp"
 #include "svo/client/raycast.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_types.hpp"
 
 namespace svo {
 

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "svo/client/pager.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_types.hpp"
 
 namespace svo {
 

@@ -13,7 +13,7 @@
 
 #include <glm/vec3.hpp>
 
-#include "svo/store/container.hpp"
+#include "svo/store/store_types.hpp"
 
 namespace svo {
 

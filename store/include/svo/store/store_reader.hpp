@@ -1,0 +1,74 @@
+// Reading a store's slices, in three steps that can run in different places:
+//   fetch   a slice's compressed bytes from a byte source, as stored (a server sends them unchanged);
+//   unpack  compressed bytes checked against the directory (checksum, size) and decompressed (a remote
+//           client does this with the bytes it fetched by range request);
+//   decode  decoded bytes onto their parents (codec.hpp), with the store and slice named in errors.
+// Every step throws SliceError naming the store, the slice, its level and cube: a checksum is verified
+// before a byte is decompressed, and nothing is decoded unchecked. StoreReader composes the three over one
+// source and its index.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "svo/store/byte_source.hpp"
+#include "svo/store/store_index.hpp"
+#include "svo/store/store_types.hpp"
+
+namespace svo {
+
+// Slice `slice`'s compressed bytes into `compressed` (resized; its capacity is reused).
+void fetchSlice(const ByteSource& source, const StoreIndex& index, std::uint32_t slice,
+                SliceBytes& compressed);
+// Slice `slice`'s decoded bytes from its compressed bytes, after its checksum and size checks.
+SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
+// Decodes slice `slice` (its bytes from unpackSlice) onto its parents: the voxels of the level above in its
+// cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
+void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
+                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children);
+
+// A store read from one source: the header and directory on open (checked), slices on demand. Throws
+// std::runtime_error naming the store and what is wrong; slice problems throw SliceError. Copies share the
+// source (a local file's descriptor) and the index.
+class StoreReader {
+ public:
+  explicit StoreReader(const std::filesystem::path& path);  // a LocalFileSource
+  explicit StoreReader(std::shared_ptr<const ByteSource> source);
+  const StoreHeader& header() const { return index_->header(); }
+  const std::vector<SliceInfo>& slices() const { return index_->slices(); }
+  // The source's name as a path: a local store's file.
+  const std::filesystem::path& path() const { return path_; }
+  const ByteSource& source() const { return *source_; }
+  const StoreIndex& index() const { return *index_; }
+  // The slice's decoded bytes (fetchSlice, then unpackSlice). Safe to call from several threads at once.
+  SliceBytes readSlice(std::uint32_t slice) const;
+  // decodeSlice over this store's index.
+  void decodeSlice(std::uint32_t slice, std::span<const std::byte> raw, std::span<SliceVoxel> parents,
+                   std::vector<SliceVoxel>& children) const {
+    svo::decodeSlice(*index_, slice, raw, parents, children);
+  }
+  // Every slice decoded into one voxel tree (attributes resolved), with every structural invariant checked:
+  // slices cover disjoint parents, parent counts and masks agree, sizes match.
+  VoxelTree loadTree() const;
+  // Reads, checks and decodes every slice onto its parents, depth first over the slice hierarchy (one chain
+  // of slices in memory at a time, so any size of store): checksums, heads against the directory, sections,
+  // each slice's cube within its parent slice's cube one level down, no two slices over one parent voxel,
+  // every slice reachable from the root. Throws like loadTree; returns the voxels counted, and the leaf
+  // voxels (no children) in `leaves` when given.
+  std::uint64_t verify(const std::function<void(double)>& progress = nullptr,
+                       std::uint64_t* leaves = nullptr) const;
+
+ private:
+  std::shared_ptr<const ByteSource> source_;
+  std::shared_ptr<const StoreIndex> index_;
+  std::filesystem::path path_;
+};
+
+// The whole store as one in-memory octree (loadTree + layoutBlock): the same block the in-core builder makes.
+Octree readOctree(const std::filesystem::path& path);
+
+}  // namespace svo

@@ -1,0 +1,285 @@
+#include "svo/store/store_writer.hpp"
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <system_error>
+#include <utility>
+
+#include <unistd.h>
+#include <xxhash.h>
+#include <zstd.h>
+
+#include "file_layout.hpp"
+#include "svo/store/codec.hpp"
+
+namespace svo {
+namespace {
+
+// zstd level for slices: fast to write, decompresses at GB/s (zstd manual: levels 1-3 are the fast range).
+constexpr int kZstdLevel = 3;
+
+[[noreturn]] void failWrite(const std::filesystem::path& path) {
+  file::fail(path.string(), std::string("cannot write (") + std::strerror(errno) + ")");
+}
+
+// Where the planner sends the slices of a tree without cells: written at once, in plan order.
+class FileSink : public SliceSink {
+ public:
+  using Write = std::function<std::uint32_t(const std::vector<std::byte>&, const SliceInfo&)>;
+  explicit FileSink(Write write) : write_(std::move(write)) {}
+  std::uint32_t emit(const std::vector<std::byte>& raw, const SliceInfo& info) override {
+    return write_(raw, info);
+  }
+  std::uint32_t reserve(const SliceInfo&, const SliceHead&, std::size_t, std::size_t) override {
+    throw std::logic_error("writeStore: a tree without cells reserved a slice");
+  }
+  void delegate(std::size_t, int, std::uint32_t) override {
+    throw std::logic_error("writeStore: a tree without cells handed on a cell");
+  }
+
+ private:
+  Write write_;
+};
+
+// The out-of-core top's sink: its own levels are written at once; slices of cell levels that span several
+// cells are reserved (an id in plan order, so parents still come first) and written once their last cell
+// has given its part; a run within one cell is left to that cell.
+class ForestSink : public FileSink {
+ public:
+  struct Reserved {
+    SliceHead head;
+    std::size_t lastCell;
+    SliceSections parts;
+  };
+  ForestSink(Write write, std::vector<SliceInfo>& slices, std::size_t cells)
+      : FileSink(std::move(write)),
+        cellParts(cells),
+        cellStart(cells, {0, SliceInfo::kNoSlice}),
+        slices_(slices) {}
+
+  std::uint32_t reserve(const SliceInfo& info, const SliceHead& head, std::size_t a, std::size_t b) override {
+    const auto id = std::uint32_t(slices_.size());
+    slices_.push_back(info);
+    reserved.emplace(id, Reserved{head, b - 1, SliceSections(head.attachments & 1u, head.attachments & 2u)});
+    for (std::size_t cell = a; cell < b; ++cell) cellParts[cell].push_back({info.voxelLevel, id});
+    return id;
+  }
+  void delegate(std::size_t cell, int level, std::uint32_t parentSlice) override {
+    cellStart[cell] = {level, parentSlice};
+  }
+
+  std::map<std::uint32_t, Reserved> reserved;
+  std::vector<std::vector<std::pair<int, std::uint32_t>>> cellParts;  // per cell: (level, reserved slice)
+  std::vector<std::pair<int, std::uint32_t>> cellStart;  // per cell: (first level, parent slice) of its own
+
+ private:
+  std::vector<SliceInfo>& slices_;
+};
+
+SlicePlanner plannerOf(const VoxelTree& tree, const StoreWriteOptions& options, const SubtreePlacement& at) {
+  return SlicePlanner(tree, options.sliceBytes, options.inheritance, at);
+}
+
+void requireVoxelsBelowRoot(const VoxelTree& tree) {
+  if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
+    throw std::invalid_argument("writeStore: the tree has no voxels below the root");
+}
+
+}  // namespace
+
+StoreFileWriter::StoreFileWriter(const std::filesystem::path& path, const StoreWriteOptions& options)
+    : path_(path), temp_(path.string() + ".tmp." + std::to_string(::getpid())), options_(options) {
+  if (options.sliceBytes < file::kMinSliceBytes)
+    throw std::invalid_argument("writeStore: slice size must be at least " +
+                                std::to_string(file::kMinSliceBytes) + " bytes (got " +
+                                std::to_string(options.sliceBytes) + ")");
+  // Temporary name in the same folder, flushed, then renamed: the target is never half-written.
+  file_ = std::fopen(temp_.c_str(), "wb");
+  if (!file_) failWrite(path_);
+  const file::Header placeholder{};  // until the directory's place is known
+  try {
+    put(&placeholder, sizeof placeholder);
+  } catch (...) {
+    std::fclose(file_);  // no destructor runs for a constructor that throws
+    std::error_code ignored;
+    std::filesystem::remove(temp_, ignored);
+    throw;
+  }
+  offset_ = sizeof placeholder;
+}
+
+StoreFileWriter::~StoreFileWriter() {
+  if (!file_) return;
+  std::fclose(file_);
+  std::error_code ignored;
+  std::filesystem::remove(temp_, ignored);
+}
+
+void StoreFileWriter::put(const void* data, std::size_t bytes) {
+  if (std::fwrite(data, 1, bytes, file_) != bytes) failWrite(path_);
+}
+
+std::uint32_t StoreFileWriter::writeSlice(const std::vector<std::byte>& raw, SliceInfo info,
+                                          std::uint32_t reserved) {
+  compressed_.resize(ZSTD_compressBound(raw.size()));
+  const std::size_t packed =
+      ZSTD_compress(compressed_.data(), compressed_.size(), raw.data(), raw.size(), kZstdLevel);
+  if (ZSTD_isError(packed))
+    file::fail(path_.string(), std::string("compression failed: ") + ZSTD_getErrorName(packed));
+  info.offset = offset_;
+  info.compressedBytes = std::uint32_t(packed);
+  info.rawBytes = std::uint32_t(raw.size());
+  info.checksum = XXH3_64bits(compressed_.data(), packed);
+  put(compressed_.data(), packed);
+  offset_ += packed;
+  if (reserved != SliceInfo::kNoSlice) {
+    slices_[reserved] = info;
+    return reserved;
+  }
+  slices_.push_back(info);
+  return std::uint32_t(slices_.size() - 1);
+}
+
+std::vector<std::uint32_t> StoreFileWriter::append(const VoxelTree& tree, const SubtreePlacement& at,
+                                                   EffectiveAttributes* effective) {
+  if (!file_) throw std::logic_error("StoreFileWriter: append after finish");
+  if (at.parentSlice != SliceInfo::kNoSlice && at.parentSlice >= slices_.size())
+    throw std::invalid_argument("writeStore: a subtree's parent slice is not written yet");
+  requireVoxelsBelowRoot(tree);
+  const SlicePlanner planner = plannerOf(tree, options_, at);
+  std::vector<std::uint32_t> ids;
+  std::uint64_t voxelsWritten = 1;  // the root is the parent slice's (or the header's)
+  FileSink sink([&](const std::vector<std::byte>& raw, const SliceInfo& info) {
+    ids.push_back(writeSlice(raw, info));
+    voxelsWritten += info.voxelCount;
+    if (options_.progress) options_.progress(double(voxelsWritten) / double(planner.voxelCount()));
+    return ids.back();
+  });
+  planner.run(sink);
+  if (effective) *effective = planner.effective();
+  return ids;
+}
+
+void StoreFileWriter::appendForest(const VoxelTree& top, int cellLevel,
+                                   const std::function<VoxelTree(glm::ivec3 cell, bool counting)>& loadCell) {
+  if (!file_) throw std::logic_error("StoreFileWriter: append after finish");
+  if (!slices_.empty()) throw std::logic_error("StoreFileWriter: a forest must be the store's first subtree");
+  requireVoxelsBelowRoot(top);
+  const VoxelRecord& root = top.voxels[0];
+  SlicePlanner topPlanner =
+      plannerOf(top, options_, {0, glm::ivec3(0), root.color, root.normal, SliceInfo::kNoSlice});
+  std::vector<std::pair<std::uint32_t, glm::ivec3>> cells;
+  if (topPlanner.topLevel() == cellLevel) cells = topPlanner.deepestVoxels();
+  const EffectiveAttributes effective = topPlanner.effective();
+  const auto placement = [&](std::size_t i) {
+    const auto [record, coord] = cells[i];
+    return SubtreePlacement{cellLevel, coord, effective.color[record], effective.normal[record],
+                            SliceInfo::kNoSlice};
+  };
+  const auto progress = [&](std::size_t done) {
+    if (options_.progress)
+      options_.progress(double(done) / double(std::max<std::size_t>(2 * cells.size(), 1)));
+  };
+  // 1. Every cell's totals per level: the plan's sizes for slices spanning cells.
+  std::vector<std::vector<LevelTotals>> totals(cells.size());
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    totals[i] = plannerOf(loadCell(cells[i].second, true), options_, placement(i)).totals();
+    progress(i + 1);
+  }
+  topPlanner.addCells(totals);
+  // 2. The plan: the top's slices written, the spanning ones reserved, the rest handed to their cells.
+  const auto write = [&](const std::vector<std::byte>& raw, const SliceInfo& info) {
+    return writeSlice(raw, info);
+  };
+  ForestSink sink(write, slices_, cells.size());
+  topPlanner.run(sink);
+  // 3. Each cell: its parts of the spanning slices (a slice is written when its last cell is done), then its
+  // own slices.
+  FileSink own(write);
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    const VoxelTree tree = loadCell(cells[i].second, false);
+    const SlicePlanner cell = plannerOf(tree, options_, placement(i));
+    for (const auto& [level, id] : sink.cellParts[i]) {
+      ForestSink::Reserved& r = sink.reserved.at(id);
+      r.parts.append(cell.sectionsOfLevel(level));
+      if (r.lastCell != i) continue;
+      writeSlice(encodeSlice(r.head, r.parts), slices_[id], id);
+      sink.reserved.erase(id);
+    }
+    if (const auto [level, parent] = sink.cellStart[i]; parent != SliceInfo::kNoSlice)
+      cell.runFrom(level, parent, own);
+    progress(cells.size() + i + 1);
+  }
+  if (!sink.reserved.empty()) throw std::logic_error("writeStore: a slice spanning cells was not completed");
+}
+
+void StoreFileWriter::finish(const StoreContents& contents) {
+  if (!file_) throw std::logic_error("StoreFileWriter: finish twice");
+  if (slices_.empty()) throw std::invalid_argument("writeStore: the store has no slices");
+  for (const SliceInfo& slice : slices_)
+    if (slice.compressedBytes == 0) throw std::logic_error("writeStore: a reserved slice was never written");
+  std::vector<file::DirectoryEntry> directory(slices_.size());
+  for (std::size_t i = 0; i < slices_.size(); ++i) directory[i] = file::entryOf(slices_[i]);
+  const std::size_t directoryBytes = directory.size() * sizeof(file::DirectoryEntry);
+  put(directory.data(), directoryBytes);
+
+  file::Header h{};
+  std::memcpy(h.magic, kFileMagic, sizeof h.magic);
+  h.version = kFileVersion;
+  h.headerBytes = sizeof(file::Header);
+  for (int i = 0; i < 3; ++i) h.origin[i] = contents.transform.origin[i];
+  h.size = contents.transform.size;
+  h.levels = contents.parameters.levels;
+  h.geometryError = contents.parameters.geometryError;
+  h.colorError = contents.parameters.colorError;
+  h.normalError = contents.parameters.normalError;
+  h.contours = contents.parameters.contours;
+  if (contents.hasColors) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Color) - 1);
+  if (contents.hasNormals) h.attachmentTypes |= 1u << (std::uint32_t(AttachmentType::Normal) - 1);
+  h.rootColor = contents.rootColor;
+  h.rootNormal = contents.rootNormal;
+  h.sliceBytes = options_.sliceBytes;
+  h.sliceCount = std::uint32_t(slices_.size());
+  h.directoryOffset = offset_;
+  h.directoryBytes = directoryBytes;
+  h.directoryChecksum = XXH3_64bits(directory.data(), directoryBytes);
+  h.headerChecksum = file::headerChecksum(h);
+  if (std::fseek(file_, 0, SEEK_SET) != 0) file::fail(path_.string(), "cannot seek to the header");
+  put(&h, sizeof h);
+  if (std::fflush(file_) != 0 || ::fsync(::fileno(file_)) != 0) failWrite(path_);
+  const int closed = std::fclose(file_);
+  file_ = nullptr;
+  std::error_code ignored;
+  if (closed != 0) {
+    std::filesystem::remove(temp_, ignored);
+    failWrite(path_);
+  }
+  std::error_code ec;
+  std::filesystem::rename(temp_, path_, ec);
+  if (ec) {
+    std::filesystem::remove(temp_, ignored);
+    file::fail(path_.string(), "cannot rename into place (" + ec.message() + ")");
+  }
+}
+
+std::vector<SliceInfo> writeStore(const std::filesystem::path& path, const VoxelTree& tree,
+                                  const SceneTransform& transform, const BuildParameters& parameters,
+                                  const StoreWriteOptions& options) {
+  requireVoxelsBelowRoot(tree);
+  StoreFileWriter writer(path, options);
+  const VoxelRecord& root = tree.voxels[0];
+  writer.append(tree, {0, glm::ivec3(0), root.color, root.normal, SliceInfo::kNoSlice});
+  std::vector<SliceInfo> slices = writer.slices();
+  writer.finish({transform, parameters, tree.hasColors, tree.hasNormals, root.color, root.normal});
+  return slices;
+}
+
+void writeOctree(const std::filesystem::path& path, const Octree& octree, const StoreWriteOptions& options) {
+  writeStore(path, readBlock(octree.block.view()), octree.transform, octree.parameters, options);
+}
+
+}  // namespace svo
