@@ -187,7 +187,7 @@ struct DdResult {
 };
 std::optional<DdResult> runDd(const std::filesystem::path& file) {
   const std::optional<ProcessResult> dd =
-      runProcess({"dd", "if=" + file.string(), "of=/dev/null", "bs=1M"}, {.cLocale = true});
+      runProcess({"dd", "if=" + file.string(), "of=/dev/null", "bs=1M"}, {.workingDirectory = {}, .cLocale = true});
   if (!dd || !dd->succeeded()) return std::nullopt;
   const std::string& output = dd->output;
   const std::size_t line = output.rfind(" bytes");
