@@ -273,22 +273,23 @@ TEST(Pager, WholeScenePagedEqualsTheOneBlock) {
   }
 }
 
-// While a frame renders, the workers beyond PagerOptions::workersDuringFrames wait at their next stage: with
-// none allowed, nothing is read or committed until the frame ends, and then everything loads.
+// While a frame renders, the decode threads beyond PagerOptions::decodersDuringFrames wait at their next
+// stage: with none allowed, slices may be fetched but nothing is decoded or committed until the frame ends,
+// and then everything loads.
 TEST(Pager, WorkersWaitForTheFrameToEnd) {
   const TempStore& store = sphereStore();
   svo::PagerOptions options;
-  options.workersDuringFrames = 0;
+  options.decodersDuringFrames = 0;
   svo::Pager pager(store.path, options);
   svo::ViewQuery everything = svo::viewOf(pager.transform(), cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96), 1e-9);
   everything.frustum.clear();
-  const std::uint64_t trunkRead = pager.bytesRead();
+  const std::uint64_t trunkDecoded = pager.workerCpu().voxelsDecoded;
   {
     const svo::Pager::FrameScope frame(pager);
     EXPECT_GT(pager.update(everything).requested, 0u);
     pager.waitForWork(0.2);
     EXPECT_EQ(pager.update(everything).loaded, 0u);
-    EXPECT_EQ(pager.bytesRead(), trunkRead);
+    EXPECT_EQ(pager.workerCpu().voxelsDecoded, trunkDecoded);
   }
   converge(pager, everything);
   EXPECT_EQ(pager.residentSlices().size(), pager.store().slices().size());
@@ -469,7 +470,7 @@ TEST(Pager, CorruptSliceIsReportedOnceAndTheRestStillRenders) {
 TEST(Pager, RequestsTheViewDropsAreCancelled) {
   const TempStore& store = sphereStore();
   svo::PagerOptions options;
-  options.ioThreads = 1;
+  options.decodeThreads = 1;
   options.maxInFlight = 64;
   svo::Pager pager(store.path, options);
   const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 64);

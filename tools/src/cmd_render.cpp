@@ -39,8 +39,8 @@ struct RenderArgs {
   bool noContours = false, aux = false;
   std::size_t budget = 0, referenceBudget = std::size_t(1) << 30;
   std::string pathFile;
-  int ioThreads = PagerOptions{}.ioThreads, workerNice = PagerOptions{}.workerNice,
-      workersDuringFrames = PagerOptions{}.workersDuringFrames;
+  int decodeThreads = PagerOptions{}.decodeThreads, workerNice = PagerOptions{}.workerNice,
+      decodersDuringFrames = PagerOptions{}.decodersDuringFrames;
   double timeout = 300.0;
 };
 
@@ -66,9 +66,9 @@ Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
 PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
   PagerOptions options;
   options.budgetBytes = budget;
-  options.ioThreads = args.ioThreads;
+  options.decodeThreads = args.decodeThreads;
   options.workerNice = args.workerNice;
-  options.workersDuringFrames = args.workersDuringFrames;
+  options.decodersDuringFrames = args.decodersDuringFrames;
   return options;
 }
 
@@ -273,7 +273,7 @@ void addRenderCommand(CLI::App& app) {
                   "with --path: pool for the converged reference frames")
       ->transform(CLI::AsSizeValue(false))
       ->capture_default_str();
-  cmd->add_option("--io-threads", args->ioThreads, "when streaming: slice read and decode threads")
+  cmd->add_option("--io-threads", args->decodeThreads, "when streaming: slice read and decode threads")
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
   cmd->add_option("--worker-nice", args->workerNice,
@@ -281,7 +281,7 @@ void addRenderCommand(CLI::App& app) {
                   "streams faster while the camera moves")
       ->check(CLI::Range(0, 19))
       ->capture_default_str();
-  cmd->add_option("--workers-during-frames", args->workersDuringFrames,
+  cmd->add_option("--workers-during-frames", args->decodersDuringFrames,
                   "when streaming: workers that go on while a frame renders (the others wait for it to end)")
       ->check(CLI::Range(0, 64))
       ->capture_default_str();

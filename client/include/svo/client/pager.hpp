@@ -16,20 +16,12 @@
 // patch, under the exclusive lock) within a time slice, so the render thread never waits for disk.
 #pragma once
 
-#include <atomic>
-#include <condition_variable>
 #include <cstddef>
 #include <cstdint>
-#include <deque>
 #include <filesystem>
-#include <map>
 #include <memory>
-#include <mutex>
-#include <optional>
 #include <shared_mutex>
 #include <string>
-#include <thread>
-#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -45,19 +37,23 @@ inline constexpr std::size_t kMaxBudgetBytes = std::size_t(1) << 34;
 
 struct PagerOptions {
   std::size_t budgetBytes = std::size_t(256) << 20;  // the pool: a hard limit
-  int ioThreads = 2;                                 // read + decode + layout workers
-  int maxInFlight = 8;  // requests queued or being worked on at once (raised to ioThreads if below)
+  // Threads that fetch slices from the store: a local disk needs few, a network link many waiting at once.
+  int fetchThreads = 2;
+  int decodeThreads = 2;  // threads that decode slices and lay out blocks (CPU)
+  // Requests queued, fetching, fetched or being decoded at once (raised to the fetch plus decode threads, so
+  // that none idles for want of a request).
+  int maxInFlight = 8;
   // Wall time update() may spend committing finished blocks (memcpy + pointer patches); the rest wait for
   // the next frame. Keeps streaming frames close to resident ones (goal: p99 within 1.5x of theirs).
   double commitMillis = 2.0;
-  // Nice value of the workers (0-19). At 0 a still view converges at the speed of the cores the workers get
-  // whatever else runs on the machine (at 19, two busy programs on 2 cores leave them almost none); frames
-  // keep their cores through workersDuringFrames instead.
+  // Nice value of the worker threads (0-19). At 0 a still view converges at the speed of the cores the
+  // workers get whatever else runs on the machine (at 19, two busy programs on 2 cores leave them almost
+  // none); frames keep their cores through decodersDuringFrames instead.
   int workerNice = 0;
-  // Workers that go on while a frame renders (Pager::FrameScope); the others pause at their next stage until
-  // the frame ends. A moving camera's frames keep most of the cores, and a still view, rendered a few times
-  // a second, leaves the workers the time between frames.
-  int workersDuringFrames = 1;
+  // Decode threads that go on while a frame renders (Pager::FrameScope); the others pause at their next
+  // stage until the frame ends. A moving camera's frames keep most of the cores, and a still view, rendered
+  // a few times a second, leaves the workers the time between frames.
+  int decodersDuringFrames = 1;
 };
 
 // What one update() did. Counts are slices.
@@ -84,10 +80,18 @@ struct WorkerCpu {
 // The view query of a camera: eye, pixel angle, LOD target and the frustum, in octree space.
 ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPixels);
 
+namespace paging {
+class RegionTable;
+class Scheduler;
+class RegionLoader;
+class LoadWorkers;
+struct BuiltBlock;
+}  // namespace paging
+
 class Pager {
  public:
-  // Opens the store and loads the root region's first slice synchronously (the first coarse image). Throws
-  // std::runtime_error when the store cannot be read or its first slice does not fit the budget.
+  // Opens the store and loads the root region's slices synchronously (the first coarse image). Throws
+  // std::runtime_error when the store cannot be read or its first slices do not fit the budget.
   Pager(const std::filesystem::path& store, const PagerOptions& options = {});
   ~Pager();
   Pager(const Pager&) = delete;
@@ -105,8 +109,8 @@ class Pager {
   // grid of every kFeedbackStride-th pixel, raise the priority of the slice that refines that voxel (in every
   // update until the next frame's feedback).
   void feedback(const Frame& frame, const Camera& camera, double lodPixels);
-  // Marks a frame rendering from the pool, from construction to destruction: workers beyond
-  // PagerOptions::workersDuringFrames pause at their next stage meanwhile.
+  // Marks a frame rendering from the pool, from construction to destruction: decode threads beyond
+  // PagerOptions::decodersDuringFrames pause at their next stage meanwhile.
   class FrameScope {
    public:
     explicit FrameScope(Pager& pager);
@@ -126,11 +130,11 @@ class Pager {
   // detail it will get; slices around it (wanted for turns, ranked lower) may still be loading.
   bool viewConverged() const;
 
-  std::size_t residentBytes() const { return pool_.usedBytes(); }
+  std::size_t residentBytes() const;
+  std::size_t budgetBytes() const;
   // Compressed bytes the workers have read from the store so far.
-  std::uint64_t bytesRead() const { return bytesRead_.load(std::memory_order_relaxed); }
+  std::uint64_t bytesRead() const;
   WorkerCpu workerCpu() const;
-  std::size_t budgetBytes() const { return pool_.capacityBytes(); }
   std::vector<std::uint32_t> residentSlices() const;
   // The slices the last update's view wanted, resident or not, in directory order.
   std::vector<std::uint32_t> wantedSlices() const;
@@ -143,105 +147,19 @@ class Pager {
   void checkInvariants() const;
 
  private:
-  // Entry voxels and their descriptors' slots in a block, in Morton order.
-  using EntrySlots = std::vector<std::pair<glm::ivec3, std::uint32_t>>;
-  struct Region {
-    std::int32_t cubeLevel = 0;
-    glm::ivec3 cubeCoord{0};
-    std::uint8_t firstSlot = 0, lastSlot = 7;  // the run of sub-cubes (0-7: the whole cube)
-    std::vector<std::uint32_t> slices;         // by voxel level
-    std::int32_t parent = -1;
-    std::vector<std::uint32_t> children;
-    std::uint32_t resident = 0;  // slices resident: a prefix of `slices`
-    BlockPool::BlockId block = 0;
-    std::size_t blockBytes = 0;                         // its block's size (the pool holds it in whole pages)
-    std::uint32_t rootSlot = 0;                         // the cube's voxel in its block
-    EntrySlots entries;                                 // its entry voxels that have children, in its block
-    std::map<std::uint32_t, EntrySlots> childSlots;     // child region -> its entry voxels in this block
-    std::map<std::uint32_t, ChildDescriptor> unlinked;  // slot -> descriptor before a link replaced it
-    std::uint64_t version = 0;                          // bumped by every commit or eviction
-    double priority = 0.0;                              // highest view priority of its resident slices
-  };
-  // Consecutive slices of one region, `count` from `slice` on: a worker decodes them in turn and lays the
-  // region out once, so a cold view deepens a region by several levels in one commit.
-  struct Request {
-    std::uint32_t slice = 0, count = 1;
-    double priority = 0.0;
-  };
-  struct Prepared {  // a worker's new block for a region, or the error that stopped it
-    std::uint32_t slice = 0, region = 0;
-    std::uint32_t requested = 0;  // slices of the request
-    std::uint32_t added = 0;      // slices the block adds (fewer than requested when one failed)
-    std::uint64_t version = 0;    // of the region when read
-    Block block;
-    std::uint32_t rootSlot = 0;
-    EntrySlots entries;
-    std::map<std::uint32_t, EntrySlots> childSlots;
-    std::uint32_t failedSlice = SliceInfo::kNoSlice;
-    std::string error;
-  };
-
-  void work(int worker, std::stop_token stop);
-  // `worker` < 0: the caller's own thread, never paused.
-  Prepared prepare(const Request& request, int worker = -1);
-  // Pauses worker `worker` while a frame renders, unless it is one of those allowed to go on.
-  void waitForFrameEnd(int worker);
-  bool commit(Prepared& prepared, PagerStats& stats);
-  void evict(std::uint32_t region, PagerStats& stats);
-  void link(std::uint32_t region);
-  void relinkAll();
-  bool requestable(std::uint32_t slice) const;
-  std::uint32_t chainLength(std::uint32_t slice) const;
-  std::uint32_t parentSlotOf(const Region& parent, std::uint32_t child, const glm::ivec3& coord) const;
-  bool evictable(std::uint32_t region, double priority) const;
-  void indexRoom();
-  bool roomFor(std::size_t bytes, double priority, std::uint32_t region) const;
-  std::size_t leastBlockGrowth(std::uint32_t slice) const;
-  double leastBlockBytesPerRawByte() const;
-  const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
-  ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
+  bool commit(paging::BuiltBlock& built, PagerStats& stats);
 
   StoreReader store_;
   PagerOptions options_;
-  BlockPool pool_;
-  std::vector<Region> regions_;
-  std::vector<std::uint32_t> regionOf_, indexInRegion_;
-  std::vector<std::uint8_t> failed_;
-  // Feedback lookup: (voxel level, cube level, cube) -> slice (a run's slices under each of its sub-cubes);
-  // the cube levels each voxel level's keys use.
-  std::unordered_map<std::uint64_t, std::uint32_t> sliceAt_;
-  std::vector<std::vector<std::int32_t>> cubeLevelsOf_;
-  std::unordered_map<std::uint32_t, std::uint32_t> feedbackHits_;
-  std::vector<double> viewPriority_;    // per slice, the view query's rank (0 = not wanted): decides eviction
-  std::vector<double> wantedPriority_;  // the same with ray feedback: decides load order
-  std::vector<std::size_t> denied_;     // bytes a slice dropped for lack of room needed (0 = not dropped)
-  std::vector<std::pair<double, std::size_t>> evictableRoom_;  // see indexRoom
-  std::optional<double> leastBlockBytesPerRawByte_;            // smallest measured (commit)
+  // Workers read blocks shared (assembling a region's levels, prefaulting); commits and evictions write
+  // exclusively.
+  mutable std::shared_mutex poolMutex_;
+  std::unique_ptr<paging::RegionTable> regions_;
+  std::unique_ptr<paging::Scheduler> scheduler_;
+  std::unique_ptr<paging::RegionLoader> loader_;
+  std::unique_ptr<paging::LoadWorkers> workers_;  // last: its threads stop first
   std::vector<std::string> errors_;
-  std::vector<std::uint8_t> inView_;  // per slice: wanted and inside the view frustum
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0;
-  std::atomic<std::uint64_t> bytesRead_{0};
-  // WorkerCpu's stages in nanoseconds, and its voxel counts.
-  struct StageNanos {
-    std::atomic<std::uint64_t> read{0}, assemble{0}, decode{0}, layout{0};
-    std::atomic<std::uint64_t> voxelsDecoded{0}, voxelsLaidOut{0};
-  } cpu_;
-
-  mutable std::shared_mutex
-      poolMutex_;             // workers read blocks shared; commits and evictions write exclusively
-  std::mutex prefaultMutex_;  // one worker at a time prefaults the pool (BlockPool::prefault)
-  mutable std::mutex queueMutex_;
-  std::condition_variable_any queueReady_;
-  std::condition_variable doneReady_;
-  std::deque<Request> queue_;  // highest priority first
-  std::vector<std::uint8_t> inFlight_;
-  std::vector<Prepared> done_;
-  std::uint32_t working_ = 0;
-  std::mutex frameMutex_;
-  std::condition_variable frameEnded_;
-  bool frameRendering_ = false;
-  bool stopping_ = false;  // under frameMutex_: paused workers leave
-  std::vector<std::jthread> workers_;
 };
 
 }  // namespace svo

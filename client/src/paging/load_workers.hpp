@@ -1,0 +1,74 @@
+// The pager's workers: fetch threads bring each request's slices from the source (I/O: many may wait at
+// once), build threads turn them into blocks (CPU: as many as the cores the pager may take). Requests wait
+// in priority order; the render thread re-ranks the ones not yet fetched between frames, takes the finished
+// blocks, and marks the frames during which only some build threads go on.
+#pragma once
+
+#include <condition_variable>
+#include <cstddef>
+#include <deque>
+#include <functional>
+#include <mutex>
+#include <stop_token>
+#include <thread>
+#include <vector>
+
+#include "paging/region_loader.hpp"
+#include "paging/scheduler.hpp"
+
+namespace svo::paging {
+
+class LoadWorkers {
+ public:
+  struct Options {
+    int fetchThreads = 1, buildThreads = 1;
+    int buildersDuringFrames = 1;  // build threads that go on while a frame renders
+    int nice = 0;                  // of every worker thread (0-19)
+  };
+  using Fetch = std::function<FetchedChain(const LoadRequest&)>;
+  // `pause` blocks while a frame renders, for the build threads that must let it have the cores.
+  using Build = std::function<BuiltBlock(const LoadRequest&, FetchedChain&&, const std::function<void()>& pause)>;
+
+  LoadWorkers(const Options& options, Fetch fetch, Build build);
+  ~LoadWorkers();  // stops and joins every thread; unfinished requests are dropped
+  LoadWorkers(const LoadWorkers&) = delete;
+  LoadWorkers& operator=(const LoadWorkers&) = delete;
+
+  // Edits the requests not yet fetched (highest priority first after the edit) under the queue lock;
+  // `busy` counts the ones fetched, being worked on or done and not taken. Returns all in flight after.
+  std::size_t edit(const std::function<void(std::vector<LoadRequest>& queued, std::size_t busy)>& change);
+  std::vector<BuiltBlock> takeDone();
+  void putBack(std::vector<BuiltBlock>&& blocks);  // taken but not committed: offered again next time
+  // Blocks until a block is done or `seconds` pass.
+  void waitForWork(double seconds);
+
+  void frameBegins();
+  void frameEnds();
+
+ private:
+  struct Fetched {
+    LoadRequest request;
+    FetchedChain chain;
+  };
+  void fetchLoop(std::stop_token stop);
+  void buildLoop(int builder, std::stop_token stop);
+  void waitForFrameEnd(int builder);
+  std::size_t busy() const { return fetching_ + fetched_.size() + building_ + done_.size(); }
+
+  Options options_;
+  Fetch fetch_;
+  Build build_;
+  std::mutex mutex_;  // everything below
+  std::condition_variable_any requested_, fetchedReady_;
+  std::condition_variable doneReady_;
+  std::deque<LoadRequest> queue_;  // highest priority first
+  std::vector<Fetched> fetched_;   // waiting for a build thread
+  std::size_t fetching_ = 0, building_ = 0;
+  std::vector<BuiltBlock> done_;
+  std::mutex frameMutex_;
+  std::condition_variable frameEnded_;
+  bool frameRendering_ = false, stopping_ = false;  // under frameMutex_: paused builders leave when stopping
+  std::vector<std::jthread> threads_;
+};
+
+}  // namespace svo::paging

@@ -1,0 +1,115 @@
+// The pager's regions (pager.hpp): the cubes and runs of sub-cubes of the store's slice hierarchy, each a
+// chain of slices, and the block pool that holds one block per resident region. A region's block is reached
+// from its parent region's block through link descriptors at its entry voxels, so the ray caster sees one
+// octree. The render thread owns this table; workers read resident blocks under the pager's shared lock.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include <glm/vec3.hpp>
+
+#include "svo/client/pool.hpp"
+#include "svo/store/container.hpp"
+
+namespace svo::paging {
+
+// Entry voxels and their descriptors' slots in a block, in Morton order.
+using EntrySlots = std::vector<std::pair<glm::ivec3, std::uint32_t>>;
+
+struct Region {
+  std::int32_t cubeLevel = 0;
+  glm::ivec3 cubeCoord{0};
+  std::uint8_t firstSlot = 0, lastSlot = 7;  // the run of sub-cubes (0-7: the whole cube)
+  std::vector<std::uint32_t> slices;         // by voxel level
+  std::int32_t parent = -1;
+  std::vector<std::uint32_t> children;
+  std::uint32_t resident = 0;  // slices resident: a prefix of `slices`
+  BlockPool::BlockId block = 0;
+  std::size_t blockBytes = 0;                         // its block's size (the pool holds it in whole pages)
+  std::uint32_t rootSlot = 0;                         // the cube's voxel in its block
+  EntrySlots entries;                                 // its entry voxels that have children, in its block
+  std::map<std::uint32_t, EntrySlots> childSlots;     // child region -> its entry voxels in this block
+  std::map<std::uint32_t, ChildDescriptor> unlinked;  // slot -> descriptor before a link replaced it
+  std::uint64_t version = 0;                          // bumped by every commit or eviction
+  double priority = 0.0;                              // highest view priority of its resident slices
+
+  bool complete() const { return resident == slices.size(); }
+};
+
+// A region's new block as a worker built it (region_loader.hpp), or the error that stopped it.
+struct BuiltBlock {
+  std::uint32_t slice = 0, region = 0;
+  std::uint32_t requested = 0;  // slices of the request
+  std::uint32_t added = 0;      // slices the block adds (fewer than requested when one failed)
+  std::uint64_t version = 0;    // of the region when read
+  Block block;
+  std::uint32_t rootSlot = 0;
+  EntrySlots entries;
+  std::map<std::uint32_t, EntrySlots> childSlots;
+  std::uint32_t failedSlice = SliceInfo::kNoSlice;
+  std::string error;
+};
+
+// Where a region is entered from its parent's block: the cube's voxel, or each sub-cube's voxel of a run
+// (present or not), in Morton order, and their level.
+std::pair<std::vector<glm::ivec3>, int> entryVoxels(int cubeLevel, glm::ivec3 cube, std::uint8_t firstSlot,
+                                                    std::uint8_t lastSlot);
+
+class RegionTable {
+ public:
+  // The regions of the store's slices, checked: one root region (the trunk), every slice after its parent
+  // slice, continuing its region's previous slice one level down. Throws std::runtime_error naming `store`
+  // and the slice.
+  RegionTable(const std::vector<SliceInfo>& slices, std::size_t budgetBytes, const std::string& store);
+
+  std::uint32_t size() const { return std::uint32_t(regions_.size()); }
+  Region& operator[](std::uint32_t region) { return regions_[region]; }
+  const Region& operator[](std::uint32_t region) const { return regions_[region]; }
+  std::uint32_t regionOf(std::uint32_t slice) const { return regionOf_[slice]; }
+  std::uint32_t indexInRegion(std::uint32_t slice) const { return indexInRegion_[slice]; }
+  BlockPool& pool() { return pool_; }
+  const BlockPool& pool() const { return pool_; }
+
+  // A resident region's block.
+  BlockView view(const Region& region) const;
+  const ChildDescriptor* descriptorAt(const Region& region, std::uint32_t slot) const;
+  ChildDescriptor* descriptorAt(Region& region, std::uint32_t slot);
+
+  // A resident region that no resident region hangs from, less wanted than `priority`; never the trunk.
+  bool evictable(std::uint32_t region, double priority) const;
+  // Restores the parent's descriptors at the region's entry voxels and frees its block; returns the slices
+  // it held.
+  std::uint32_t evict(std::uint32_t region);
+  // Makes `built.block` the region's block (the old one freed), linked from its parent's block; when the
+  // pool compacted to fit it, relinks every region. The caller has made room.
+  void install(BuiltBlock& built);
+
+  std::vector<std::uint32_t> residentSlices() const;
+  // The slice that adds the voxels of `voxelLevel` around octree point `p` (ray feedback), if any.
+  std::optional<std::uint32_t> sliceAt(int voxelLevel, glm::dvec3 p) const;
+  // Pool invariants, every link leads to its region's root descriptor, every resident non-root region is
+  // linked from its parent, page headers lead to each block's info section. Throws std::logic_error.
+  void checkInvariants() const;
+
+ private:
+  std::uint32_t parentSlotOf(const Region& parent, std::uint32_t child, const glm::ivec3& coord) const;
+  void link(std::uint32_t region);
+  void relinkAll();
+
+  BlockPool pool_;
+  std::vector<Region> regions_;
+  std::vector<std::uint32_t> regionOf_, indexInRegion_;
+  // Feedback lookup: (voxel level, cube level, cube) -> slice (a run's slices under each of its sub-cubes);
+  // the cube levels each voxel level's keys use.
+  std::unordered_map<std::uint64_t, std::uint32_t> sliceAt_;
+  std::vector<std::vector<std::int32_t>> cubeLevelsOf_;
+};
+
+}  // namespace svo::paging

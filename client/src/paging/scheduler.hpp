@@ -1,0 +1,87 @@
+// The pager's per-slice state on the render thread: what the view wants and how much (the view query's rank,
+// raised by ray feedback), which slices failed, were denied room or are in flight, and whether a request can
+// get room in the pool before it is made.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include "paging/regions.hpp"
+#include "svo/store/schedule.hpp"
+
+namespace svo::paging {
+
+// Consecutive slices of one region, `count` from `slice` on: a worker decodes them in turn and lays the
+// region out once, so a cold view deepens a region by several levels in one commit.
+struct LoadRequest {
+  std::uint32_t slice = 0, count = 1;
+  double priority = 0.0;
+};
+
+class Scheduler {
+ public:
+  Scheduler(const std::vector<SliceInfo>& slices, const RegionTable& regions);
+
+  // The view's wanted slices and their priorities (ray feedback applied to the load order), and each
+  // region's priority from its resident slices. Returns the decoded bytes the view wants.
+  std::uint64_t rank(const std::vector<SliceRequest>& wanted, RegionTable& regions);
+  // Every slice of `slices` wanted at `priority` (the trunk, loaded at open).
+  void want(const std::vector<std::uint32_t>& slices, double priority);
+  // Ray feedback: the slices rays stopped short of; replaces the last frame's.
+  void setFeedback(std::unordered_map<std::uint32_t, std::uint32_t> hits) { feedbackHits_ = std::move(hits); }
+
+  double viewPriority(std::uint32_t slice) const { return viewPriority_[slice]; }
+  double wantedPriority(std::uint32_t slice) const { return wantedPriority_[slice]; }
+  bool failed(std::uint32_t slice) const { return failed_[slice] != 0; }
+  void markFailed(std::uint32_t slice) { failed_[slice] = 1; }
+  bool inFlight(std::uint32_t slice) const { return inFlight_[slice] != 0; }
+  void setInFlight(const LoadRequest& request, bool value);
+  // A block that did not fit at its priority: what it needed, so that the chain is not asked for again
+  // until that much room is free (marked on its last slice, so a shorter chain can still load).
+  void markDenied(std::uint32_t slice, std::size_t bytes) { denied_[slice] = bytes; }
+  void clearDenied(std::uint32_t slice) { denied_[slice] = 0; }
+  // A committed block's growth per decoded byte: the least measured bounds what later requests need.
+  void learnBlockGrowth(double rawBytes, double grownBytes);
+
+  // What the next requests are chosen from, after commits: the missing wanted slices that can load now
+  // and get room, most wanted first; and which of the missing ones are in the view frustum and loadable
+  // or in flight.
+  struct Candidates {
+    std::vector<SliceRequest> requests;
+    std::uint32_t missing = 0, viewPending = 0;
+  };
+  Candidates candidates();
+  // Re-ranks the queued requests for this view (the unwanted ones are cancelled and counted) and adds
+  // candidates while fewer than `maxInFlight` requests are queued or `busy` with the workers and each new
+  // one has room beside those in flight.
+  void plan(std::vector<LoadRequest>& queued, std::size_t busy, std::size_t maxInFlight,
+            const Candidates& candidates, std::uint32_t& requested, std::uint32_t& cancelled);
+
+  std::vector<std::uint32_t> wantedSlices() const;
+  std::vector<std::uint32_t> failedSlices() const;
+
+ private:
+  bool requestable(std::uint32_t slice) const;
+  void indexRoom();
+  bool roomFor(std::size_t bytes, double priority, std::uint32_t region) const;
+  std::size_t leastBlockGrowth(std::uint32_t slice) const;
+  std::uint32_t chainLength(std::uint32_t slice) const;
+  double leastBlockBytesPerRawByte() const;
+
+  const std::vector<SliceInfo>& slices_;
+  const RegionTable& regions_;
+  std::unordered_map<std::uint32_t, std::uint32_t> feedbackHits_;
+  std::vector<double> viewPriority_;    // per slice, the view query's rank (0 = not wanted): decides eviction
+  std::vector<double> wantedPriority_;  // the same with ray feedback: decides load order
+  std::vector<std::uint8_t> inView_;    // wanted and inside the view frustum
+  std::vector<std::uint8_t> failed_, inFlight_;
+  std::vector<std::size_t> denied_;  // bytes a slice dropped for lack of room needed (0 = not dropped)
+  std::vector<std::pair<double, std::size_t>> evictableRoom_;  // see indexRoom
+  std::optional<double> leastBlockBytesPerRawByte_;            // smallest measured (commit)
+};
+
+}  // namespace svo::paging
