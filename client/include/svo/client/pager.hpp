@@ -1,4 +1,4 @@
-// The paging client (paper sec. 7, DESIGN.md): streams a store's slices into a block pool of a fixed budget
+// The paging client (paper sec. 7; docs/architecture.md): streams a store's slices into a block pool of a fixed budget
 // while frames are ray cast from what is resident.
 //
 // A *region* is what one slice covers (a cube, or a packed run of its sub-cubes: store_types.hpp) with its

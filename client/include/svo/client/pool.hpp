@@ -1,4 +1,4 @@
-// The block pool (paper sec. 7, DESIGN.md): one arena of exactly the budget, in 8 KB pages, holding blocks
+// The block pool (paper sec. 7; docs/architecture.md): one arena of exactly the budget, in 8 KB pages, holding blocks
 // as contiguous page runs. Blocks are relocatable by memcpy (all their pointers are relative), so when the
 // free pages suffice but are scattered the pool compacts: it slides blocks together and tells the owner which
 // ones moved, so the owner can patch the pointers that cross blocks. The pool never allocates past the arena.
