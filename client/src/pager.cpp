@@ -58,11 +58,16 @@ ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPi
   return view;
 }
 
-Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
-    : store_(path), options_(checked(options)) {
-  regions_ = std::make_unique<paging::RegionTable>(store_.slices(), options_.budgetBytes, path.string());
-  scheduler_ = std::make_unique<paging::Scheduler>(store_.slices(), *regions_);
-  loader_ = std::make_unique<paging::RegionLoader>(store_, *regions_, poolMutex_);
+Pager::Pager(const std::filesystem::path& store, const PagerOptions& options)
+    : Pager(openLocalStore(store), options) {}
+
+Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& options)
+    : source_(std::move(source)), options_(checked(options)) {
+  const std::vector<SliceInfo>& slices = index().slices();
+  const std::string& name = index().name();
+  regions_ = std::make_unique<paging::RegionTable>(slices, options_.budgetBytes, name);
+  scheduler_ = std::make_unique<paging::Scheduler>(slices, *regions_);
+  loader_ = std::make_unique<paging::RegionLoader>(*source_, *regions_, poolMutex_);
 
   // The trunk: the root cube's levels, synchronously. It is the first coarse image and never leaves the pool.
   const std::vector<std::uint32_t>& trunk = (*regions_)[0].slices;
@@ -73,8 +78,8 @@ Pager::Pager(const std::filesystem::path& path, const PagerOptions& options)
   if (needed > regions_->pool().capacityBytes())
     throw std::runtime_error("budget: " + std::to_string(regions_->pool().capacityBytes()) +
                              " bytes cannot hold the trunk (levels 1-" +
-                             std::to_string(store_.slices()[trunk.back()].voxelLevel) + ") of " +
-                             path.string() + ", which needs " + std::to_string(needed) + " bytes");
+                             std::to_string(slices[trunk.back()].voxelLevel) + ") of " + name +
+                             ", which needs " + std::to_string(needed) + " bytes");
   PagerStats ignored;
   scheduler_->want(trunk, 1.0);
   if (!commit(built, ignored)) throw std::logic_error("pager: the trunk did not commit");
@@ -125,7 +130,7 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
   const std::size_t freed = region.resident ? pool.size(region.block) : 0;
   {
     double raw = 0.0;
-    for (std::uint32_t k = 0; k < built.added; ++k) raw += store_.slices()[region.slices[first + k]].rawBytes;
+    for (std::uint32_t k = 0; k < built.added; ++k) raw += index().slices()[region.slices[first + k]].rawBytes;
     scheduler_->learnBlockGrowth(
         raw, double(built.block.bytes().size()) - double(region.resident ? region.blockBytes : 0));
   }
@@ -176,7 +181,7 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
 PagerStats Pager::update(const ViewQuery& view) {
   PagerStats stats;
   // 1. What the view wants, with ray feedback.
-  stats.wantedRawBytes = scheduler_->rank(scheduleSlices(store_.slices(), view), *regions_);
+  stats.wantedRawBytes = scheduler_->rank(scheduleSlices(index().slices(), view), *regions_);
 
   // 2. Commit what the workers finished, most wanted first, within the time slice.
   std::vector<paging::BuiltBlock> finished = workers_->takeDone();

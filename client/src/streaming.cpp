@@ -115,7 +115,7 @@ bool loadEverything(Pager& pager, double timeoutSeconds) {
     if (secondsSince(start) > timeoutSeconds) return false;
     pager.waitForWork(0.05);
   }
-  return pager.residentSlices().size() == pager.store().slices().size();
+  return pager.residentSlices().size() == pager.index().slices().size();
 }
 
 }  // namespace svo

@@ -60,7 +60,7 @@ WholeScene WholeScene::paged(const std::filesystem::path& store, std::size_t poo
   scene.pager_ = std::make_unique<Pager>(store, options);
   if (!loadEverything(*scene.pager_, kLoadEverythingTimeout))
     throw std::runtime_error(store.string() + ": its " +
-                             std::to_string(scene.pager_->store().slices().size()) +
+                             std::to_string(scene.pager_->index().slices().size()) +
                              " slices do not all fit a pool of " + std::to_string(poolBytes >> 20) + " MiB");
   return scene;
 }

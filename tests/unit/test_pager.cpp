@@ -126,7 +126,8 @@ void expectSameAsReference(svo::Pager& pager, const svo::Camera& camera, float l
   options.threads = 1;
   const svo::Frame paged = svo::render(pager.trunk(), pager.transform(), camera, options);
   const svo::Block block =
-      svo::layoutBlock(truncatedTree(reference ? *reference : pager.store(), pager.residentSlices()));
+      svo::layoutBlock(truncatedTree(reference ? *reference : svo::StoreReader(pager.index().name()),
+                                     pager.residentSlices()));
   const svo::Frame whole = svo::render(block.view(), pager.transform(), camera, options);
   std::size_t differing = 0, hits = 0;
   for (std::size_t i = 0; i < paged.color.size(); ++i) {
@@ -226,7 +227,7 @@ TEST(Pager, ConvergedFrameEqualsTheWholeOctree) {
   svo::ViewQuery everything = svo::viewOf(pager.transform(), camera, 1e-9);
   everything.frustum.clear();
   converge(pager, everything);
-  EXPECT_EQ(pager.residentSlices().size(), pager.store().slices().size());
+  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
   pager.checkInvariants();
   expectSameAsReference(pager, camera, 0.0f);
   // And the reference at full depth is the store's own octree: the paged frame equals readOctree's.
@@ -292,7 +293,7 @@ TEST(Pager, WorkersWaitForTheFrameToEnd) {
     EXPECT_EQ(pager.workerCpu().voxelsDecoded, trunkDecoded);
   }
   converge(pager, everything);
-  EXPECT_EQ(pager.residentSlices().size(), pager.store().slices().size());
+  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
 }
 
 // A close view converges inside its frustum first: then every slice the view wants inside the frustum is
@@ -314,7 +315,7 @@ TEST(Pager, ViewConvergedMeansTheFrustumIsCompleteAndTheFrameFinal) {
     if (!atViewConverged && pager.viewConverged()) {
       const std::vector<std::uint32_t> resident = pager.residentSlices();
       std::size_t inside = 0, outside = 0;
-      for (const svo::SliceRequest& r : svo::scheduleSlices(pager.store().slices(), view)) {
+      for (const svo::SliceRequest& r : svo::scheduleSlices(pager.index().slices(), view)) {
         (r.inFrustum ? inside : outside)++;
         if (r.inFrustum)
           EXPECT_TRUE(std::binary_search(resident.begin(), resident.end(), r.slice)) << "slice " << r.slice;
@@ -374,7 +375,7 @@ TEST(Pager, AStillViewWithRayFeedbackSettlesUnderATightBudget) {
   svo::PagerOptions options;
   options.budgetBytes = wholeStoreBytes(store.path) / 8;
   svo::Pager pager(store.path, options);
-  const std::size_t sliceCount = pager.store().slices().size();
+  const std::size_t sliceCount = pager.index().slices().size();
   for (const glm::dvec3 eye : {glm::dvec3(0.3, 0.4, 1.4), glm::dvec3(-2.0, 0.5, 0.6)}) {
     const svo::Camera camera = cameraAt(eye, {0, 0, 0}, 96);
     svo::RenderOptions render;
@@ -454,7 +455,7 @@ TEST(Pager, CorruptSliceIsReportedOnceAndTheRestStillRenders) {
   ASSERT_EQ(errors.size(), 1u);
   EXPECT_NE(errors[0].find("checksum"), std::string::npos) << errors[0];
   // Everything loads but the victim and the slices below it.
-  const auto& slices = pager.store().slices();
+  const auto& slices = pager.index().slices();
   std::size_t unreachable = 0;
   for (std::uint32_t s = 0; s < slices.size(); ++s) {
     std::uint32_t up = s;

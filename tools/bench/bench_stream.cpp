@@ -193,8 +193,9 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
     r.bytes = pager.bytesRead();
     r.cpu.push_back(pager.workerCpu());
     r.bytesPerCpuSecond.push_back(double(r.bytes) / std::max(1e-9, r.cpu.back().seconds()));
-    r.sequential.push_back(readSequentially(pager.store(), c.viewResidentSlices));
-    r.decompressed.push_back(readAndDecompress(pager.store(), c.viewResidentSlices, args.decodeThreads));
+    const StoreReader store(args.input);
+    r.sequential.push_back(readSequentially(store, c.viewResidentSlices));
+    r.decompressed.push_back(readAndDecompress(store, c.viewResidentSlices, args.decodeThreads));
     r.viewCpu.push_back(c.viewWorkerCpu.seconds());
     if (run == 0)
       for (const auto& [t, frame] : frames)

@@ -79,7 +79,7 @@ void renderConverged(const RenderArgs& args, RenderOptions options, std::size_t 
   const auto start = std::chrono::steady_clock::now();
   Pager pager(args.in, pagerOptions(budget, args));
   const Camera camera = cameraOf(args, pager.transform());
-  options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
+  options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
   const Frame first = render(pager.trunk(), pager.transform(), camera, options);
   const double firstSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   StreamedFrame last;
@@ -109,7 +109,7 @@ void renderPath(const RenderArgs& args, RenderOptions options, std::size_t budge
     throw UsageError(args.out + ": cannot create the output folder");
   checkWritableOutput(folder / "frames.csv");
   Pager pager(args.in, pagerOptions(budget, args));
-  options.cast.contours = options.cast.contours && pager.store().header().parameters.contours;
+  options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
 
   std::vector<StreamedFrame> frames;
   std::vector<double> elapsed;

@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <fstream>
 #include <random>
+#include <thread>
 #include <set>
 
 #include <fmt/format.h>
@@ -56,6 +57,9 @@ constexpr double kZoomFarScenes = 2.5;
 constexpr int kZoomsPerSequence = 3;
 // Places a flight visits; it moves between them at close-up distance.
 constexpr int kFlightStops = 6;
+// Frames come at most this often, as in a viewer at 60 Hz: the pager's workers have the rest of the period,
+// so what a sequence loads depends on the frames, not on how fast tiny frames render.
+constexpr std::chrono::duration<double> kFramePeriod(1.0 / 60.0);
 // Soak: resident memory may grow at most this much from the first half of a budget's run to its second
 // (allocator noise) before the run fails as a leak.
 constexpr double kSoakGrowthShare = 0.05;
@@ -149,7 +153,7 @@ double finestDistance(const Pager& pager, int size, float lodPixels) {
   Camera c;
   c.width = c.height = size;
   c.fovYDegrees = kStressFovDegrees;
-  const double finest = pager.transform().size * std::ldexp(1.0, -pager.store().header().parameters.levels);
+  const double finest = pager.transform().size * std::ldexp(1.0, -pager.index().header().parameters.levels);
   return finest / (c.pixelAngle() * std::max(lodPixels, 1e-3f));
 }
 
@@ -174,6 +178,7 @@ SequenceResult runSequence(Pager& pager, const std::vector<Camera>& cameras, con
   std::set<std::uint32_t> wanted;
   std::vector<std::uint32_t> before = pager.residentSlices();
   for (const Camera& camera : cameras) {
+    const auto frameStart = std::chrono::steady_clock::now();
     const StreamedFrame step = streamFrame(pager, camera, render);
     r.frameMs.push_back(step.seconds() * 1e3);
     r.maxResident = std::max(r.maxResident, step.stats.residentBytes);
@@ -201,9 +206,10 @@ SequenceResult runSequence(Pager& pager, const std::vector<Camera>& cameras, con
     r.loaded.insert(r.loaded.end(), added.begin(), added.end());
     everEvicted.insert(removed.begin(), removed.end());
     before = after;
+    std::this_thread::sleep_until(frameStart + kFramePeriod);
   }
   r.frames = cameras.size();
-  for (const std::uint32_t s : wanted) r.allWanted += pager.store().slices()[s].rawBytes;
+  for (const std::uint32_t s : wanted) r.allWanted += pager.index().slices()[s].rawBytes;
   r.convergeSeconds = convergeView(pager, cameras.back(), render, timeout).seconds;
   return r;
 }
@@ -266,7 +272,7 @@ void runStress(const StressArgs& args) {
       table.addRow({text, "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", e.what()});
       continue;
     }
-    storeDecoded = footprintOf(pager->store().slices()).decodedBytes;
+    storeDecoded = footprintOf(pager->index().slices()).decodedBytes;
     const std::size_t trunkBytes = pager->residentBytes();
     std::mt19937 rng(args.seed);
     const std::vector<SurfacePoint> surface = surfacePoints(*pager, rng);

@@ -5,6 +5,8 @@
 #include <optional>
 #include <stdexcept>
 
+#include "svo/store/store_reader.hpp"
+
 namespace svo::paging {
 namespace {
 
@@ -100,8 +102,8 @@ WorkerCpu StageCounters::seconds() const {
           voxelsLaidOut.load(std::memory_order_relaxed)};
 }
 
-RegionLoader::RegionLoader(const StoreReader& store, RegionTable& regions, std::shared_mutex& poolMutex)
-    : store_(store), regions_(regions), poolMutex_(poolMutex) {}
+RegionLoader::RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex)
+    : source_(source), index_(source.index()), regions_(regions), poolMutex_(poolMutex) {}
 
 FetchedChain RegionLoader::fetch(const LoadRequest& request) {
   const StageClock clock(cpu_.read);
@@ -111,9 +113,10 @@ FetchedChain RegionLoader::fetch(const LoadRequest& request) {
   for (std::uint32_t k = 0; k < request.count; ++k) {
     const std::uint32_t slice = region.slices[first + k];
     try {
-      out.slices.push_back(store_.readSlice(slice));
-      bytesRead_.fetch_add(store_.slices()[slice].compressedBytes, std::memory_order_relaxed);
+      source_.fetch(slice, out.slices.emplace_back());
+      bytesRead_.fetch_add(index_.slices()[slice].compressedBytes, std::memory_order_relaxed);
     } catch (const std::exception& e) {
+      out.slices.pop_back();
       out.error = e.what();
       out.failedSlice = slice;
       break;
@@ -131,7 +134,7 @@ VoxelLevels RegionLoader::residentLevels(const Region& region) const {
                         rootValue(view, AttachmentType::Normal)});
   }
   if (region.parent < 0) {
-    const StoreHeader& header = store_.header();
+    const StoreHeader& header = index_.header();
     return {{{glm::ivec3(0), 0, false, 0, header.rootColor, header.rootNormal}}};
   }
   // A new region: its cube's voxel and subtree from the parent region's block.
@@ -161,7 +164,7 @@ VoxelLevels RegionLoader::residentLevels(const Region& region) const {
 
 void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, std::uint32_t resident,
                           BuiltBlock& out) {
-  const StoreHeader& header = store_.header();
+  const StoreHeader& header = index_.header();
   VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
   cpu_.voxelsLaidOut.fetch_add(tree.voxels.size(), std::memory_order_relaxed);
   std::vector<std::size_t> levelStart{0};
@@ -222,12 +225,28 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   const std::uint32_t first = regions_.indexInRegion(request.slice);
   const auto fail = [&](std::uint32_t slice, const std::string& what) {
     out.failedSlice = slice;
-    out.error = store_.path().string() + ": slice " + std::to_string(slice) + ": " + what;
+    out.error = index_.name() + ": slice " + std::to_string(slice) + ": " + what;
   };
   if (fetched.slices.empty()) return out;
 
+  // Checksums and zstd: a failure ends the chain, the slices before it still load.
   pause();
-  StageClock clock(cpu_.assemble);
+  StageClock clock(cpu_.read);
+  std::vector<SliceBytes> raw;
+  for (std::uint32_t k = 0; k < fetched.slices.size(); ++k) {
+    const std::uint32_t slice = region.slices[first + k];
+    try {
+      raw.push_back(unpackSlice(index_, slice, fetched.slices[k]));
+    } catch (const std::exception& e) {
+      out.error = e.what();
+      out.failedSlice = slice;
+      break;
+    }
+  }
+  fetched.slices.clear();
+  if (raw.empty()) return out;
+
+  clock.enter(cpu_.assemble);
   std::shared_lock lock(poolMutex_);
   out.version = region.version;
   const std::uint32_t resident = region.resident;
@@ -244,14 +263,14 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   // The pool is read; decoding and layout need only this copy, so commits need not wait for them.
   lock.unlock();
   clock.enter(cpu_.decode);
-  for (std::uint32_t k = 0; k < fetched.slices.size(); ++k) {
+  for (std::uint32_t k = 0; k < raw.size(); ++k) {
     const std::uint32_t slice = region.slices[first + k];
     pause();
     try {
-      if (region.cubeLevel + int(levels.size()) != store_.slices()[slice].voxelLevel)
+      if (region.cubeLevel + int(levels.size()) != index_.slices()[slice].voxelLevel)
         throw std::runtime_error("the resident levels do not end above it");
       std::vector<SliceVoxel> added;
-      store_.decodeSlice(slice, fetched.slices[k], levels.back(), added);
+      decodeSlice(index_, slice, raw[k], levels.back(), added);
       cpu_.voxelsDecoded.fetch_add(added.size(), std::memory_order_relaxed);
       levels.push_back(std::move(added));
       ++out.added;

@@ -14,10 +14,11 @@
 #include "paging/regions.hpp"
 #include "paging/scheduler.hpp"
 #include "svo/client/pager.hpp"
+#include "svo/client/slice_source.hpp"
 
 namespace svo::paging {
 
-// A request's slices as fetched, in order, up to the first that failed.
+// A request's slices as fetched (compressed, as stored), in order, up to the first that failed.
 struct FetchedChain {
   std::vector<SliceBytes> slices;
   std::uint32_t failedSlice = SliceInfo::kNoSlice;
@@ -34,12 +35,13 @@ struct StageCounters {
 class RegionLoader {
  public:
   // Workers read the pool under `poolMutex` shared; commits write it exclusively.
-  RegionLoader(const StoreReader& store, RegionTable& regions, std::shared_mutex& poolMutex);
+  RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex);
 
-  // The request's slices from the store (I/O).
+  // The request's slices from the source (I/O).
   FetchedChain fetch(const LoadRequest& request);
-  // The region's new block with the fetched slices added (CPU); `pause` lets a frame have the cores between
-  // stages. A slice that fails to decode ends the chain: the block holds the ones before it.
+  // The region's new block with the fetched slices checked, decompressed and decoded onto it (CPU); `pause`
+  // lets a frame have the cores between stages. A slice that fails ends the chain: the block holds the ones
+  // before it.
   BuiltBlock build(const LoadRequest& request, FetchedChain&& fetched, const std::function<void()>& pause);
 
   std::uint64_t bytesRead() const { return bytesRead_.load(std::memory_order_relaxed); }
@@ -52,7 +54,8 @@ class RegionLoader {
   // region is complete, of its child regions' entry voxels.
   void layOut(const Region& region, const VoxelLevels& levels, std::uint32_t resident, BuiltBlock& out);
 
-  const StoreReader& store_;
+  const SliceSource& source_;
+  const StoreIndex& index_;
   RegionTable& regions_;  // read only, but for prefaulting the pool's free pages
   std::shared_mutex& poolMutex_;
   std::mutex prefaultMutex_;  // one worker at a time prefaults the pool (BlockPool::prefault)

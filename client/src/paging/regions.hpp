@@ -16,7 +16,7 @@
 #include <glm/vec3.hpp>
 
 #include "svo/client/pool.hpp"
-#include "svo/store/container.hpp"
+#include "svo/store/store_types.hpp"
 
 namespace svo::paging {
 

@@ -27,6 +27,7 @@
 
 #include "svo/client/pool.hpp"
 #include "svo/client/render.hpp"
+#include "svo/client/slice_source.hpp"
 #include "svo/store/schedule.hpp"
 #include "svo/store/store_reader.hpp"
 
@@ -90,15 +91,18 @@ struct BuiltBlock;
 
 class Pager {
  public:
-  // Opens the store and loads the root region's slices synchronously (the first coarse image). Throws
-  // std::runtime_error when the store cannot be read or its first slices do not fit the budget.
+  // Loads the root region's slices synchronously (the first coarse image). Throws std::runtime_error when
+  // the store cannot be read or its first slices do not fit the budget.
+  Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& options = {});
+  // A local store file.
   Pager(const std::filesystem::path& store, const PagerOptions& options = {});
   ~Pager();
   Pager(const Pager&) = delete;
   Pager& operator=(const Pager&) = delete;
 
-  const StoreReader& store() const { return store_; }
-  const SceneTransform& transform() const { return store_.header().transform; }
+  // The store's header and directory.
+  const StoreIndex& index() const { return source_->index(); }
+  const SceneTransform& transform() const { return index().header().transform; }
   // The resident octree for the next frame (valid until the next update()).
   BlockView trunk() const;
 
@@ -149,7 +153,7 @@ class Pager {
  private:
   bool commit(paging::BuiltBlock& built, PagerStats& stats);
 
-  StoreReader store_;
+  std::shared_ptr<const SliceSource> source_;
   PagerOptions options_;
   // Workers read blocks shared (assembling a region's levels, prefaulting); commits and evictions write
   // exclusively.

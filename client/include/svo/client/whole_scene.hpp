@@ -41,7 +41,7 @@ class WholeScene {
   BlockView root() const { return octree_ ? octree_->block.view() : pager_->trunk(); }
   const SceneTransform& transform() const { return octree_ ? octree_->transform : pager_->transform(); }
   const BuildParameters& parameters() const {
-    return octree_ ? octree_->parameters : pager_->store().header().parameters;
+    return octree_ ? octree_->parameters : pager_->index().header().parameters;
   }
   bool isPaged() const { return pager_ != nullptr; }
   const Octree* octree() const { return octree_ ? &*octree_ : nullptr; }
