@@ -203,13 +203,14 @@ PagerStats Pager::update(const ViewQuery& view) {
     workers_->putBack({std::make_move_iterator(finished.begin() + std::ptrdiff_t(committed)),
                        std::make_move_iterator(finished.end())});
 
-  // 3. Requests: the most wanted slices that can load now and fit; queued ones the view no longer ranks are
-  // dropped.
+  // 3. Requests: the most wanted slices that can load now and fit; queued or fetched ones the view no longer
+  // ranks are dropped.
   const paging::Scheduler::Candidates candidates = scheduler_->candidates();
-  stats.inFlight = std::uint32_t(workers_->edit([&](std::vector<paging::LoadRequest>& queued, std::size_t busy) {
-    scheduler_->plan(queued, busy, std::size_t(options_.maxInFlight), candidates, stats.requested,
-                     stats.cancelled);
-  }));
+  stats.inFlight = std::uint32_t(workers_->edit(
+      [&](std::vector<paging::LoadRequest>& queued, std::vector<paging::LoadRequest>& fetched, std::size_t busy) {
+        scheduler_->plan(queued, fetched, busy, std::size_t(options_.maxInFlight), candidates, stats.requested,
+                         stats.cancelled);
+      }));
   lastRequestable_ = std::uint32_t(candidates.requests.size());
   lastInFlight_ = stats.inFlight;
   lastViewPending_ = candidates.viewPending;

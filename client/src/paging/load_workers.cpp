@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cassert>
 #include <chrono>
 
 namespace svo::paging {
@@ -87,15 +88,24 @@ void LoadWorkers::buildLoop(int builder, std::stop_token stop) {
   }
 }
 
-std::size_t LoadWorkers::edit(
-    const std::function<void(std::vector<LoadRequest>& queued, std::size_t busy)>& change) {
+std::size_t LoadWorkers::edit(const Edit& change) {
   std::size_t inFlight = 0;
   {
     std::lock_guard lock(mutex_);
-    std::vector<LoadRequest> queued(queue_.begin(), queue_.end());
-    change(queued, busy());
+    std::vector<LoadRequest> queued(queue_.begin(), queue_.end()), fetched;
+    for (const Fetched& f : fetched_) fetched.push_back(f.request);
+    change(queued, fetched, busy());
     queue_.assign(queued.begin(), queued.end());
-    inFlight = queue_.size() + busy();
+    // A slice is in flight once, so the edited requests match the fetched chains by slice.
+    std::vector<Fetched> kept;
+    for (const LoadRequest& request : fetched) {
+      const auto it = std::find_if(fetched_.begin(), fetched_.end(),
+                                   [&](const Fetched& f) { return f.request.slice == request.slice; });
+      assert(it != fetched_.end());
+      kept.push_back({request, std::move(it->chain)});
+    }
+    fetched_ = std::move(kept);
+    inFlight = queue_.size() + fetched_.size() + busy();
   }
   requested_.notify_all();
   return inFlight;

@@ -34,9 +34,12 @@ class LoadWorkers {
   LoadWorkers(const LoadWorkers&) = delete;
   LoadWorkers& operator=(const LoadWorkers&) = delete;
 
-  // Edits the requests not yet fetched (highest priority first after the edit) under the queue lock;
-  // `busy` counts the ones fetched, being worked on or done and not taken. Returns all in flight after.
-  std::size_t edit(const std::function<void(std::vector<LoadRequest>& queued, std::size_t busy)>& change);
+  // Edits, under the queue lock, the requests not yet fetched (highest priority first after the edit) and
+  // the fetched ones waiting for a build thread (those removed are never built; priorities may change);
+  // `busy` counts the ones being fetched or built, or done and not taken. Returns all in flight after.
+  using Edit = std::function<void(std::vector<LoadRequest>& queued, std::vector<LoadRequest>& fetched,
+                                  std::size_t busy)>;
+  std::size_t edit(const Edit& change);
   std::vector<BuiltBlock> takeDone();
   void putBack(std::vector<BuiltBlock>&& blocks);  // taken but not committed: offered again next time
   // Blocks until a block is done or `seconds` pass.
@@ -53,7 +56,7 @@ class LoadWorkers {
   void fetchLoop(std::stop_token stop);
   void buildLoop(int builder, std::stop_token stop);
   void waitForFrameEnd(int builder);
-  std::size_t busy() const { return fetching_ + fetched_.size() + building_ + done_.size(); }
+  std::size_t busy() const { return fetching_ + building_ + done_.size(); }
 
   Options options_;
   Fetch fetch_;

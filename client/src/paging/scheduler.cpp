@@ -150,9 +150,19 @@ Scheduler::Candidates Scheduler::candidates() {
   return out;
 }
 
-void Scheduler::plan(std::vector<LoadRequest>& queued, std::size_t busy, std::size_t maxInFlight,
-                     const Candidates& candidates, std::uint32_t& requested, std::uint32_t& cancelled) {
-  // Re-rank what is queued with this view's priorities; what it no longer wants is cancelled.
+void Scheduler::plan(std::vector<LoadRequest>& queued, std::vector<LoadRequest>& fetched, std::size_t busy,
+                     std::size_t maxInFlight, const Candidates& candidates, std::uint32_t& requested,
+                     std::uint32_t& cancelled) {
+  // Re-rank what is queued or fetched with this view's priorities; what it no longer wants is cancelled
+  // (a fetched one is then never decoded).
+  std::erase_if(fetched, [&](LoadRequest& q) {
+    q.priority = wantedPriority_[q.slice];
+    if (q.priority > 0.0) return false;
+    setInFlight(q, false);
+    cancelled += q.count;
+    return true;
+  });
+  busy += fetched.size();
   std::vector<LoadRequest> keep;
   for (const LoadRequest& q : queued) {
     if (wantedPriority_[q.slice] > 0.0) {
