@@ -29,6 +29,7 @@
 
 #include "bench_common.hpp"
 #include "measure.hpp"
+#include "pager_flags.hpp"
 #include "plot.hpp"
 #include "svo/client/streaming.hpp"
 
@@ -38,8 +39,8 @@ namespace {
 struct StreamArgs {
   std::string input, output = "stream-report";
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
-  int size = 512, runs = 3, pathFrames = 120, workerNice = PagerOptions{}.workerNice,
-      decodeThreads = PagerOptions{}.decodeThreads, decodersDuringFrames = PagerOptions{}.decodersDuringFrames;
+  int size = 512, runs = 3, pathFrames = 120;
+  PagerOptions pager;  // threads; the budget is set per measurement
   int backgroundLoad = 0;  // busy threads at normal priority beside the bench
   float lodPixels = 1.0f;
   double timeout = 300.0;
@@ -138,11 +139,8 @@ std::vector<Camera> orbitPath(const SceneTransform& scene, int frames, int size)
 }
 
 PagerOptions pagerOptionsOf(const StreamArgs& args, std::size_t budget) {
-  PagerOptions options;
+  PagerOptions options = args.pager;
   options.budgetBytes = budget;
-  options.workerNice = args.workerNice;
-  options.decodeThreads = args.decodeThreads;
-  options.decodersDuringFrames = args.decodersDuringFrames;
   return options;
 }
 
@@ -195,7 +193,7 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
     r.bytesPerCpuSecond.push_back(double(r.bytes) / std::max(1e-9, r.cpu.back().seconds()));
     const StoreReader store(args.input);
     r.sequential.push_back(readSequentially(store, c.viewResidentSlices));
-    r.decompressed.push_back(readAndDecompress(store, c.viewResidentSlices, args.decodeThreads));
+    r.decompressed.push_back(readAndDecompress(store, c.viewResidentSlices, args.pager.decodeThreads));
     r.viewCpu.push_back(c.viewWorkerCpu.seconds());
     if (run == 0)
       for (const auto& [t, frame] : frames)
@@ -305,8 +303,9 @@ void runStreamBench(const StreamArgs& args) {
   printTitle(
       "svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
       std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs, " +
-      std::to_string(args.decodeThreads) + " workers at nice " + std::to_string(args.workerNice) + ", " +
-      std::to_string(args.decodersDuringFrames) + " of them during frames" +
+      fmt::format("{} fetch and {} decode threads at nice {}, {} decoding during frames",
+                  args.pager.fetchThreads, args.pager.decodeThreads, args.pager.workerNice,
+                  args.pager.decodersDuringFrames) +
       (args.backgroundLoad ? fmt::format(", background load: {} busy threads", args.backgroundLoad) : "") +
       ")");
   table.print();
@@ -330,7 +329,7 @@ void runStreamBench(const StreamArgs& args) {
       "read + zstd alone: the view's slices read, checksummed and decompressed by %d threads from the cold "
       "file, no decode or layout; cores for %s: the workers' CPU until the view converged / (%g x "
       "sequential read), the cores it would take with perfect parallelism\n",
-      args.decodeThreads, goal.c_str(), kViewOverSequentialGoal);
+      args.pager.decodeThreads, goal.c_str(), kViewOverSequentialGoal);
   std::printf("wrote %s\n", plotPath.c_str());
 }
 
@@ -357,19 +356,7 @@ void addStreamBench(CLI::App& bench) {
   cmd->add_option("--lod-pixels", args->lodPixels, "target voxel size in pixels")
       ->check(CLI::Range(0.01, 64.0))
       ->capture_default_str();
-  cmd->add_option("--io-threads", args->decodeThreads,
-                  "the pager's slice read and decode threads (view / seq falls as they are added, while "
-                  "cores are free)")
-      ->check(CLI::Range(1, 64))
-      ->capture_default_str();
-  cmd->add_option("--worker-nice", args->workerNice,
-                  "nice value of the pager's threads: trades streaming while the camera moves for frame time")
-      ->check(CLI::Range(0, 19))
-      ->capture_default_str();
-  cmd->add_option("--workers-during-frames", args->decodersDuringFrames,
-                  "pager workers that go on while a frame renders (the others wait for it to end)")
-      ->check(CLI::Range(0, 64))
-      ->capture_default_str();
+  addPagerThreadFlags(*cmd, args->pager);
   cmd->add_option("--background-load", args->backgroundLoad,
                   "busy threads at normal priority running beside the bench: streaming with other programs "
                   "on the cores")

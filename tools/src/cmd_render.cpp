@@ -15,6 +15,7 @@
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
+#include "pager_flags.hpp"
 #include "plot.hpp"
 #include "report.hpp"
 #include "svo/client/pager.hpp"
@@ -39,8 +40,7 @@ struct RenderArgs {
   bool noContours = false, aux = false;
   std::size_t budget = 0, referenceBudget = std::size_t(1) << 30;
   std::string pathFile;
-  int decodeThreads = PagerOptions{}.decodeThreads, workerNice = PagerOptions{}.workerNice,
-      decodersDuringFrames = PagerOptions{}.decodersDuringFrames;
+  PagerOptions pager;  // threads; the budget is chosen per run
   double timeout = 300.0;
 };
 
@@ -64,11 +64,8 @@ Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
 }
 
 PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
-  PagerOptions options;
+  PagerOptions options = args.pager;
   options.budgetBytes = budget;
-  options.decodeThreads = args.decodeThreads;
-  options.workerNice = args.workerNice;
-  options.decodersDuringFrames = args.decodersDuringFrames;
   return options;
 }
 
@@ -273,18 +270,7 @@ void addRenderCommand(CLI::App& app) {
                   "with --path: pool for the converged reference frames")
       ->transform(CLI::AsSizeValue(false))
       ->capture_default_str();
-  cmd->add_option("--io-threads", args->decodeThreads, "when streaming: slice read and decode threads")
-      ->check(CLI::Range(1, 64))
-      ->capture_default_str();
-  cmd->add_option("--worker-nice", args->workerNice,
-                  "when streaming: nice value of those threads; higher gives frames more of the CPU, lower "
-                  "streams faster while the camera moves")
-      ->check(CLI::Range(0, 19))
-      ->capture_default_str();
-  cmd->add_option("--workers-during-frames", args->decodersDuringFrames,
-                  "when streaming: workers that go on while a frame renders (the others wait for it to end)")
-      ->check(CLI::Range(0, 64))
-      ->capture_default_str();
+  addPagerThreadFlags(*cmd, args->pager);
   cmd->add_option("--timeout", args->timeout, "when streaming: seconds a view may take to converge")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
