@@ -1,4 +1,4 @@
-// libFuzzer target over the streaming binary PLY reader (openTriangleSource; DESIGN.md: fuzz the parsers).
+// libFuzzer target over the streaming binary PLY reader (openTriangleSource).
 // Any bytes given as a .ply file must end in a clean exception or triangles that read twice alike: never a
 // crash, a hang or a sanitizer report. Files the streaming reader declines go to loadMesh, stubbed here to
 // throw, so that the target needs neither assimp nor the rest of the builder.

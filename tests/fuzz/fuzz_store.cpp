@@ -1,4 +1,4 @@
-// libFuzzer target over the store reader (DESIGN.md: fuzz the parsers). Any bytes given as a store must end
+// libFuzzer target over the store reader. Any bytes given as a store must end
 // in a clean exception or a valid octree: never a crash, a hang or a sanitizer report. The input is read
 // from memory (MemorySource), then loaded whole and, on its own, walked by verify. Built with
 // FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION, which turns the checksum comparisons off so that mutated inputs

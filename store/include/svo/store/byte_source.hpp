@@ -1,4 +1,4 @@
-// Where a store's bytes come from (DESIGN.md: the local file, memory, HTTP range requests). A reader asks a
+// Where a store's bytes come from (docs/architecture.md: the local file, memory, HTTP range requests). A reader asks a
 // source for byte ranges only: the header, the directory, then slices on demand (store_index.hpp,
 // store_reader.hpp).
 #pragma once

@@ -38,7 +38,7 @@ struct ChildDescriptor {
   constexpr std::uint32_t contourPointer() const { return contour >> 8; }
   constexpr std::uint8_t contourMask() const { return std::uint8_t(contour); }
 
-  // Paging (the client's block pool, DESIGN.md): a descriptor with an empty valid mask never describes real
+  // Paging (the client's block pool, docs/architecture.md): a descriptor with an empty valid mask never describes real
   // children. Without the far bit it is a *stub*: the voxel has children that are not resident, and it
   // renders as a leaf. With the far bit it is a *link*: the voxel's descriptor lives in another block,
   // `contour` slots away (signed), which keeps contour and attribute lookups inside that block.

@@ -1,4 +1,4 @@
-// The view query of DESIGN.md's store: which slices a view needs, in what order. Shared by the local pager
+// The view query (docs/architecture.md): which slices a view needs, in what order. Shared by the local pager
 // and the server so both schedule alike. A slice of voxel level L in cube C is wanted when the
 // voxels of level L - 1 in C would look larger than the target (--lod-pixels) from the eye: the view needs
 // the finer level there. Its priority is the released code's 2^scale / (distance to the cube + half its

@@ -1,4 +1,4 @@
-// The `.svo` store (paper sec. 7, DESIGN.md): one file holding
+// The `.svo` store (paper sec. 7, docs/format.md): one file holding
 //   a 256-byte header at offset 0 (magic, version, scene transform, levels, build parameters, attachment
 //   types, the root voxel's attributes, slice size, directory location, checksum), slices, each one
 //   resolution level of one cube of the octree, zstd-compressed and XXH3-checksummed, the slice directory at
