@@ -32,7 +32,8 @@ PagerOptions checked(PagerOptions options) {
     throw std::runtime_error(
         "pager: fetchThreads, decodeThreads, maxInFlight and commitMillis must be positive");
   if (options.workerNice < 0 || options.workerNice > 19)
-    throw std::runtime_error("pager: worker nice must be in [0, 19], got " + std::to_string(options.workerNice));
+    throw std::runtime_error("pager: worker nice must be in [0, 19], got " +
+                             std::to_string(options.workerNice));
   if (options.decodersDuringFrames < 0)
     throw std::runtime_error("pager: decoders during frames must be >= 0, got " +
                              std::to_string(options.decodersDuringFrames));
@@ -130,7 +131,8 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
   const std::size_t freed = region.resident ? pool.size(region.block) : 0;
   {
     double raw = 0.0;
-    for (std::uint32_t k = 0; k < built.added; ++k) raw += index().slices()[region.slices[first + k]].rawBytes;
+    for (std::uint32_t k = 0; k < built.added; ++k)
+      raw += index().slices()[region.slices[first + k]].rawBytes;
     scheduler_->learnBlockGrowth(
         raw, double(built.block.bytes().size()) - double(region.resident ? region.blockBytes : 0));
   }
@@ -206,10 +208,11 @@ PagerStats Pager::update(const ViewQuery& view) {
   // 3. Requests: the most wanted slices that can load now and fit; queued or fetched ones the view no longer
   // ranks are dropped.
   const paging::Scheduler::Candidates candidates = scheduler_->candidates();
-  stats.inFlight = std::uint32_t(workers_->edit(
-      [&](std::vector<paging::LoadRequest>& queued, std::vector<paging::LoadRequest>& fetched, std::size_t busy) {
-        scheduler_->plan(queued, fetched, busy, std::size_t(options_.maxInFlight), candidates, stats.requested,
-                         stats.cancelled);
+  stats.inFlight =
+      std::uint32_t(workers_->edit([&](std::vector<paging::LoadRequest>& queued,
+                                       std::vector<paging::LoadRequest>& fetched, std::size_t busy) {
+        scheduler_->plan(queued, fetched, busy, std::size_t(options_.maxInFlight), candidates,
+                         stats.requested, stats.cancelled);
       }));
   lastRequestable_ = std::uint32_t(candidates.requests.size());
   lastInFlight_ = stats.inFlight;

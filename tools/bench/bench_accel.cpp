@@ -8,7 +8,6 @@
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <memory>
 #include <optional>
@@ -25,6 +24,7 @@
 #include "svo/accel/accel.hpp"
 #include "svo/accel/scenes.hpp"
 #include "svo/client/render.hpp"
+#include "text_file.hpp"
 
 namespace svo::tools::bench {
 
@@ -438,9 +438,7 @@ void runAccelBench(const AccelArgs& args) {
   md += "## Paper claims\n\n" + markdownTable({"claim", "scene", "measured", "verdict"}, mdClaims);
   md += plotBuildTimes(args.plotPath, scenes, results);
   if (!args.markdown.empty()) {
-    std::ofstream out(args.markdown);
-    out << md;
-    if (!out) throw std::runtime_error("cannot write " + args.markdown);
+    writeTextFile(args.markdown, md);
     fmt::print("markdown: {}\n", args.markdown);
   }
 }

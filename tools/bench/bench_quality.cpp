@@ -6,7 +6,6 @@
 // and difference images of the best and worst settings. --stream: bench_quality_stream.cpp.
 #include <algorithm>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -18,6 +17,7 @@
 
 #include "bench_quality.hpp"
 #include "plot.hpp"
+#include "text_file.hpp"
 
 namespace svo::tools::bench {
 namespace {
@@ -253,7 +253,7 @@ void runQualityBench(const QualityArgs& args) {
   plotErrors(out / "error-vs-time.png", all);
   markdown += writeBestAndWorst(out, all, reference);
   markdown += "\n![error against time](error-vs-time.png)\n";
-  std::ofstream(out / "quality.md") << markdown;
+  writeTextFile(out / "quality.md", markdown);
   fmt::print("report: {}, plot: {}, images: reference.png, best/worst(-difference).png in {}\n",
              (out / "quality.md").string(), (out / "error-vs-time.png").string(), out.string());
 }

@@ -3,7 +3,6 @@
 // against the elapsed time from opening the store, one curve per budget (stream.md, stream.csv,
 // error-vs-time-streaming.png).
 #include <chrono>
-#include <fstream>
 #include <memory>
 
 #include <spdlog/spdlog.h>
@@ -13,6 +12,7 @@
 #include "plot.hpp"
 #include "svo/client/pager.hpp"
 #include "svo/client/streaming.hpp"
+#include "text_file.hpp"
 
 namespace svo::tools::bench {
 namespace {
@@ -104,12 +104,15 @@ void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads,
   table.print();
   plot::writeLogLogPlot(out / "error-vs-time-streaming.png", panels, "seconds since the store was opened",
                         "error against the triangle reference (log)");
-  std::ofstream(out / "stream.csv") << csv;
-  std::ofstream(out / "stream.md") << fmt::format(
-      "# svo bench quality --stream: {}\n\n{}. Reference: kd-tree ray cast of the mesh. Frames kept when "
-      "{}x later than the last kept one.\n\n![error against elapsed time](error-vs-time-streaming.png)\n\n"
-      "Per frame: `stream.csv`.\n",
-      args.mesh, title, kStreamKeepRatio);
+  writeTextFile(out / "stream.csv", csv);
+  writeTextFile(
+      out / "stream.md",
+      fmt::format(
+          "# svo bench quality --stream: {}\n\n{}. Reference: kd-tree ray cast of the mesh. Frames kept when "
+          "{}x later than the last kept one.\n\n![error against elapsed "
+          "time](error-vs-time-streaming.png)\n\n"
+          "Per frame: `stream.csv`.\n",
+          args.mesh, title, kStreamKeepRatio));
   fmt::print("report: {}, plot: {}, per-frame errors: {}\n", (out / "stream.md").string(),
              (out / "error-vs-time-streaming.png").string(), (out / "stream.csv").string());
 }

@@ -40,7 +40,7 @@ struct StreamArgs {
   std::string input, output = "stream-report";
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
   int size = 512, runs = 3, pathFrames = 120;
-  PagerOptions pager;  // threads; the budget is set per measurement
+  PagerOptions pager;      // threads; the budget is set per measurement
   int backgroundLoad = 0;  // busy threads at normal priority beside the bench
   float lodPixels = 1.0f;
   double timeout = 300.0;

@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 
 #include "process.hpp"
+#include "text_file.hpp"
 
 namespace svo::tools::plot {
 namespace {
@@ -160,11 +161,7 @@ void writePlot(const std::filesystem::path& path, const std::vector<Panel>& pane
   csv.replace_extension(".csv");
   gp.replace_extension(".gp");
   const auto rows = writeData(csv, panels, xScale, yScale);
-  {
-    std::ofstream out(gp);
-    out << script(path, csv, panels, rows, xLabel, yLabel, xScale, yScale, width, height);
-    if (!out.flush()) throw std::runtime_error("plot " + gp.string() + ": cannot write");
-  }
+  writeTextFile(gp, script(path, csv, panels, rows, xLabel, yLabel, xScale, yScale, width, height));
   const std::optional<ProcessResult> gnuplot =
       runProcess({"gnuplot", gp.filename().string()}, {.workingDirectory = folder});
   if (!gnuplot)

@@ -1,10 +1,8 @@
 // `svo build MESH -o out.svo --levels N`: mesh -> octree -> .svo, with progress and a size summary.
-#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
-#include <fstream>
 #include <memory>
 #include <optional>
 
@@ -19,6 +17,7 @@
 #include "measure.hpp"
 #include "progress.hpp"
 #include "svo/builder/build.hpp"
+#include "text_file.hpp"
 
 namespace svo::tools {
 namespace {
@@ -37,20 +36,6 @@ struct BuildArgs {
 
 double secondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
-
-// Writes `text` to `path` through a temporary name, like every other output.
-void writeTextAtomically(const std::filesystem::path& path, const std::string& text) {
-  const std::filesystem::path temp = path.string() + ".tmp." + std::to_string(::getpid());
-  {
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    out << text;
-    if (!out.flush()) {
-      std::filesystem::remove(temp);
-      throw std::runtime_error(path.string() + ": cannot write the report");
-    }
-  }
-  std::filesystem::rename(temp, path);
 }
 
 void runBuild(const BuildArgs& args) {
@@ -186,7 +171,7 @@ void runBuild(const BuildArgs& args) {
                                  {"decodedContours", double(parts.contours) / leaves},
                                  {"decodedColors", double(parts.colors) / leaves},
                                  {"decodedNormals", double(parts.normals) / leaves}};
-  writeTextAtomically(reportPath, report.dump(2) + "\n");
+  writeTextFile(reportPath, report.dump(2) + "\n");
 
   spdlog::info("{} levels, {} voxels ({} leaves), {} contours; {} slices", options.levels, voxels,
                stats.leafVoxels, stats.contours, slices.size());

@@ -71,9 +71,9 @@ void LoadWorkers::buildLoop(int builder, std::stop_token stop) {
       std::unique_lock lock(mutex_);
       if (!fetchedReady_.wait(lock, stop, [&] { return !fetched_.empty(); })) return;
       // The most wanted of the fetched requests first.
-      const auto best = std::max_element(fetched_.begin(), fetched_.end(), [](const Fetched& a, const Fetched& b) {
-        return a.request.priority < b.request.priority;
-      });
+      const auto best = std::max_element(
+          fetched_.begin(), fetched_.end(),
+          [](const Fetched& a, const Fetched& b) { return a.request.priority < b.request.priority; });
       item = std::move(*best);
       fetched_.erase(best);
       ++building_;

@@ -27,7 +27,8 @@ class LoadWorkers {
   };
   using Fetch = std::function<FetchedChain(const LoadRequest&)>;
   // `pause` blocks while a frame renders, for the build threads that must let it have the cores.
-  using Build = std::function<BuiltBlock(const LoadRequest&, FetchedChain&&, const std::function<void()>& pause)>;
+  using Build =
+      std::function<BuiltBlock(const LoadRequest&, FetchedChain&&, const std::function<void()>& pause)>;
 
   LoadWorkers(const Options& options, Fetch fetch, Build build);
   ~LoadWorkers();  // stops and joins every thread; unfinished requests are dropped

@@ -198,7 +198,8 @@ void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, std::
   }
   // Its own entry voxels that have children, which the parent's links lead to.
   std::vector<std::pair<glm::ivec3, std::size_t>> entryRecords;
-  const auto [coords, level] = entryVoxels(region.cubeLevel, region.cubeCoord, region.firstSlot, region.lastSlot);
+  const auto [coords, level] =
+      entryVoxels(region.cubeLevel, region.cubeCoord, region.firstSlot, region.lastSlot);
   for (const glm::ivec3& coord : coords)
     if (const auto record = recordAt(std::size_t(level - region.cubeLevel), coord);
         record && tree.voxels[*record].childMask != 0)

@@ -58,7 +58,8 @@ void Scheduler::setInFlight(const LoadRequest& request, bool value) {
 
 void Scheduler::learnBlockGrowth(double rawBytes, double grownBytes) {
   if (rawBytes > 0.0 && grownBytes > 0.0)
-    leastBlockBytesPerRawByte_ = std::min(leastBlockBytesPerRawByte_.value_or(INFINITY), grownBytes / rawBytes);
+    leastBlockBytesPerRawByte_ =
+        std::min(leastBlockBytesPerRawByte_.value_or(INFINITY), grownBytes / rawBytes);
 }
 
 bool Scheduler::requestable(std::uint32_t slice) const {

@@ -58,8 +58,9 @@ class Scheduler {
   // Re-ranks the queued requests and the fetched ones waiting for a decoder for this view (the unwanted ones
   // are cancelled and counted) and adds candidates while fewer than `maxInFlight` requests are queued,
   // fetched or `busy` with the workers and each new one has room beside those in flight.
-  void plan(std::vector<LoadRequest>& queued, std::vector<LoadRequest>& fetched, std::size_t busy, std::size_t maxInFlight,
-            const Candidates& candidates, std::uint32_t& requested, std::uint32_t& cancelled);
+  void plan(std::vector<LoadRequest>& queued, std::vector<LoadRequest>& fetched, std::size_t busy,
+            std::size_t maxInFlight, const Candidates& candidates, std::uint32_t& requested,
+            std::uint32_t& cancelled);
 
   std::vector<std::uint32_t> wantedSlices() const;
   std::vector<std::uint32_t> failedSlices() const;
