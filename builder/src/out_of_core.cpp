@@ -352,8 +352,7 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   });
   report.slices = writer.slices();
   writer.finish({transform,
-                 {options.levels, options.geometryError, options.colorError, options.normalError,
-                  std::uint32_t(options.contours)},
+                 storedParameters(options),
                  top.hasColors,
                  top.hasNormals,
                  top.voxels[0].color,

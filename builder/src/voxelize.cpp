@@ -970,8 +970,7 @@ Octree buildOctree(const Mesh& mesh, const BuildOptions& options, BuildStats* st
   const auto start = std::chrono::steady_clock::now();
   Octree octree;
   octree.transform = fitSceneCube(mesh);
-  octree.parameters = {options.levels, options.geometryError, options.colorError, options.normalError,
-                       std::uint32_t(options.contours)};
+  octree.parameters = storedParameters(options);
   const VoxelTree tree = voxelize(mesh, octree.transform, options, stats);
   octree.block = layoutBlock(tree, options.layout, stats ? &stats->layout : nullptr);
   if (stats) stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -148,8 +148,7 @@ void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesyst
   VoxelTree tree;
   s.buildSeconds = timeSeconds([&] { tree = voxelize(mesh, s.transform, build); });
   s.store = out / fmt::format("L{}-cut{}.svo", levels, build.leafContourMinReduction);
-  const BuildParameters parameters{levels, build.geometryError, build.colorError, build.normalError,
-                                   std::uint32_t(build.contours)};
+  const BuildParameters parameters = storedParameters(build);
   writeStore(s.store, tree, s.transform, parameters);
   s.storeBytes = std::filesystem::file_size(s.store);
   if (withRoot)

@@ -205,7 +205,7 @@ void runRaycastBench(const RaycastArgs& args) {
   BuildStats stats;
   spdlog::info("building the octree, {} levels ...", args.levels);
   const SceneTransform transform = fitSceneCube(mesh);
-  const BuildParameters parameters{args.levels, 0.0f, 0.0f, 0.0f, 1};
+  const BuildParameters parameters = storedParameters(buildOptions);
   // Where the octree exceeds one block it is paged whole from a scratch store, removed however this ends.
   const ScratchPath scratch("svo-bench-raycast.svo");
   std::optional<WholeScene> scene;

@@ -128,12 +128,10 @@ void runBuild(const BuildArgs& args) {
     phases["voxelize"] = secondsSince(phaseStart);
 
     phaseStart = std::chrono::steady_clock::now();
-    const BuildParameters parameters{options.levels, options.geometryError, options.colorError,
-                                     options.normalError, std::uint32_t(options.contours)};
     {
       ProgressBar bar("write");
       storeOptions.progress = [&bar](double f) { bar.update(f); };
-      slices = writeStore(args.out, tree, transform, parameters, storeOptions);
+      slices = writeStore(args.out, tree, transform, storedParameters(options), storeOptions);
     }
     phases["write"] = secondsSince(phaseStart);
   }

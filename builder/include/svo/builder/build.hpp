@@ -40,6 +40,12 @@ struct BuildOptions {
   std::function<void(double)> progress;
 };
 
+// What a store built with `options` records of them in its header.
+inline BuildParameters storedParameters(const BuildOptions& options) {
+  return {options.levels, options.geometryError, options.colorError, options.normalError,
+          std::uint32_t(options.contours)};
+}
+
 struct BuildStats {
   std::vector<std::uint64_t> voxelsPerLevel;  // index 0 = root
   std::uint64_t leafVoxels = 0, contours = 0, trianglesUsed = 0;
