@@ -58,7 +58,7 @@ struct AccelArgs {
   int size = 1024;
   int runs = 1;
   int threads = 1;
-  std::string view = "-0.35,-0.25,-1";
+  std::string view = defaultViewText();
   std::string markdown = "accel-bench.md";
   std::string plotPath = "accel-bench.png";
   std::uint64_t seed = 1;

@@ -14,6 +14,7 @@
 #include <tbb/info.h>
 
 #include "bench.hpp"
+#include "svo/client/render.hpp"
 #include "svo/store/format.hpp"
 #include "svo/store/store_writer.hpp"
 
@@ -83,6 +84,10 @@ std::vector<std::int64_t> parseResolutions(const std::string& text, std::string_
     resolutions.push_back(value);
   }
   return resolutions;
+}
+
+std::string defaultViewText() {
+  return fmt::format("{},{},{}", kDefaultViewDirection.x, kDefaultViewDirection.y, kDefaultViewDirection.z);
 }
 
 glm::dvec3 parseDirection(const std::string& text, std::string_view option) {

@@ -75,6 +75,8 @@ int levelsOfResolution(std::int64_t resolution, std::string_view option);
 std::vector<std::int64_t> parseResolutions(const std::string& text, std::string_view option);
 // "x,y,z" -> a finite, non-zero vector.
 glm::dvec3 parseDirection(const std::string& text, std::string_view option);
+// kDefaultViewDirection (the default view of `svo render`) as parseDirection reads it.
+std::string defaultViewText();
 // Threads for the TBB arena: `requested` when > 0, else every core TBB sees. Throws on a negative count.
 int resolveThreads(int requested, std::string_view option = "--threads");
 

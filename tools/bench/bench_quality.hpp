@@ -27,7 +27,7 @@ struct QualityArgs {
   std::vector<float> contourCuts{BuildOptions{}.leafContourMinReduction};
   int size = 512;
   int runs = 3;
-  std::string view = "-0.35,-0.25,-1";
+  std::string view = defaultViewText();
   double zoom = 1.0;
   int threads = 0;
   std::string out = "out/quality";

@@ -42,7 +42,7 @@ struct RaycastArgs {
   int size = 1024;
   int runs = 5;
   float lodPixels = 1.0f;
-  std::string view = "-0.35,-0.25,-1";  // the default view of `svo render`
+  std::string view = defaultViewText();
   int threads = 0;
 };
 
