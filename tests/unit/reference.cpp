@@ -5,16 +5,38 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <fstream>
 #include <map>
 #include <random>
 #include <stdexcept>
 
+#include <gtest/gtest.h>
 #include <glm/geometric.hpp>
 
 namespace svotest {
 
 TempFile::TempFile(const std::string& stem, const std::string& extension)
     : path(std::filesystem::temp_directory_path() / (stem + "_" + std::to_string(::getpid()) + extension)) {}
+
+TempDir::TempDir() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  path_ = std::filesystem::temp_directory_path() /
+          (std::string("svo-test-") + info->test_suite_name() + "-" + info->name() + "-" +
+           std::to_string(::getpid()) + "-" + std::to_string(std::random_device{}()));
+  std::filesystem::remove_all(path_);
+  std::filesystem::create_directories(path_);
+}
+
+TempDir::~TempDir() {
+  std::error_code ignored;
+  std::filesystem::remove_all(path_, ignored);
+}
+
+std::filesystem::path TempDir::file(const std::string& name, const std::string& bytes) const {
+  const std::filesystem::path p = path_ / name;
+  std::ofstream(p, std::ios::binary) << bytes;
+  return p;
+}
 
 std::size_t differingVoxels(const svo::VoxelTree& a, const svo::VoxelTree& b) {
   std::size_t differing = 0;

@@ -4,6 +4,7 @@
 // shapes (cube intersected with contour slabs) slab by slab, Kay-Kajiya style.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
@@ -34,6 +35,27 @@ struct TempFile {
   ~TempFile();
   std::filesystem::path path;
 };
+
+// A fresh folder in the temp folder, named after the running test, removed with everything in it when its
+// owner goes.
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  const std::filesystem::path& path() const { return path_; }
+  // Writes `bytes` to the file `name` in the folder and returns its path.
+  std::filesystem::path file(const std::string& name, const std::string& bytes) const;
+
+ private:
+  std::filesystem::path path_;
+};
+
+// sRGB to linear, written out from the standard (IEC 61966-2-1) rather than shared with the loader.
+inline double srgbToLinearRef(double c) {
+  return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
+}
 
 inline constexpr double kInf = std::numeric_limits<double>::infinity();
 

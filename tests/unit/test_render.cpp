@@ -19,6 +19,7 @@
 #include <gtest/gtest.h>
 #include <glm/geometric.hpp>
 
+#include "reference.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo {
@@ -41,30 +42,7 @@ Camera makeCamera(glm::dvec3 eye, glm::dvec3 target, int width, int height, doub
   return c;
 }
 
-// A fresh folder per test, removed afterwards.
-class TempDir {
- public:
-  TempDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            ("svo_test_render_" + std::string(info->name()) + "_" + std::to_string(std::random_device{}()));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ignored;
-    fs::remove_all(path_, ignored);
-  }
-  const fs::path& path() const { return path_; }
-  fs::path write(const std::string& name, const std::string& text) const {
-    const fs::path p = path_ / name;
-    std::ofstream(p) << text;
-    return p;
-  }
-
- private:
-  fs::path path_;
-};
+using svotest::TempDir;
 
 // Runs `f`, expects std::runtime_error, returns its message.
 template <class F>
@@ -201,7 +179,7 @@ TEST(Camera, FramingFitsTheSceneCube) {
 
 TEST(LoadCamera, ReadsAllKeys) {
   TempDir dir;
-  const fs::path file = dir.write("cam.json", R"({"eye": [1, 2, 3], "target": [0.5, 0, -1], "up": [0, 0, 1],
+  const fs::path file = dir.file("cam.json", R"({"eye": [1, 2, 3], "target": [0.5, 0, -1], "up": [0, 0, 1],
                                                   "fov": 30.5, "width": 320, "height": 200})");
   const Camera c = loadCamera(file);
   EXPECT_EQ(c.eye, glm::dvec3(1, 2, 3));
@@ -214,7 +192,7 @@ TEST(LoadCamera, ReadsAllKeys) {
 
 TEST(LoadCamera, AppliesDefaults) {
   TempDir dir;
-  const Camera c = loadCamera(dir.write("cam.json", R"({"eye": [0, 0, 4], "target": [0, 0, 0]})"));
+  const Camera c = loadCamera(dir.file("cam.json", R"({"eye": [0, 0, 4], "target": [0, 0, 0]})"));
   EXPECT_EQ(c.up, glm::dvec3(0, 1, 0));
   EXPECT_EQ(c.fovYDegrees, 45.0);
   EXPECT_EQ(c.width, 512);
@@ -244,7 +222,7 @@ TEST(LoadCamera, BadFilesNameTheFileAndTheKey) {
   };
   int index = 0;
   for (const Case& c : cases) {
-    const fs::path file = dir.write("bad" + std::to_string(index++) + ".json", c.json);
+    const fs::path file = dir.file("bad" + std::to_string(index++) + ".json", c.json);
     const std::string message = errorOf([&] { loadCamera(file); });
     EXPECT_EQ(message.rfind(file.string() + ": ", 0), 0u) << message;
     EXPECT_NE(message.find(c.fragment), std::string::npos) << c.json << " -> " << message;
@@ -548,7 +526,7 @@ TEST(WriteFrame, PngRoundTripIsSrgbWithinOneStep) {
 TEST(WriteFrame, FailuresThrowNamingThePathAndLeaveNoFile) {
   TempDir dir;
   const Frame frame = randomFrame(4, 4);
-  const fs::path notADir = dir.write("file.txt", "x");
+  const fs::path notADir = dir.file("file.txt", "x");
   for (const fs::path& path : {fs::path("/proc/nonexistent/x.png"), notADir / "x.png", notADir / "x.exr",
                                dir.path() / "missing" / "x.exr", dir.path() / "x.jpg"}) {
     const std::string message = errorOf([&] { writeFrame(path, frame, true); });
@@ -574,7 +552,7 @@ TEST(WriteFrame, FailuresThrowNamingThePathAndLeaveNoFile) {
 
 TEST(WriteFrame, ReplacesAnExistingFile) {
   TempDir dir;
-  const fs::path path = dir.write("old.png", "not an image");
+  const fs::path path = dir.file("old.png", "not an image");
   writeFrame(path, randomFrame(3, 2), false);
   const Image image = readImage(path);
   EXPECT_EQ(image.spec.width, 3);
