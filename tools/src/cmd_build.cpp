@@ -38,110 +38,98 @@ double secondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-void runBuild(const BuildArgs& args) {
-  checkWritableOutput(args.out);
-  if (args.cellLevel >= args.options.levels)
-    throw UsageError("--cell-level must be below --levels (" + std::to_string(args.options.levels) + ")");
-  const std::filesystem::path reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
-  checkWritableOutput(reportPath);
-  tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
-                              args.threads > 0 ? args.threads : tbb::info::default_concurrency());
-  const auto start = std::chrono::steady_clock::now();
-  const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
-  nlohmann::json phases = nlohmann::json::object();
-
-  auto phaseStart = std::chrono::steady_clock::now();
-  const auto logInput = [&](std::uint64_t triangles, const std::string& format, std::size_t dropped) {
-    spdlog::info("{}: {} triangles ({}){}", args.mesh, triangles, format,
-                 dropped ? fmt::format(", dropped {} degenerate", dropped) : "");
-  };
-  BuildOptions options = args.options;
-  options.contours = !args.noContours;
+// What the store was built from and how: the build's statistics, its slices, seconds per phase.
+struct BuildOutcome {
   BuildStats stats;
-  StoreWriteOptions storeOptions;
-  storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
-  storeOptions.inheritance = options.layout;
   std::vector<SliceInfo> slices;
-  // Both paths open the input as a source: binary PLY streams from the file, other formats load whole.
-  std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
-  phases["load"] = secondsSince(phaseStart);
-  logInput(source->triangleCount(), source->format(), source->droppedDegenerate());
-  const bool hasColors = source->hasColor();
-  const std::uint64_t triangles = source->triangleCount();
+  nlohmann::json phases = nlohmann::json::object();
+};
+
+// The out-of-core options the command line asks for. With no bound given: in core when its estimated peak
+// fits the machine's default share, else out of core within that share. A resume is out of core (the
+// interrupted run's cell level, or one for the share).
+OutOfCoreOptions outOfCoreOptions(const BuildArgs& args, const TriangleSource& source,
+                                  const BuildOptions& options, std::uint64_t processBytes) {
   OutOfCoreOptions ooc;
   ooc.memoryBytes = args.memory;
   ooc.cellLevel = args.cellLevel;
   ooc.resume = args.resume;
   ooc.processBytes = processBytes;
-  if (args.memory == 0 && args.cellLevel == 0) {
-    // No bound given: in core when its estimated peak fits the machine's default share, else out of core
-    // within that share. A resume is out of core (the interrupted run's cell level, or one for the share).
-    const std::uint64_t share = defaultMemoryShare(machineMemory());
-    const std::uint64_t estimate =
-        args.resume ? 0 : processBytes + estimateInCoreBuildBytes(*source, options);
-    if (args.resume || estimate > share) {
-      ooc.memoryBytes = share;
-      ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
-      if (!args.resume)
-        spdlog::info(
-            "building out of core within {}: in core would take about {}, more than half of the "
-            "available memory (--memory sets the bound)",
-            formatBytes(share), formatBytes(estimate));
-    } else {
-      spdlog::info("building in core: about {} of the {} default bound (half of the available memory)",
-                   formatBytes(estimate), formatBytes(share));
-    }
-  }
-  if (ooc.memoryBytes > 0 || ooc.cellLevel > 0) {
-    ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
-    std::unique_ptr<ProgressBar> bar;
-    std::string current;
-    ooc.progress = [&](const char* phase, double f) {
-      if (current != phase) bar = std::make_unique<ProgressBar>(current = phase);
-      bar->update(f);
-    };
-    const OutOfCoreReport built = buildStore(*source, options, storeOptions, ooc, args.out);
-    bar.reset();
-    for (const auto& [phase, seconds] : built.phaseSeconds) phases[phase] = seconds;
-    stats = built.stats;
-    slices = built.slices;
-    spdlog::info("out of core: {} cells of level {}, {} reused from an interrupted run", built.cells,
-                 built.cellLevel, built.cellsReused);
+  ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
+  if (args.memory != 0 || args.cellLevel != 0) return ooc;
+  const std::uint64_t share = defaultMemoryShare(machineMemory());
+  const std::uint64_t estimate = args.resume ? 0 : processBytes + estimateInCoreBuildBytes(source, options);
+  if (args.resume || estimate > share) {
+    ooc.memoryBytes = share;
+    ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
+    if (!args.resume)
+      spdlog::info(
+          "building out of core within {}: in core would take about {}, more than half of the available "
+          "memory (--memory sets the bound)",
+          formatBytes(share), formatBytes(estimate));
   } else {
-    // A streamed PLY source holds only its vertices: the in-core build loads the mesh whole.
-    std::optional<Mesh> loaded;
-    if (!source->wholeMesh()) {
-      source.reset();
-      phaseStart = std::chrono::steady_clock::now();
-      loaded = loadMesh(args.mesh);
-      phases["load"] = phases["load"].get<double>() + secondsSince(phaseStart);
-    }
-    const Mesh& mesh = loaded ? *loaded : *source->wholeMesh();
-    phaseStart = std::chrono::steady_clock::now();
-    const SceneTransform transform = fitSceneCube(mesh);
-    VoxelTree tree;
-    {
-      ProgressBar bar("voxelize");
-      options.progress = [&bar](double f) { bar.update(f); };
-      tree = voxelize(mesh, transform, options, &stats);
-    }
-    phases["voxelize"] = secondsSince(phaseStart);
-
-    phaseStart = std::chrono::steady_clock::now();
-    {
-      ProgressBar bar("write");
-      storeOptions.progress = [&bar](double f) { bar.update(f); };
-      slices = writeStore(args.out, tree, transform, storedParameters(options), storeOptions);
-    }
-    phases["write"] = secondsSince(phaseStart);
+    spdlog::info("building in core: about {} of the {} default bound (half of the available memory)",
+                 formatBytes(estimate), formatBytes(share));
   }
+  return ooc;
+}
 
-  // The report: phases, voxels and slices per level, bytes per leaf voxel on disk and decoded by part.
+void buildOutOfCore(const BuildArgs& args, const TriangleSource& source, const BuildOptions& options,
+                    const StoreWriteOptions& storeOptions, OutOfCoreOptions ooc, BuildOutcome& outcome) {
+  std::unique_ptr<ProgressBar> bar;
+  std::string current;
+  ooc.progress = [&](const char* phase, double f) {
+    if (current != phase) bar = std::make_unique<ProgressBar>(current = phase);
+    bar->update(f);
+  };
+  const OutOfCoreReport built = buildStore(source, options, storeOptions, ooc, args.out);
+  bar.reset();
+  for (const auto& [phase, seconds] : built.phaseSeconds) outcome.phases[phase] = seconds;
+  outcome.stats = built.stats;
+  outcome.slices = built.slices;
+  spdlog::info("out of core: {} cells of level {}, {} reused from an interrupted run", built.cells,
+               built.cellLevel, built.cellsReused);
+}
+
+void buildInCore(const BuildArgs& args, std::unique_ptr<TriangleSource> source, BuildOptions options,
+                 StoreWriteOptions storeOptions, BuildOutcome& outcome) {
+  // A streamed PLY source holds only its vertices: the in-core build loads the mesh whole.
+  std::optional<Mesh> loaded;
+  auto phaseStart = std::chrono::steady_clock::now();
+  if (!source->wholeMesh()) {
+    source.reset();
+    loaded = loadMesh(args.mesh);
+    outcome.phases["load"] = outcome.phases["load"].get<double>() + secondsSince(phaseStart);
+  }
+  const Mesh& mesh = loaded ? *loaded : *source->wholeMesh();
+  phaseStart = std::chrono::steady_clock::now();
+  const SceneTransform transform = fitSceneCube(mesh);
+  VoxelTree tree;
+  {
+    ProgressBar bar("voxelize");
+    options.progress = [&bar](double f) { bar.update(f); };
+    tree = voxelize(mesh, transform, options, &outcome.stats);
+  }
+  outcome.phases["voxelize"] = secondsSince(phaseStart);
+  phaseStart = std::chrono::steady_clock::now();
+  {
+    ProgressBar bar("write");
+    storeOptions.progress = [&bar](double f) { bar.update(f); };
+    outcome.slices = writeStore(args.out, tree, transform, storedParameters(options), storeOptions);
+  }
+  outcome.phases["write"] = secondsSince(phaseStart);
+}
+
+// The report: phases, voxels and slices per level, bytes per leaf voxel on disk and decoded by part; and
+// its summary on the terminal.
+void writeBuildReport(const BuildArgs& args, const std::filesystem::path& reportPath, std::uint64_t triangles,
+                      bool hasColors, int levels, double seconds, const BuildOutcome& outcome) {
+  const BuildStats& stats = outcome.stats;
   const std::uint64_t fileBytes = std::filesystem::file_size(args.out);
   const double leaves = double(std::max<std::uint64_t>(stats.leafVoxels, 1));
   std::vector<std::uint64_t> slicesPerLevel(stats.voxelsPerLevel.size(), 0);
   SliceParts parts;
-  for (const SliceInfo& s : slices) {
+  for (const SliceInfo& s : outcome.slices) {
     if (std::size_t(s.voxelLevel) < slicesPerLevel.size()) ++slicesPerLevel[s.voxelLevel];
     const SliceParts p = slicePartsOf(s, hasColors, true);
     parts.hierarchy += p.hierarchy, parts.contours += p.contours, parts.colors += p.colors,
@@ -153,15 +141,15 @@ void runBuild(const BuildArgs& args) {
   report["input"] = args.mesh;
   report["output"] = args.out;
   report["triangles"] = triangles;
-  report["levels"] = options.levels;
-  report["seconds"] = secondsSince(start);
-  report["phaseSeconds"] = phases;
+  report["levels"] = levels;
+  report["seconds"] = seconds;
+  report["phaseSeconds"] = outcome.phases;
   report["peakResidentBytes"] = peakResidentBytes();
   report["voxels"] = voxels;
   report["leafVoxels"] = stats.leafVoxels;
   report["contours"] = stats.contours;
   report["voxelsPerLevel"] = stats.voxelsPerLevel;
-  report["slices"] = slices.size();
+  report["slices"] = outcome.slices.size();
   report["slicesPerLevel"] = slicesPerLevel;
   report["fileBytes"] = fileBytes;
   report["bytesPerLeafVoxel"] = {{"file", double(fileBytes) / leaves},
@@ -171,14 +159,48 @@ void runBuild(const BuildArgs& args) {
                                  {"decodedNormals", double(parts.normals) / leaves}};
   writeTextFile(reportPath, report.dump(2) + "\n");
 
-  spdlog::info("{} levels, {} voxels ({} leaves), {} contours; {} slices", options.levels, voxels,
-               stats.leafVoxels, stats.contours, slices.size());
+  spdlog::info("{} levels, {} voxels ({} leaves), {} contours; {} slices", levels, voxels, stats.leafVoxels,
+               stats.contours, outcome.slices.size());
   std::string phaseTimes;
-  for (const auto& [phase, seconds] : phases.items())
-    phaseTimes += fmt::format("{}{} {:.2f} s", phaseTimes.empty() ? "" : ", ", phase, seconds.get<double>());
+  for (const auto& [phase, phaseSeconds] : outcome.phases.items())
+    phaseTimes +=
+        fmt::format("{}{} {:.2f} s", phaseTimes.empty() ? "" : ", ", phase, phaseSeconds.get<double>());
   spdlog::info("{}; peak resident {:.0f} MiB", phaseTimes, double(peakResidentBytes()) / (1 << 20));
   std::printf("wrote %s (%.1f MiB, %.2f B per leaf voxel) and %s\n", args.out.c_str(),
               double(fileBytes) / (1 << 20), double(fileBytes) / leaves, reportPath.c_str());
+}
+
+void runBuild(const BuildArgs& args) {
+  checkWritableOutput(args.out);
+  if (args.cellLevel >= args.options.levels)
+    throw UsageError("--cell-level must be below --levels (" + std::to_string(args.options.levels) + ")");
+  const std::filesystem::path reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
+  checkWritableOutput(reportPath);
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                              args.threads > 0 ? args.threads : tbb::info::default_concurrency());
+  const auto start = std::chrono::steady_clock::now();
+  const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
+
+  BuildOptions options = args.options;
+  options.contours = !args.noContours;
+  StoreWriteOptions storeOptions;
+  storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
+  storeOptions.inheritance = options.layout;
+  BuildOutcome outcome;
+  // Both paths open the input as a source: binary PLY streams from the file, other formats load whole.
+  std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
+  outcome.phases["load"] = secondsSince(start);
+  const std::size_t dropped = source->droppedDegenerate();
+  spdlog::info("{}: {} triangles ({}){}", args.mesh, source->triangleCount(), source->format(),
+               dropped ? fmt::format(", dropped {} degenerate", dropped) : "");
+  const bool hasColors = source->hasColor();
+  const std::uint64_t triangles = source->triangleCount();
+  const OutOfCoreOptions ooc = outOfCoreOptions(args, *source, options, processBytes);
+  if (ooc.memoryBytes > 0 || ooc.cellLevel > 0)
+    buildOutOfCore(args, *source, options, storeOptions, ooc, outcome);
+  else
+    buildInCore(args, std::move(source), options, storeOptions, outcome);
+  writeBuildReport(args, reportPath, triangles, hasColors, options.levels, secondsSince(start), outcome);
 }
 
 }  // namespace
