@@ -87,8 +87,8 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
 
   paging::LoadWorkers::Options workers;
   workers.fetchThreads = options_.fetchThreads;
-  workers.buildThreads = options_.decodeThreads;
-  workers.buildersDuringFrames = options_.decodersDuringFrames;
+  workers.decodeThreads = options_.decodeThreads;
+  workers.decodersDuringFrames = options_.decodersDuringFrames;
   workers.nice = options_.workerNice;
   workers_ = std::make_unique<paging::LoadWorkers>(
       workers, [this](const paging::LoadRequest& r) { return loader_->fetch(r); },

@@ -25,8 +25,8 @@ LoadWorkers::LoadWorkers(const Options& options, Fetch fetch, Build build)
     : options_(options), fetch_(std::move(fetch)), build_(std::move(build)) {
   for (int i = 0; i < options.fetchThreads; ++i)
     threads_.emplace_back([this](std::stop_token stop) { fetchLoop(stop); });
-  for (int i = 0; i < options.buildThreads; ++i)
-    threads_.emplace_back([this, i](std::stop_token stop) { buildLoop(i, stop); });
+  for (int i = 0; i < options.decodeThreads; ++i)
+    threads_.emplace_back([this, i](std::stop_token stop) { decodeLoop(i, stop); });
 }
 
 LoadWorkers::~LoadWorkers() {
@@ -62,9 +62,9 @@ void LoadWorkers::fetchLoop(std::stop_token stop) {
   }
 }
 
-void LoadWorkers::buildLoop(int builder, std::stop_token stop) {
-  setUpWorker("svo-build", options_.nice);
-  const std::function<void()> pause = [this, builder] { waitForFrameEnd(builder); };
+void LoadWorkers::decodeLoop(int decoder, std::stop_token stop) {
+  setUpWorker("svo-decode", options_.nice);
+  const std::function<void()> pause = [this, decoder] { waitForFrameEnd(decoder); };
   while (true) {
     Fetched item;
     {
@@ -76,12 +76,12 @@ void LoadWorkers::buildLoop(int builder, std::stop_token stop) {
           [](const Fetched& a, const Fetched& b) { return a.request.priority < b.request.priority; });
       item = std::move(*best);
       fetched_.erase(best);
-      ++building_;
+      ++decoding_;
     }
     BuiltBlock built = build_(item.request, std::move(item.chain), pause);
     {
       std::lock_guard lock(mutex_);
-      --building_;
+      --decoding_;
       done_.push_back(std::move(built));
     }
     doneReady_.notify_all();
@@ -139,8 +139,8 @@ void LoadWorkers::frameEnds() {
   frameEnded_.notify_all();
 }
 
-void LoadWorkers::waitForFrameEnd(int builder) {
-  if (builder < options_.buildersDuringFrames) return;
+void LoadWorkers::waitForFrameEnd(int decoder) {
+  if (decoder < options_.decodersDuringFrames) return;
   std::unique_lock lock(frameMutex_);
   frameEnded_.wait(lock, [&] { return !frameRendering_ || stopping_; });
 }

@@ -1,7 +1,7 @@
 // The pager's workers: fetch threads bring each request's slices from the source (I/O: many may wait at
-// once), build threads turn them into blocks (CPU: as many as the cores the pager may take). Requests wait
+// once), decode threads turn them into blocks (CPU: as many as the cores the pager may take). Requests wait
 // in priority order; the render thread re-ranks the ones not yet fetched between frames, takes the finished
-// blocks, and marks the frames during which only some build threads go on.
+// blocks, and marks the frames during which only some decode threads go on.
 #pragma once
 
 #include <condition_variable>
@@ -21,12 +21,12 @@ namespace svo::paging {
 class LoadWorkers {
  public:
   struct Options {
-    int fetchThreads = 1, buildThreads = 1;
-    int buildersDuringFrames = 1;  // build threads that go on while a frame renders
+    int fetchThreads = 1, decodeThreads = 1;
+    int decodersDuringFrames = 1;  // decode threads that go on while a frame renders
     int nice = 0;                  // of every worker thread (0-19)
   };
   using Fetch = std::function<FetchedChain(const LoadRequest&)>;
-  // `pause` blocks while a frame renders, for the build threads that must let it have the cores.
+  // `pause` blocks while a frame renders, for the decode threads that must let it have the cores.
   using Build =
       std::function<BuiltBlock(const LoadRequest&, FetchedChain&&, const std::function<void()>& pause)>;
 
@@ -36,7 +36,7 @@ class LoadWorkers {
   LoadWorkers& operator=(const LoadWorkers&) = delete;
 
   // Edits, under the queue lock, the requests not yet fetched (highest priority first after the edit) and
-  // the fetched ones waiting for a build thread (those removed are never built; priorities may change);
+  // the fetched ones waiting for a decode thread (those removed are never decoded; priorities may change);
   // `busy` counts the ones being fetched or built, or done and not taken. Returns all in flight after.
   using Edit = std::function<void(std::vector<LoadRequest>& queued, std::vector<LoadRequest>& fetched,
                                   std::size_t busy)>;
@@ -55,9 +55,9 @@ class LoadWorkers {
     FetchedChain chain;
   };
   void fetchLoop(std::stop_token stop);
-  void buildLoop(int builder, std::stop_token stop);
-  void waitForFrameEnd(int builder);
-  std::size_t busy() const { return fetching_ + building_ + done_.size(); }
+  void decodeLoop(int decoder, std::stop_token stop);
+  void waitForFrameEnd(int decoder);
+  std::size_t busy() const { return fetching_ + decoding_ + done_.size(); }
 
   Options options_;
   Fetch fetch_;
@@ -66,12 +66,12 @@ class LoadWorkers {
   std::condition_variable_any requested_, fetchedReady_;
   std::condition_variable doneReady_;
   std::deque<LoadRequest> queue_;  // highest priority first
-  std::vector<Fetched> fetched_;   // waiting for a build thread
-  std::size_t fetching_ = 0, building_ = 0;
+  std::vector<Fetched> fetched_;   // waiting for a decode thread
+  std::size_t fetching_ = 0, decoding_ = 0;
   std::vector<BuiltBlock> done_;
   std::mutex frameMutex_;
   std::condition_variable frameEnded_;
-  bool frameRendering_ = false, stopping_ = false;  // under frameMutex_: paused builders leave when stopping
+  bool frameRendering_ = false, stopping_ = false;  // under frameMutex_: paused decoders leave when stopping
   std::vector<std::jthread> threads_;
 };
 
