@@ -61,7 +61,9 @@ void fetchSlice(const ByteSource& source, const StoreIndex& index, std::uint32_t
   try {
     read = source.read(s.offset, compressed);
   } catch (const ByteSourceError& e) {
-    throw index.sliceError(slice, e.what());
+    SliceError error = index.sliceError(slice, e.what());
+    error.transient = dynamic_cast<const TransientSourceError*>(&e) != nullptr;
+    throw error;
   }
   if (read != s.compressedBytes) throw index.sliceError(slice, "truncated");
 }
@@ -174,7 +176,10 @@ VoxelTree StoreReader::loadTree() const {
 }
 
 Octree readOctree(const std::filesystem::path& path) {
-  const StoreReader reader(path);
+  return readOctree(StoreReader(path));
+}
+
+Octree readOctree(const StoreReader& reader) {
   Octree octree;
   octree.transform = reader.header().transform;
   octree.parameters = reader.header().parameters;

@@ -11,9 +11,8 @@
 //   - what the view / seq goal asks of this machine: the same slices only read and decompressed by as many
 //     threads as the pager has workers (the part of a load no decode or layout work can remove), and the
 //     cores the workers' CPU until the view converged would need to finish within 1.5x the sequential read.
-#include <fcntl.h>
-#include <unistd.h>
-
+// IN.svo may be an http(s):// URL: the pager then reads by range requests, and the sequential reference
+// reads the same slices over the same link, one request after another (the server's cache stays warm).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -30,13 +29,15 @@
 #include "bench_common.hpp"
 #include "measure.hpp"
 #include "plot.hpp"
+#include "remote.hpp"
+#include "svo/client/locator.hpp"
 #include "svo/client/streaming.hpp"
 
 namespace svo::tools::bench {
 namespace {
 
 struct StreamArgs {
-  std::string input, output = "stream-report";
+  std::string input, output = "stream-report", token;
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
   int size = 512, runs = 3, pathFrames = 120, workerNice = PagerOptions{}.workerNice,
       decodeThreads = PagerOptions{}.decodeThreads, decodersDuringFrames = PagerOptions{}.decodersDuringFrames;
@@ -73,28 +74,20 @@ std::vector<std::uint32_t> inFileOrder(const StoreReader& store, std::vector<std
   return slices;
 }
 
-// Reads the slices' compressed bytes in file order with one thread, from the cold file: the sequential
-// reference.
+// Reads the slices' compressed bytes in file order with one thread from the cold file (pread), or over the
+// link one request after another: the sequential reference.
 double readSequentially(const StoreReader& store, const std::vector<std::uint32_t>& slices) {
   const std::vector<std::uint32_t> order = inFileOrder(store, slices);
   dropFileCache(store.path());
-  const int fd = ::open(store.path().c_str(), O_RDONLY);
-  if (fd < 0) throw std::runtime_error(store.path().string() + ": cannot open");
-  std::vector<char> buffer;
+  std::vector<std::byte> buffer;
   const auto start = std::chrono::steady_clock::now();
   for (const std::uint32_t s : order) {
     const SliceInfo& info = store.slices()[s];
     buffer.resize(info.compressedBytes);
-    std::size_t done = 0;
-    while (done < buffer.size()) {
-      const ssize_t got = ::pread(fd, buffer.data() + done, buffer.size() - done, off_t(info.offset + done));
-      if (got <= 0) break;
-      done += std::size_t(got);
-    }
+    if (store.source().read(info.offset, buffer) != buffer.size())
+      throw std::runtime_error(store.path().string() + ": slice " + std::to_string(s) + " is truncated");
   }
-  const double seconds = since(start);
-  ::close(fd);
-  return seconds;
+  return since(start);
 }
 
 // The slices read, checksummed and decompressed as the pager's workers do (StoreReader::readSlice), by
@@ -143,6 +136,7 @@ PagerOptions pagerOptionsOf(const StreamArgs& args, std::size_t budget) {
   options.workerNice = args.workerNice;
   options.decodeThreads = args.decodeThreads;
   options.decodersDuringFrames = args.decodersDuringFrames;
+  options.fetchThreads = fetchThreadsFor(args.input);
   return options;
 }
 
@@ -153,7 +147,7 @@ std::vector<double> measureFirstImage(const StreamArgs& args, const PagerOptions
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
     const auto start = std::chrono::steady_clock::now();
-    Pager pager(args.input, pagerOptions);
+    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
     const Camera framing = Camera::framing(pager.transform(), kDefaultViewDirection, args.size, args.size);
     render(pager.trunk(), pager.transform(), framing, options);
     firstImage.push_back(since(start));
@@ -177,7 +171,7 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
   r.errorCurve.name = formatBytes(pagerOptions.budgetBytes);
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
-    Pager pager(args.input, pagerOptions);
+    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
     const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
     std::vector<std::pair<double, Frame>> frames;
     const Convergence c =
@@ -193,7 +187,7 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
     r.bytes = pager.bytesRead();
     r.cpu.push_back(pager.workerCpu());
     r.bytesPerCpuSecond.push_back(double(r.bytes) / std::max(1e-9, r.cpu.back().seconds()));
-    const StoreReader store(args.input);
+    const StoreReader store(openByteSource(args.input, remoteOptions(args.token)));
     r.sequential.push_back(readSequentially(store, c.viewResidentSlices));
     r.decompressed.push_back(readAndDecompress(store, c.viewResidentSlices, args.decodeThreads));
     r.viewCpu.push_back(c.viewWorkerCpu.seconds());
@@ -216,7 +210,7 @@ PathTimes measurePath(const StreamArgs& args, const PagerOptions& pagerOptions,
   PathTimes r;
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
-    Pager pager(args.input, pagerOptions);
+    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
     std::vector<double> streaming, resident;
     for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
       const StreamedFrame step = streamFrame(pager, c, options);
@@ -341,7 +335,10 @@ void addStreamBench(CLI::App& bench) {
   auto* cmd = bench.add_subcommand("stream",
                                    "paging client: first image, cold convergence vs sequential read, "
                                    "streaming frame time vs resident, error over time");
-  cmd->add_option("input", args->input, "a .svo store")->required()->check(CLI::ExistingFile);
+  cmd->add_option("input", args->input, "a .svo store: a file, or its http(s):// URL on a static server")
+      ->required()
+      ->check(storeLocator());
+  addTokenOption(cmd, args->token);
   cmd->add_option("--budgets", args->budgets, "pool budgets, e.g. 32M,256M (default 32M,256M)")
       ->delimiter(',')
       ->transform(CLI::AsSizeValue(false));

@@ -119,6 +119,8 @@ FetchedChain RegionLoader::fetch(const LoadRequest& request) {
       out.slices.pop_back();
       out.error = e.what();
       out.failedSlice = slice;
+      const auto* sliceError = dynamic_cast<const SliceError*>(&e);
+      out.transient = sliceError && sliceError->transient;
       break;
     }
   }
@@ -221,11 +223,14 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   out.requested = request.count;
   out.error = std::move(fetched.error);
   out.failedSlice = fetched.failedSlice;
+  out.transient = fetched.transient;
   const Region& region = regions_[out.region];  // its slice list never changes: no lock needed
   const std::uint32_t first = regions_.indexInRegion(request.slice);
+  // A slice that fails here has wrong bytes (an earlier one than any the fetch could not get): never retried.
   const auto fail = [&](std::uint32_t slice, const std::string& what) {
     out.failedSlice = slice;
     out.error = index_.name() + ": slice " + std::to_string(slice) + ": " + what;
+    out.transient = false;
   };
   if (fetched.slices.empty()) return out;
 
@@ -240,6 +245,7 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
     } catch (const std::exception& e) {
       out.error = e.what();
       out.failedSlice = slice;
+      out.transient = false;
       break;
     }
   }

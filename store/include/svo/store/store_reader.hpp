@@ -70,5 +70,6 @@ class StoreReader {
 
 // The whole store as one in-memory octree (loadTree + layoutBlock): the same block the in-core builder makes.
 Octree readOctree(const std::filesystem::path& path);
+Octree readOctree(const StoreReader& reader);
 
 }  // namespace svo
