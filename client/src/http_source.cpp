@@ -134,7 +134,9 @@ struct HttpByteSource::HeaderList {
 // What a request must be answered with.
 struct HttpByteSource::Expected {
   std::uint64_t first = 0, last = 0;
-  bool probe = false;  // the opening request: no size or validator known yet
+  // The opening request: no size or validator known yet, and a file shorter than asked answers with all it
+  // has.
+  bool probe = false;
 };
 
 // What one request got.
@@ -150,10 +152,18 @@ struct HttpByteSource::Answer {
 
 namespace {
 
+// Whether a Content-Range answers for bytes [first, last]: exactly, or for an opening probe the whole of a
+// shorter file.
+bool answers(const std::optional<ContentRange>& range, std::uint64_t first, std::uint64_t last, bool probe) {
+  if (!range || !range->first || *range->first != first) return false;
+  return *range->last == last || (probe && *range->last < last && *range->last + 1 == range->total);
+}
+
 // The body of one request, written straight into the caller's buffer once its headers are checked.
 struct Body {
   CURL* curl = nullptr;
   std::uint64_t first = 0, last = 0;
+  bool probe = false;
   std::span<std::byte> out;
   std::size_t received = 0;
   bool checked = false, stopped = false;
@@ -168,8 +178,8 @@ std::size_t onBody(char* data, std::size_t size, std::size_t count, void* user) 
     body.checked = true;
     long status = 0;
     curl_easy_getinfo(body.curl, CURLINFO_RESPONSE_CODE, &status);
-    const auto range = parseContentRange(headerOf(body.curl, "Content-Range"));
-    body.stopped = status != 206 || !range || range->first != body.first || range->last != body.last;
+    body.stopped = status != 206 || !answers(parseContentRange(headerOf(body.curl, "Content-Range")),
+                                             body.first, body.last, body.probe);
   }
   if (body.stopped || n > body.out.size() - body.received) {
     body.stopped = true;
@@ -190,16 +200,17 @@ HttpByteSource::HttpByteSource(const std::string& url, const RemoteOptions& opti
     throw ByteSourceError(url + ": timeouts must be positive, retries and backoff not negative");
   initCurl();
   name_ = checkedUrl(url);
-  std::byte first[1];
+  prefix_.resize(kHttpPrefixBytes);
   Answer answer;
   try {
-    answer = fetch({0, 0, true}, first);
+    answer = fetch({0, kHttpPrefixBytes - 1, true}, prefix_);
   } catch (const TransientSourceError& e) {
     throw TransientSourceError(name_ + ": " + e.what());
   } catch (const ByteSourceError& e) {
     throw ByteSourceError(name_ + ": " + e.what());
   }
   size_ = parseContentRange(answer.contentRange)->total;  // fetch accepted it
+  prefix_.resize(answer.received);
   validatorIsEtag_ = !answer.etag.empty();
   validator_ = validatorIsEtag_ ? answer.etag : answer.lastModified;
   // If-Range takes a strong ETag or a date: a weak ETag (W/"...") would always get the whole file.
@@ -259,7 +270,7 @@ void HttpByteSource::release(std::unique_ptr<Handle> handle) const {
 HttpByteSource::Answer HttpByteSource::perform(Handle& handle, const Expected& expected,
                                                std::span<std::byte> out) const {
   CURL* c = handle.curl;
-  Body body{c, expected.first, expected.last, out};
+  Body body{c, expected.first, expected.last, expected.probe, out};
   const std::string range = rangeText(expected.first, expected.last);
   curl_easy_setopt(c, CURLOPT_RANGE, range.c_str());
   curl_easy_setopt(c, CURLOPT_WRITEDATA, &body);
@@ -305,13 +316,13 @@ HttpByteSource::Verdict HttpByteSource::judge(const Answer& a, const Expected& e
                                "): open it again"};
   switch (a.status) {
     case 206:
-      if (!range || range->first != expected.first || range->last != expected.last)
+      if (!answers(range, expected.first, expected.last, expected.probe))
         return {Verdict::Fail, "asked for " + asked + ", the server answered \"" + a.contentRange + "\""};
       if (!expected.probe && range->total != size_)
         return {Verdict::Fail, "the store changed on the server since it was opened (" +
                                    std::to_string(size_) + " bytes, now " + std::to_string(range->total) +
                                    "): open it again"};
-      if (a.received != expected.last - expected.first + 1)
+      if (a.received != *range->last - *range->first + 1)
         return {Verdict::Retry,
                 "the answer to " + asked + " ended after " + std::to_string(a.received) + " bytes"};
       return {};
@@ -369,6 +380,10 @@ HttpByteSource::Answer HttpByteSource::fetch(const Expected& expected, std::span
 std::size_t HttpByteSource::read(std::uint64_t offset, std::span<std::byte> out) const {
   if (offset >= size_ || out.empty()) return 0;
   const std::size_t count = std::size_t(std::min<std::uint64_t>(out.size(), size_ - offset));
+  if (offset + count <= prefix_.size()) {
+    std::memcpy(out.data(), prefix_.data() + offset, count);
+    return count;
+  }
   fetch({offset, offset + count - 1, false}, out.first(count));
   return count;
 }

@@ -33,6 +33,10 @@ inline constexpr double kDefaultBackoffMaxSeconds = 5.0;
 // A request gives up retrying once this many seconds have passed since its first attempt, whatever the count.
 inline constexpr double kDefaultRetryBudgetSeconds = 20.0;
 
+// The opening request asks for the file's first bytes and keeps them, so that the first read (a store's
+// 256-byte header) needs no round trip of its own: one page, in the same round trip as a one-byte probe.
+inline constexpr std::uint64_t kHttpPrefixBytes = 4096;
+
 // How a remote store is reached. Commands fill `token` from --token or the SVO_TOKEN environment variable.
 struct RemoteOptions {
   std::string token;  // sent as `Authorization: Bearer TOKEN` when not empty
@@ -53,9 +57,9 @@ struct HttpStats {
 
 class HttpByteSource final : public ByteSource {
  public:
-  // Checks the URL (http:// or https://) and asks for its first byte: the answer gives the size and the
-  // validator later answers must match. Throws ByteSourceError "URL: reason" (TransientSourceError when the
-  // server could not be reached within the retries).
+  // Checks the URL (http:// or https://) and asks for its first bytes (kept for reads among them): the answer
+  // gives the size and the validator later answers must match. Throws ByteSourceError "URL: reason"
+  // (TransientSourceError when the server could not be reached within the retries).
   HttpByteSource(const std::string& url, const RemoteOptions& options = {});
   ~HttpByteSource() override;
   HttpByteSource(const HttpByteSource&) = delete;
@@ -64,7 +68,8 @@ class HttpByteSource final : public ByteSource {
   // The URL (without any user or password it held).
   const std::string& name() const override { return name_; }
   std::uint64_t size() const override { return size_; }
-  // One range request for [offset, min(offset + out.size(), size())). Thread safe: each concurrent caller
+  // One range request for [offset, min(offset + out.size(), size())), none for bytes among the first ones
+  // the opening request brought. Thread safe: each concurrent caller
   // gets its own connection, kept alive for later reads. Throws ByteSourceError with the reason (the reader
   // adds the URL), TransientSourceError when the retries ran out on failures that may pass.
   std::size_t read(std::uint64_t offset, std::span<std::byte> out) const override;
@@ -91,7 +96,8 @@ class HttpByteSource final : public ByteSource {
   std::string url_, name_;
   RemoteOptions options_;
   std::uint64_t size_ = 0;
-  std::string validator_;  // the first answer's ETag, or its Last-Modified
+  std::string validator_;          // the first answer's ETag, or its Last-Modified
+  std::vector<std::byte> prefix_;  // the file's first bytes, from the first answer
   bool validatorIsEtag_ = false;
   struct HeaderList;
   std::unique_ptr<HeaderList> headers_;  // If-Range, once the validator is known
