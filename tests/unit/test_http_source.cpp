@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -17,6 +18,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "link_delay.hpp"
 #include "nginx_fixture.hpp"
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
@@ -509,4 +511,28 @@ TEST_F(Http, CommandsReadUrlsAsTheyReadFiles) {
     EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << args << ": " << err;
   }
   EXPECT_FALSE(fs::exists(out / "x.png"));
+}
+
+// The benchmarks' link-delay relay passes every byte through intact, in both directions and over kept-alive
+// connections, from several threads at once.
+TEST_F(Http, LinkDelayRelayPassesBytesIntact) {
+  svotest::NginxServer& server = serve();
+  const svo::tools::bench::LinkDelay link("127.0.0.1", server.port(), 0.002);
+  const std::string url = "http://127.0.0.1:" + std::to_string(link.port()) + "/scene.svo";
+  const auto remote = svo::openSliceSource(url, quickRetries());
+  const auto local = svo::openSliceSource(sphereStore().string());
+  const std::uint32_t count = std::uint32_t(local->index().slices().size());
+  std::atomic<int> wrong{0};
+  std::vector<std::thread> threads;
+  for (std::uint32_t t = 0; t < 3; ++t)
+    threads.emplace_back([&, t] {
+      svo::SliceBytes x, y;
+      for (std::uint32_t s = t; s < count; s += 3) {
+        remote->fetch(s, x);
+        local->fetch(s, y);
+        wrong += !(x == y);
+      }
+    });
+  for (std::thread& t : threads) t.join();
+  EXPECT_EQ(wrong.load(), 0);
 }

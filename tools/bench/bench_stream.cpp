@@ -12,11 +12,13 @@
 //     threads as the pager has workers (the part of a load no decode or layout work can remove), and the
 //     cores the workers' CPU until the view converged would need to finish within 1.5x the sequential read.
 // IN.svo may be an http(s):// URL: the pager then reads by range requests, and the sequential reference
-// reads the same slices over the same link, one request after another (the server's cache stays warm).
+// reads the same slices over the same link, one request after another (the server's cache stays warm);
+// --link-delay puts a relay adding a one-way delay in front of an http:// server (link_delay.hpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <thread>
 
 #include <fmt/format.h>
@@ -27,6 +29,7 @@
 #include <glm/geometric.hpp>
 
 #include "bench_common.hpp"
+#include "link_delay.hpp"
 #include "measure.hpp"
 #include "plot.hpp"
 #include "remote.hpp"
@@ -42,6 +45,8 @@ struct StreamArgs {
   int size = 512, runs = 3, pathFrames = 120, workerNice = PagerOptions{}.workerNice,
       decodeThreads = PagerOptions{}.decodeThreads, decodersDuringFrames = PagerOptions{}.decodersDuringFrames;
   int backgroundLoad = 0;  // busy threads at normal priority beside the bench
+  int fetchThreads = 0;    // the pager's fetch threads (0: fetchThreadsFor the input)
+  double linkDelayMs = 0.0;  // one-way delay a relay adds in front of an http:// input
   float lodPixels = 1.0f;
   double timeout = 300.0;
 };
@@ -136,7 +141,7 @@ PagerOptions pagerOptionsOf(const StreamArgs& args, std::size_t budget) {
   options.workerNice = args.workerNice;
   options.decodeThreads = args.decodeThreads;
   options.decodersDuringFrames = args.decodersDuringFrames;
-  options.fetchThreads = fetchThreadsFor(args.input);
+  options.fetchThreads = args.fetchThreads > 0 ? args.fetchThreads : fetchThreadsFor(args.input);
   return options;
 }
 
@@ -161,6 +166,8 @@ std::vector<double> measureFirstImage(const StreamArgs& args, const PagerOptions
 struct CloseUp {
   std::vector<double> viewConverge, converge, imageFinal, sequential, decompressed, viewCpu,
       bytesPerCpuSecond;
+  std::vector<double> requests,
+      retries;  // over HTTP: attempts until all converged, and the retries among them
   std::vector<WorkerCpu> cpu;
   std::uint64_t viewBytes = 0, bytes = 0;
   plot::Series errorCurve;
@@ -171,7 +178,8 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
   r.errorCurve.name = formatBytes(pagerOptions.budgetBytes);
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
-    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
+    const std::shared_ptr<const ByteSource> bytes = openByteSource(args.input, remoteOptions(args.token));
+    Pager pager(std::make_shared<StoreSliceSource>(bytes), pagerOptions);
     const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
     std::vector<std::pair<double, Frame>> frames;
     const Convergence c =
@@ -191,6 +199,10 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
     r.sequential.push_back(readSequentially(store, c.viewResidentSlices));
     r.decompressed.push_back(readAndDecompress(store, c.viewResidentSlices, args.decodeThreads));
     r.viewCpu.push_back(c.viewWorkerCpu.seconds());
+    if (const auto* http = dynamic_cast<const HttpByteSource*>(bytes.get())) {
+      r.requests.push_back(double(http->stats().requests));
+      r.retries.push_back(double(http->stats().retries));
+    }
     if (run == 0)
       for (const auto& [t, frame] : frames)
         r.errorCurve.points.push_back(
@@ -251,7 +263,28 @@ void addCpuRow(Table& table, std::size_t budget, const CloseUp& closeUp) {
                 nanosPerVoxel, bytesPerCpu});
 }
 
-void runStreamBench(const StreamArgs& args) {
+// With --link-delay: a relay in front of the input's http:// server, and the input rewritten to go through
+// it.
+std::unique_ptr<LinkDelay> delayLink(StreamArgs& args) {
+  if (args.linkDelayMs <= 0.0) return nullptr;
+  const std::string scheme = "http://";
+  if (args.input.rfind(scheme, 0) != 0) throw UsageError("--link-delay needs an http:// store URL");
+  const std::size_t slash = args.input.find('/', scheme.size());
+  const std::string authority = args.input.substr(scheme.size(), slash - scheme.size());
+  const std::size_t colon = authority.rfind(':');
+  const bool hasPort = colon != std::string::npos && authority.find(']', colon) == std::string::npos;
+  const std::string host = authority.substr(0, hasPort ? colon : authority.size());
+  const int port = hasPort ? std::atoi(authority.c_str() + colon + 1) : 80;
+  auto link = std::make_unique<LinkDelay>(host.starts_with('[') ? host.substr(1, host.size() - 2) : host,
+                                          port, args.linkDelayMs * 1e-3);
+  args.input = scheme + "127.0.0.1:" + std::to_string(link->port()) +
+               (slash == std::string::npos ? "/" : args.input.substr(slash));
+  return link;
+}
+
+void runStreamBench(StreamArgs args) {
+  const std::string input = args.input;
+  const std::unique_ptr<LinkDelay> link = delayLink(args);
   keepFreedMemoryForReuse();
   requireRuns(args.runs);
   std::filesystem::create_directories(args.output);
@@ -267,6 +300,7 @@ void runStreamBench(const StreamArgs& args) {
   Table goalTable({"budget", "sequential read", "read + zstd alone", "alone / seq", "worker CPU to view",
                    "cores for " + goal});
   std::vector<plot::Series> curves;
+  std::vector<std::string> requestLines;  // over HTTP
   for (const std::size_t budget : args.budgets) {
     const PagerOptions pagerOptions = pagerOptionsOf(args, budget);
     const std::vector<double> firstImage = measureFirstImage(args, pagerOptions, options);
@@ -292,18 +326,30 @@ void runStreamBench(const StreamArgs& args) {
                   formatSeconds(final.median), formatBytes(closeUp.viewBytes), formatSeconds(seq.median),
                   ratio, formatSeconds(all.median), formatBytes(closeUp.bytes), formatSeconds(streamP99),
                   formatSeconds(residentP99), p99ratio, formatBytes(path.maxResident)});
+    if (!closeUp.requests.empty()) {
+      const double requests = summarize(closeUp.requests).median;
+      requestLines.push_back(
+          fmt::format("{}: {:.0f} requests until all converged ({:.0f} retries), {} per request",
+                      formatBytes(budget), requests, summarize(closeUp.retries).median,
+                      formatBytes(std::uint64_t(double(closeUp.bytes) / requests))));
+    }
   }
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
   printTitle(
-      "svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
-      std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs, " +
-      std::to_string(args.decodeThreads) + " workers at nice " + std::to_string(args.workerNice) + ", " +
-      std::to_string(args.decodersDuringFrames) + " of them during frames" +
+      "svo bench stream " + input +
+      (link ? fmt::format(" through a relay adding {:g} ms each way", args.linkDelayMs) : "") + " (" +
+      std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
+      std::to_string(args.runs) + " runs, " + std::to_string(pagerOptionsOf(args, 0).fetchThreads) +
+      " fetch threads, " + std::to_string(args.decodeThreads) + " workers at nice " +
+      std::to_string(args.workerNice) + ", " + std::to_string(args.decodersDuringFrames) +
+      " of them during frames" +
       (args.backgroundLoad ? fmt::format(", background load: {} busy threads", args.backgroundLoad) : "") +
       ")");
   table.print();
+  for (const std::string& line : requestLines)
+    std::printf("over HTTP, the close-up from a cold start: %s\n", line.c_str());
   std::printf(
       "view converged: nothing inside the close-up's frustum left to load (bytes read: by then); all "
       "converged: also the slices around it, wanted for turns\n"
@@ -372,6 +418,14 @@ void addStreamBench(CLI::App& bench) {
                   "on the cores")
       ->check(CLI::Range(0, 256))
       ->capture_default_str();
+  cmd->add_option("--fetch-threads", args->fetchThreads,
+                  fmt::format("the pager's fetch threads (default: {} for a file, {} for a URL)",
+                              PagerOptions{}.fetchThreads, kRemoteFetchThreads))
+      ->check(CLI::Range(1, 256));
+  cmd->add_option("--link-delay", args->linkDelayMs,
+                  "for an http:// URL: milliseconds a loopback relay adds to each direction (a link of twice "
+                  "that round trip)")
+      ->check(CLI::Range(0.0, 10000.0));
   cmd->callback([args] { runStreamBench(*args); });
 }
 
