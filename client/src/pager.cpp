@@ -34,6 +34,8 @@ PagerOptions checked(PagerOptions options) {
   if (options.workerNice < 0 || options.workerNice > 19)
     throw std::runtime_error("pager: worker nice must be in [0, 19], got " +
                              std::to_string(options.workerNice));
+  if (!(options.sourceRetrySeconds >= 0.0) || !(options.sourceRetryMaxSeconds >= options.sourceRetrySeconds))
+    throw std::runtime_error("pager: source retry seconds must be >= 0 and at most the maximum");
   if (options.decodersDuringFrames < 0)
     throw std::runtime_error("pager: decoders during frames must be >= 0, got " +
                              std::to_string(options.decodersDuringFrames));
@@ -67,7 +69,8 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
   const std::vector<SliceInfo>& slices = index().slices();
   const std::string& name = index().name();
   regions_ = std::make_unique<paging::RegionTable>(slices, options_.budgetBytes, name);
-  scheduler_ = std::make_unique<paging::Scheduler>(slices, *regions_);
+  scheduler_ = std::make_unique<paging::Scheduler>(
+      slices, *regions_, paging::RetryBackoff{options_.sourceRetrySeconds, options_.sourceRetryMaxSeconds});
   loader_ = std::make_unique<paging::RegionLoader>(*source_, *regions_, poolMutex_);
 
   // The trunk: the root cube's levels, synchronously. It is the first coarse image and never leaves the pool.
@@ -119,7 +122,11 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
   paging::Region& region = regions[built.region];
   const std::uint32_t first = regions.indexInRegion(built.slice);
   scheduler_->setInFlight({built.slice, built.requested, 0.0}, false);
-  if (!built.error.empty()) {
+  if (!built.error.empty() && built.transient) {
+    scheduler_->markDeferred(built.failedSlice);
+    ++stats.deferred;
+    if (!std::exchange(sourceFailing_, true)) errors_.push_back(built.error + " (asking again later)");
+  } else if (!built.error.empty()) {
     scheduler_->markFailed(built.failedSlice);
     ++stats.failed;
     errors_.push_back(built.error);
@@ -170,7 +177,11 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
     // together suffice.
     for (std::size_t i = 0; i < take; ++i) stats.evicted += regions.evict(candidates[i]);
   }
-  for (std::uint32_t k = 0; k < built.added; ++k) scheduler_->clearDenied(region.slices[first + k]);
+  for (std::uint32_t k = 0; k < built.added; ++k) {
+    scheduler_->clearDenied(region.slices[first + k]);
+    scheduler_->clearDeferred(region.slices[first + k]);
+  }
+  sourceFailing_ = false;
   regions.install(built);
   region.priority = std::max(region.priority, priority);
   stats.loaded += built.added;
@@ -217,6 +228,7 @@ PagerStats Pager::update(const ViewQuery& view) {
   lastRequestable_ = std::uint32_t(candidates.requests.size());
   lastInFlight_ = stats.inFlight;
   lastViewPending_ = candidates.viewPending;
+  lastDeferred_ = candidates.deferred;
   stats.wanted = candidates.missing;
   stats.residentBytes = regions_->pool().usedBytes();
   return stats;
@@ -247,7 +259,7 @@ void Pager::waitForWork(double seconds) {
 }
 
 bool Pager::converged() const {
-  return lastRequestable_ == 0 && lastInFlight_ == 0;
+  return lastRequestable_ == 0 && lastInFlight_ == 0 && lastDeferred_ == 0;
 }
 
 bool Pager::viewConverged() const {
@@ -280,6 +292,10 @@ std::vector<std::uint32_t> Pager::wantedSlices() const {
 
 std::vector<std::uint32_t> Pager::failedSlices() const {
   return scheduler_->failedSlices();
+}
+
+std::vector<std::uint32_t> Pager::deferredSlices() const {
+  return scheduler_->deferredSlices();
 }
 
 void Pager::checkInvariants() const {

@@ -52,18 +52,60 @@ SliceVoxel rootVoxel(const StoreHeader& header) {
 
 }  // namespace
 
+namespace {
+
+// Reads `out.size()` bytes at `offset` for slices from `slice` on; a failure throws `slice`'s SliceError,
+// transient when the source's failure may pass.
+void readForSlice(const ByteSource& source, const StoreIndex& index, std::uint32_t slice,
+                  std::uint64_t offset, std::span<std::byte> out) {
+  std::size_t read = 0;
+  try {
+    read = source.read(offset, out);
+  } catch (const ByteSourceError& e) {
+    SliceError error = index.sliceError(slice, e.what());
+    error.transient = dynamic_cast<const TransientSourceError*>(&e) != nullptr;
+    throw error;
+  }
+  if (read != out.size()) throw index.sliceError(slice, "truncated");
+}
+
+}  // namespace
+
 void fetchSlice(const ByteSource& source, const StoreIndex& index, std::uint32_t slice,
                 SliceBytes& compressed) {
   if (slice >= index.slices().size()) throw index.sliceError(slice, "no such slice");
   const SliceInfo& s = index.slices()[slice];
   compressed.resize(s.compressedBytes);
-  std::size_t read = 0;
-  try {
-    read = source.read(s.offset, compressed);
-  } catch (const ByteSourceError& e) {
-    throw index.sliceError(slice, e.what());
+  readForSlice(source, index, slice, s.offset, compressed);
+}
+
+void fetchSlices(const ByteSource& source, const StoreIndex& index, std::span<const std::uint32_t> slices,
+                 std::vector<SliceBytes>& compressed) {
+  const std::vector<SliceInfo>& info = index.slices();
+  for (std::size_t i = 0; i < slices.size();) {
+    if (slices[i] >= info.size()) throw index.sliceError(slices[i], "no such slice");
+    // The run from slice i on that lies back to back in the file.
+    const std::uint64_t start = info[slices[i]].offset;
+    std::uint64_t end = start + info[slices[i]].compressedBytes;
+    std::size_t j = i + 1;
+    for (; j < slices.size() && slices[j] < info.size() && info[slices[j]].offset == end &&
+           end + info[slices[j]].compressedBytes - start <= kMaxSlicesReadBytes;
+         ++j)
+      end += info[slices[j]].compressedBytes;
+    if (j == i + 1) {
+      SliceBytes bytes;
+      fetchSlice(source, index, slices[i], bytes);
+      compressed.push_back(std::move(bytes));
+    } else {
+      SliceBytes run(end - start);
+      readForSlice(source, index, slices[i], start, run);
+      for (std::size_t k = i; k < j; ++k) {
+        const std::byte* from = run.data() + (info[slices[k]].offset - start);
+        compressed.emplace_back(from, from + info[slices[k]].compressedBytes);
+      }
+    }
+    i = j;
   }
-  if (read != s.compressedBytes) throw index.sliceError(slice, "truncated");
 }
 
 SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed) {
@@ -174,7 +216,10 @@ VoxelTree StoreReader::loadTree() const {
 }
 
 Octree readOctree(const std::filesystem::path& path) {
-  const StoreReader reader(path);
+  return readOctree(StoreReader(path));
+}
+
+Octree readOctree(const StoreReader& reader) {
   Octree octree;
   octree.transform = reader.header().transform;
   octree.parameters = reader.header().parameters;

@@ -69,6 +69,7 @@ VoxelTree treeOfLevels(const VoxelLevels& levels, bool hasColors, bool hasNormal
   return tree;
 }
 
-SliceError::SliceError(std::uint32_t s, const std::string& message) : std::runtime_error(message), slice(s) {}
+SliceError::SliceError(std::uint32_t s, const std::string& message, bool transient)
+    : std::runtime_error(message), slice(s), transient(transient) {}
 
 }  // namespace svo

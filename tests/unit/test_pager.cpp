@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -466,6 +467,71 @@ TEST(Pager, CorruptSliceIsReportedOnceAndTheRestStillRenders) {
   for (int i = 0; i < 5; ++i) EXPECT_EQ(pager.update(everything).requested, 0u);  // never retried
   const svo::StoreReader original(store.path);
   expectSameAsReference(pager, camera, 0.0f, &original);
+}
+
+// A local store whose reads fail for a reason that may pass while `down` is set (a server away), beyond the
+// header and directory the pager reads at open.
+class FlakySource final : public svo::ByteSource {
+ public:
+  explicit FlakySource(const fs::path& path) : file_(path) {}
+  const std::string& name() const override { return file_.name(); }
+  std::uint64_t size() const override { return file_.size(); }
+  std::size_t read(std::uint64_t offset, std::span<std::byte> out) const override {
+    if (down) {
+      ++refused;
+      throw svo::TransientSourceError("connection refused");
+    }
+    return file_.read(offset, out);
+  }
+  mutable std::atomic<bool> down{false};
+  mutable std::atomic<int> refused{0};
+
+ private:
+  svo::LocalFileSource file_;
+};
+
+// Fetches that fail for a reason that may pass are deferred and asked for again, not failed like a corrupt
+// slice: once the source is back, the pager converges with everything it had and renders the reference.
+TEST(Pager, SliceFetchesThatMayPassAreAskedAgainNotFailed) {
+  const TempStore& store = sphereStore();
+  const auto flaky = std::make_shared<FlakySource>(store.path);
+  svo::PagerOptions options;
+  options.sourceRetrySeconds = 0.01;
+  options.sourceRetryMaxSeconds = 0.04;
+  svo::Pager pager(std::make_shared<svo::StoreSliceSource>(flaky), options);
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 64);
+  converge(pager, svo::viewOf(pager.transform(), camera, 16.0));
+  const std::vector<std::uint32_t> before = pager.residentSlices();
+  flaky->down = true;
+  svo::ViewQuery everything = svo::viewOf(pager.transform(), camera, 1e-9);
+  everything.frustum.clear();
+  std::uint32_t deferred = 0;
+  // Long enough for the backoff to end and the same slices to be refused again.
+  for (int i = 0; i < 400 && flaky->refused < 40; ++i) {
+    const svo::PagerStats stats = pager.update(everything);
+    deferred += stats.deferred;
+    EXPECT_EQ(stats.failed, 0u);
+    EXPECT_EQ(stats.loaded, 0u);
+    pager.waitForWork(0.01);
+  }
+  EXPECT_GE(flaky->refused.load(), 40);
+  EXPECT_GT(deferred, std::uint32_t(options.maxInFlight)) << "deferred slices are asked for again";
+  EXPECT_FALSE(pager.converged());
+  EXPECT_FALSE(pager.viewConverged());
+  EXPECT_TRUE(pager.failedSlices().empty());
+  EXPECT_FALSE(pager.deferredSlices().empty());
+  const std::vector<std::string> errors = pager.takeErrors();
+  ASSERT_EQ(errors.size(), 1u) << "one message while the source is away";
+  EXPECT_NE(errors[0].find("connection refused (asking again later)"), std::string::npos) << errors[0];
+  EXPECT_EQ(pager.residentSlices(), before);
+
+  flaky->down = false;
+  converge(pager, everything);
+  EXPECT_TRUE(pager.failedSlices().empty());
+  EXPECT_TRUE(pager.deferredSlices().empty());
+  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
+  pager.checkInvariants();
+  expectSameAsReference(pager, camera, 0.0f);
 }
 
 TEST(Pager, RequestsTheViewDropsAreCancelled) {

@@ -303,3 +303,89 @@ TEST(Store, RejectsBadWriteOptions) {
 }
 
 }  // namespace
+
+namespace {
+
+// A store's bytes in memory, counting reads and failing those that reach `failFrom` or beyond.
+class CountingSource final : public svo::ByteSource {
+ public:
+  explicit CountingSource(const fs::path& path) : memory_("counted", bytesOf(path)) {}
+  const std::string& name() const override { return memory_.name(); }
+  std::uint64_t size() const override { return memory_.size(); }
+  std::size_t read(std::uint64_t offset, std::span<std::byte> out) const override {
+    ++reads;
+    if (offset + out.size() > failFrom) throw svo::TransientSourceError("refused");
+    return memory_.read(offset, out);
+  }
+  mutable int reads = 0;
+  std::uint64_t failFrom = ~std::uint64_t(0);
+
+ private:
+  static std::vector<std::byte> bytesOf(const fs::path& path) {
+    const std::string s = slurp(path);
+    std::vector<std::byte> out(s.size());
+    std::memcpy(out.data(), s.data(), s.size());
+    return out;
+  }
+  svo::MemorySource memory_;
+};
+
+}  // namespace
+
+// fetchSlices reads a run of slices that lie back to back in the file at once, and gives each slice the bytes
+// fetchSlice gives it; a failed read keeps the slices before it and names the first slice it was for.
+TEST(Store, FetchSlicesReadsRunsAtOnceAndEachSliceAsAlone) {
+  const fs::path path = tempPath("fetch_slices.svo");
+  svo::StoreWriteOptions options;
+  options.sliceBytes = 32768;  // the root cube's first levels fit: a trunk of several slices
+  svo::writeOctree(path, coloredSphere(7), options);
+  CountingSource source(path);
+  const svo::StoreIndex index = svo::readStoreIndex(source);
+  const auto& slices = index.slices();
+  // The trunk's chain lies back to back (the writer writes a cube's levels in turn); so may others.
+  std::vector<std::uint32_t> trunk{index.rootSlices()[0]};
+  while (index.childSlices(trunk.back()).size() == 1 &&
+         slices[index.childSlices(trunk.back())[0]].wholeCube())
+    trunk.push_back(index.childSlices(trunk.back())[0]);
+  ASSERT_GE(trunk.size(), 4u);
+  for (std::size_t k = 1; k < trunk.size(); ++k)
+    ASSERT_EQ(slices[trunk[k]].offset, slices[trunk[k - 1]].offset + slices[trunk[k - 1]].compressedBytes);
+  const auto expectEach = [&](std::span<const std::uint32_t> ids, const std::vector<svo::SliceBytes>& got) {
+    ASSERT_EQ(got.size(), ids.size());
+    for (std::size_t k = 0; k < ids.size(); ++k) {
+      svo::SliceBytes alone;
+      svo::fetchSlice(source, index, ids[k], alone);
+      EXPECT_TRUE(got[k] == alone) << "slice " << ids[k];
+    }
+  };
+  std::vector<svo::SliceBytes> got;
+  source.reads = 0;
+  svo::fetchSlices(source, index, trunk, got);
+  EXPECT_EQ(source.reads, 1);
+  expectEach(trunk, got);
+
+  // Apart in the file: one read each.
+  const std::vector<std::uint32_t> apart{trunk.back(), trunk.front()};
+  got.clear();
+  source.reads = 0;
+  svo::fetchSlices(source, index, apart, got);
+  EXPECT_EQ(source.reads, 2);
+  expectEach(apart, got);
+
+  // The second run's read fails: the first run's slices stay, the error names the failed run's first slice
+  // and may pass.
+  const std::vector<std::uint32_t> broken{trunk[0], trunk[1], trunk[3]};
+  source.failFrom = slices[trunk[2]].offset;
+  got.clear();
+  try {
+    svo::fetchSlices(source, index, broken, got);
+    ADD_FAILURE() << "a failed read went unreported";
+  } catch (const svo::SliceError& e) {
+    EXPECT_EQ(e.slice, trunk[3]);
+    EXPECT_TRUE(e.transient);
+    EXPECT_NE(std::string(e.what()).find("refused"), std::string::npos) << e.what();
+  }
+  source.failFrom = ~std::uint64_t(0);
+  expectEach(std::span(broken).first(2), got);
+  fs::remove(path);
+}

@@ -11,13 +11,14 @@
 //   - what the view / seq goal asks of this machine: the same slices only read and decompressed by as many
 //     threads as the pager has workers (the part of a load no decode or layout work can remove), and the
 //     cores the workers' CPU until the view converged would need to finish within 1.5x the sequential read.
-#include <fcntl.h>
-#include <unistd.h>
-
+// IN.svo may be an http(s):// URL: the pager then reads by range requests, and the sequential reference
+// reads the same slices over the same link, one request after another (the server's cache stays warm);
+// --link-delay puts a relay adding a one-way delay in front of an http:// server (link_delay.hpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <thread>
 
 #include <fmt/format.h>
@@ -28,20 +29,24 @@
 #include <glm/geometric.hpp>
 
 #include "bench_common.hpp"
+#include "link_delay.hpp"
 #include "measure.hpp"
 #include "pager_flags.hpp"
 #include "plot.hpp"
+#include "remote.hpp"
+#include "svo/client/locator.hpp"
 #include "svo/client/streaming.hpp"
 
 namespace svo::tools::bench {
 namespace {
 
 struct StreamArgs {
-  std::string input, output = "stream-report";
+  std::string input, output = "stream-report", token;
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
   int size = 512, runs = 3, pathFrames = 120;
-  PagerOptions pager;      // threads; the budget is set per measurement
-  int backgroundLoad = 0;  // busy threads at normal priority beside the bench
+  PagerOptions pager;        // threads; the budget is set per measurement
+  int backgroundLoad = 0;    // busy threads at normal priority beside the bench
+  double linkDelayMs = 0.0;  // one-way delay a relay adds in front of an http:// input
   float lodPixels = 1.0f;
   double timeout = 300.0;
 };
@@ -74,28 +79,20 @@ std::vector<std::uint32_t> inFileOrder(const StoreReader& store, std::vector<std
   return slices;
 }
 
-// Reads the slices' compressed bytes in file order with one thread, from the cold file: the sequential
-// reference.
+// Reads the slices' compressed bytes in file order with one thread from the cold file (pread), or over the
+// link one request after another: the sequential reference.
 double readSequentially(const StoreReader& store, const std::vector<std::uint32_t>& slices) {
   const std::vector<std::uint32_t> order = inFileOrder(store, slices);
   dropFileCache(store.path());
-  const int fd = ::open(store.path().c_str(), O_RDONLY);
-  if (fd < 0) throw std::runtime_error(store.path().string() + ": cannot open");
-  std::vector<char> buffer;
+  std::vector<std::byte> buffer;
   const auto start = std::chrono::steady_clock::now();
   for (const std::uint32_t s : order) {
     const SliceInfo& info = store.slices()[s];
     buffer.resize(info.compressedBytes);
-    std::size_t done = 0;
-    while (done < buffer.size()) {
-      const ssize_t got = ::pread(fd, buffer.data() + done, buffer.size() - done, off_t(info.offset + done));
-      if (got <= 0) break;
-      done += std::size_t(got);
-    }
+    if (store.source().read(info.offset, buffer) != buffer.size())
+      throw std::runtime_error(store.path().string() + ": slice " + std::to_string(s) + " is truncated");
   }
-  const double seconds = since(start);
-  ::close(fd);
-  return seconds;
+  return since(start);
 }
 
 // The slices read, checksummed and decompressed as the pager's workers do (StoreReader::readSlice), by
@@ -141,6 +138,7 @@ std::vector<Camera> orbitPath(const SceneTransform& scene, int frames, int size)
 PagerOptions pagerOptionsOf(const StreamArgs& args, std::size_t budget) {
   PagerOptions options = args.pager;
   options.budgetBytes = budget;
+  options.fetchThreads = resolvedFetchThreads(options.fetchThreads, args.input);
   return options;
 }
 
@@ -151,7 +149,7 @@ std::vector<double> measureFirstImage(const StreamArgs& args, const PagerOptions
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
     const auto start = std::chrono::steady_clock::now();
-    Pager pager(args.input, pagerOptions);
+    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
     const Camera framing = Camera::framing(pager.transform(), kDefaultViewDirection, args.size, args.size);
     render(pager.trunk(), pager.transform(), framing, options);
     firstImage.push_back(since(start));
@@ -165,6 +163,8 @@ std::vector<double> measureFirstImage(const StreamArgs& args, const PagerOptions
 struct CloseUp {
   std::vector<double> viewConverge, converge, imageFinal, sequential, decompressed, viewCpu,
       bytesPerCpuSecond;
+  std::vector<double> requests,
+      retries;  // over HTTP: attempts until all converged, and the retries among them
   std::vector<WorkerCpu> cpu;
   std::uint64_t viewBytes = 0, bytes = 0;
   plot::Series errorCurve;
@@ -175,7 +175,8 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
   r.errorCurve.name = formatBytes(pagerOptions.budgetBytes);
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
-    Pager pager(args.input, pagerOptions);
+    const std::shared_ptr<const ByteSource> bytes = openByteSource(args.input, remoteOptions(args.token));
+    Pager pager(std::make_shared<StoreSliceSource>(bytes), pagerOptions);
     const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
     std::vector<std::pair<double, Frame>> frames;
     const Convergence c =
@@ -191,10 +192,14 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
     r.bytes = pager.bytesRead();
     r.cpu.push_back(pager.workerCpu());
     r.bytesPerCpuSecond.push_back(double(r.bytes) / std::max(1e-9, r.cpu.back().seconds()));
-    const StoreReader store(args.input);
+    const StoreReader store(openByteSource(args.input, remoteOptions(args.token)));
     r.sequential.push_back(readSequentially(store, c.viewResidentSlices));
     r.decompressed.push_back(readAndDecompress(store, c.viewResidentSlices, args.pager.decodeThreads));
     r.viewCpu.push_back(c.viewWorkerCpu.seconds());
+    if (const auto* http = dynamic_cast<const HttpByteSource*>(bytes.get())) {
+      r.requests.push_back(double(http->stats().requests));
+      r.retries.push_back(double(http->stats().retries));
+    }
     if (run == 0)
       for (const auto& [t, frame] : frames)
         r.errorCurve.points.push_back(
@@ -214,7 +219,7 @@ PathTimes measurePath(const StreamArgs& args, const PagerOptions& pagerOptions,
   PathTimes r;
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
-    Pager pager(args.input, pagerOptions);
+    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
     std::vector<double> streaming, resident;
     for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
       const StreamedFrame step = streamFrame(pager, c, options);
@@ -255,7 +260,28 @@ void addCpuRow(Table& table, std::size_t budget, const CloseUp& closeUp) {
                 nanosPerVoxel, bytesPerCpu});
 }
 
-void runStreamBench(const StreamArgs& args) {
+// With --link-delay: a relay in front of the input's http:// server, and the input rewritten to go through
+// it.
+std::unique_ptr<LinkDelay> delayLink(StreamArgs& args) {
+  if (args.linkDelayMs <= 0.0) return nullptr;
+  const std::string scheme = "http://";
+  if (args.input.rfind(scheme, 0) != 0) throw UsageError("--link-delay needs an http:// store URL");
+  const std::size_t slash = args.input.find('/', scheme.size());
+  const std::string authority = args.input.substr(scheme.size(), slash - scheme.size());
+  const std::size_t colon = authority.rfind(':');
+  const bool hasPort = colon != std::string::npos && authority.find(']', colon) == std::string::npos;
+  const std::string host = authority.substr(0, hasPort ? colon : authority.size());
+  const int port = hasPort ? std::atoi(authority.c_str() + colon + 1) : 80;
+  auto link = std::make_unique<LinkDelay>(host.starts_with('[') ? host.substr(1, host.size() - 2) : host,
+                                          port, args.linkDelayMs * 1e-3);
+  args.input = scheme + "127.0.0.1:" + std::to_string(link->port()) +
+               (slash == std::string::npos ? "/" : args.input.substr(slash));
+  return link;
+}
+
+void runStreamBench(StreamArgs args) {
+  const std::string input = args.input;
+  const std::unique_ptr<LinkDelay> link = delayLink(args);
   keepFreedMemoryForReuse();
   requireRuns(args.runs);
   std::filesystem::create_directories(args.output);
@@ -271,6 +297,7 @@ void runStreamBench(const StreamArgs& args) {
   Table goalTable({"budget", "sequential read", "read + zstd alone", "alone / seq", "worker CPU to view",
                    "cores for " + goal});
   std::vector<plot::Series> curves;
+  std::vector<std::string> requestLines;  // over HTTP
   for (const std::size_t budget : args.budgets) {
     const PagerOptions pagerOptions = pagerOptionsOf(args, budget);
     const std::vector<double> firstImage = measureFirstImage(args, pagerOptions, options);
@@ -296,19 +323,30 @@ void runStreamBench(const StreamArgs& args) {
                   formatSeconds(final.median), formatBytes(closeUp.viewBytes), formatSeconds(seq.median),
                   ratio, formatSeconds(all.median), formatBytes(closeUp.bytes), formatSeconds(streamP99),
                   formatSeconds(residentP99), p99ratio, formatBytes(path.maxResident)});
+    if (!closeUp.requests.empty()) {
+      const double requests = summarize(closeUp.requests).median;
+      requestLines.push_back(
+          fmt::format("{}: {:.0f} requests until all converged ({:.0f} retries), {} per request",
+                      formatBytes(budget), requests, summarize(closeUp.retries).median,
+                      formatBytes(std::uint64_t(double(closeUp.bytes) / requests))));
+    }
   }
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
   printTitle(
-      "svo bench stream " + args.input + " (" + std::to_string(args.size) + "^2, LOD " +
-      std::to_string(args.lodPixels) + " px, median of " + std::to_string(args.runs) + " runs, " +
+      "svo bench stream " + input +
+      (link ? fmt::format(" through a relay adding {:g} ms each way", args.linkDelayMs) : "") + " (" +
+      std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
+      std::to_string(args.runs) + " runs, " +
       fmt::format("{} fetch and {} decode threads at nice {}, {} decoding during frames",
-                  args.pager.fetchThreads, args.pager.decodeThreads, args.pager.workerNice,
+                  pagerOptionsOf(args, 0).fetchThreads, args.pager.decodeThreads, args.pager.workerNice,
                   args.pager.decodersDuringFrames) +
       (args.backgroundLoad ? fmt::format(", background load: {} busy threads", args.backgroundLoad) : "") +
       ")");
   table.print();
+  for (const std::string& line : requestLines)
+    std::printf("over HTTP, the close-up from a cold start: %s\n", line.c_str());
   std::printf(
       "view converged: nothing inside the close-up's frustum left to load (bytes read: by then); all "
       "converged: also the slices around it, wanted for turns\n"
@@ -340,7 +378,10 @@ void addStreamBench(CLI::App& bench) {
   auto* cmd = bench.add_subcommand("stream",
                                    "paging client: first image, cold convergence vs sequential read, "
                                    "streaming frame time vs resident, error over time");
-  cmd->add_option("input", args->input, "a .svo store")->required()->check(CLI::ExistingFile);
+  cmd->add_option("input", args->input, "a .svo store: a file, or its http(s):// URL on a static server")
+      ->required()
+      ->check(storeLocator());
+  addTokenOption(cmd, args->token);
   cmd->add_option("--budgets", args->budgets, "pool budgets, e.g. 32M,256M (default 32M,256M)")
       ->delimiter(',')
       ->transform(CLI::AsSizeValue(false));
@@ -362,6 +403,10 @@ void addStreamBench(CLI::App& bench) {
                   "on the cores")
       ->check(CLI::Range(0, 256))
       ->capture_default_str();
+  cmd->add_option("--link-delay", args->linkDelayMs,
+                  "for an http:// URL: milliseconds a loopback relay adds to each direction (a link of twice "
+                  "that round trip)")
+      ->check(CLI::Range(0.0, 10000.0));
   cmd->callback([args] { runStreamBench(*args); });
 }
 

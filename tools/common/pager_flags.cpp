@@ -1,14 +1,20 @@
 #include "pager_flags.hpp"
 
+#include <fmt/format.h>
 #include <CLI/CLI.hpp>
+
+#include "remote.hpp"
 
 namespace svo::tools {
 
 void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options) {
-  cmd.add_option("--fetch-threads", options.fetchThreads,
-                 "when streaming: threads that fetch slices from the store (a network link wants more)")
-      ->check(CLI::Range(1, 64))
-      ->capture_default_str();
+  options.fetchThreads = 0;
+  cmd.add_option(
+         "--fetch-threads", options.fetchThreads,
+         fmt::format("when streaming: threads that fetch slices from the store (default: {} for a file, {} "
+                     "for a URL, whose round trips want more waiting at once)",
+                     PagerOptions{}.fetchThreads, kRemoteFetchThreads))
+      ->check(CLI::Range(1, 256));
   cmd.add_option("--decode-threads", options.decodeThreads,
                  "when streaming: threads that decode slices and lay out blocks")
       ->check(CLI::Range(1, 64))
@@ -23,6 +29,10 @@ void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options) {
                  "end)")
       ->check(CLI::Range(0, 64))
       ->capture_default_str();
+}
+
+int resolvedFetchThreads(int flag, const std::string& locator) {
+  return flag > 0 ? flag : fetchThreadsFor(locator);
 }
 
 }  // namespace svo::tools

@@ -1,5 +1,6 @@
-// `svo render IN.svo -o frame.png`: ray casts the octree on all cores and writes PNG or EXR. A store that
-// fits one block and the machine's memory is read whole; any other streams through a block pool (--budget, or
+// `svo render IN.svo -o frame.png`: ray casts the octree on all cores and writes PNG or EXR. IN.svo is a file
+// or an http(s):// URL of one (range requests). A store that fits one block and the machine's memory is read
+// whole; any other streams through a block pool (--budget, or
 // a share of the machine's memory): one view refines until it has converged, or with --path a camera path
 // renders frame by frame while the scene streams in, with a CSV row per frame and a plot of the error
 // against the converged frames over time.
@@ -17,7 +18,9 @@
 #include "measure.hpp"
 #include "pager_flags.hpp"
 #include "plot.hpp"
+#include "remote.hpp"
 #include "report.hpp"
+#include "svo/client/locator.hpp"
 #include "svo/client/pager.hpp"
 #include "svo/client/render.hpp"
 #include "svo/client/streaming.hpp"
@@ -31,7 +34,7 @@ glm::dvec3 vec3Of(const std::vector<double>& v) {
 }
 
 struct RenderArgs {
-  std::string in, out, cameraFile;
+  std::string in, out, cameraFile, token;
   std::vector<double> eye, target, up{0.0, 1.0, 0.0},
       view{kDefaultViewDirection.x, kDefaultViewDirection.y, kDefaultViewDirection.z};
   double fov = 40.0;
@@ -66,15 +69,16 @@ Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
 PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
   PagerOptions options = args.pager;
   options.budgetBytes = budget;
+  options.fetchThreads = resolvedFetchThreads(options.fetchThreads, args.in);
   return options;
 }
 
-// One view streamed until it has converged; `how` says why it streams and with which budget.
-void renderConverged(const RenderArgs& args, RenderOptions options, std::size_t budget,
-                     const std::string& how) {
+// One view streamed from `source` until it has converged; `how` says why it streams and with which budget.
+void renderConverged(const RenderArgs& args, std::shared_ptr<const SliceSource> source, RenderOptions options,
+                     std::size_t budget, const std::string& how) {
   const std::filesystem::path out = args.out;
   const auto start = std::chrono::steady_clock::now();
-  Pager pager(args.in, pagerOptions(budget, args));
+  Pager pager(std::move(source), pagerOptions(budget, args));
   const Camera camera = cameraOf(args, pager.transform());
   options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
   const Frame first = render(pager.trunk(), pager.transform(), camera, options);
@@ -96,8 +100,9 @@ void renderConverged(const RenderArgs& args, RenderOptions options, std::size_t 
   std::printf("wrote %s, %s\n", args.out.c_str(), how.c_str());
 }
 
-// A camera path while streaming: frames, frames.csv, error.png.
-void renderPath(const RenderArgs& args, RenderOptions options, std::size_t budget, const std::string& how) {
+// A camera path while streaming from `source`: frames, frames.csv, error.png.
+void renderPath(const RenderArgs& args, const std::shared_ptr<const SliceSource>& source,
+                RenderOptions options, std::size_t budget, const std::string& how) {
   const std::vector<Camera> cameras = loadCameraPath(args.pathFile);
   const std::filesystem::path folder = args.out;
   std::error_code ec;
@@ -105,7 +110,7 @@ void renderPath(const RenderArgs& args, RenderOptions options, std::size_t budge
   if (ec || !std::filesystem::is_directory(folder))
     throw UsageError(args.out + ": cannot create the output folder");
   checkWritableOutput(folder / "frames.csv");
-  Pager pager(args.in, pagerOptions(budget, args));
+  Pager pager(source, pagerOptions(budget, args));
   options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
 
   std::vector<StreamedFrame> frames;
@@ -124,7 +129,7 @@ void renderPath(const RenderArgs& args, RenderOptions options, std::size_t budge
   }
   // The converged frame of each camera, from a pool large enough to hold everything the view wants.
   spdlog::info("converging the reference frames ({} pool) ...", formatBytes(args.referenceBudget));
-  Pager reference(args.in, pagerOptions(args.referenceBudget, args));
+  Pager reference(source, pagerOptions(args.referenceBudget, args));
   std::ofstream csv(folder / "frames.csv");
   csv << "frame,elapsed_s,frame_ms,update_ms,resident_bytes,loaded,evicted,requested,cancelled,denied,failed,"
          "wanted,in_flight,rmse,silhouette_pct,reference_converged\n";
@@ -160,14 +165,15 @@ void renderPath(const RenderArgs& args, RenderOptions options, std::size_t budge
   std::printf("wrote %s: frame_NNNN.png, frames.csv, error.png, %s\n", folder.c_str(), how.c_str());
 }
 
-void renderStreaming(const RenderArgs& args, std::size_t budget, const std::string& how) {
+void renderStreaming(const RenderArgs& args, std::shared_ptr<const SliceSource> source, std::size_t budget,
+                     const std::string& how) {
   keepFreedMemoryForReuse();
   RenderOptions options = args.options;
   options.cast.contours = !args.noContours;
   if (args.pathFile.empty()) {
-    renderConverged(args, options, budget, how);
+    renderConverged(args, std::move(source), options, budget, how);
   } else {
-    renderPath(args, options, budget, how);
+    renderPath(args, source, options, budget, how);
   }
 }
 
@@ -195,10 +201,11 @@ void checkImageOutput(const RenderArgs& args) {
 // a pool of a share of the machine's memory (never more than the whole store takes).
 void renderDefault(const RenderArgs& args) {
   const std::uint64_t share = defaultMemoryShare(machineMemory());
+  const std::shared_ptr<const ByteSource> bytes = openByteSource(args.in, remoteOptions(args.token));
   std::size_t storeBudget = 0;
   std::string why;
   {
-    const StoreReader store(args.in);
+    const StoreReader store(bytes);
     const StoreFootprint footprint = footprintOf(store.slices());
     storeBudget = wholeStoreBudget(store.slices());
     if (!footprint.mayFitOneBlock()) {
@@ -207,17 +214,17 @@ void renderDefault(const RenderArgs& args) {
       why = "reading it whole would take about " + formatBytes(footprint.wholeLoadBytes()) + ", more than " +
             formatBytes(share) + " (the default share of memory)";
     }
-  }
-  if (why.empty() && args.pathFile.empty()) {
-    try {
-      return renderWhole(args, readOctree(args.in));
-    } catch (const BlockTooLarge&) {
-      why = "the octree is too large for one block";
+    if (why.empty() && args.pathFile.empty()) {
+      try {
+        return renderWhole(args, readOctree(store));
+      } catch (const BlockTooLarge&) {
+        why = "the octree is too large for one block";
+      }
     }
   }
   if (why.empty()) why = "a camera path streams";
   const std::size_t budget = std::size_t(std::min<std::uint64_t>({share, storeBudget, kMaxBudgetBytes}));
-  renderStreaming(args, budget,
+  renderStreaming(args, std::make_shared<StoreSliceSource>(bytes), budget,
                   "streamed through a " + formatBytes(budget) + " block pool (default: " + why +
                       "; --budget sets the pool)");
 }
@@ -228,7 +235,9 @@ void addRenderCommand(CLI::App& app) {
   using Args = RenderArgs;
   auto args = std::make_shared<Args>();
   auto* cmd = app.add_subcommand("render", "ray cast a .svo octree to PNG or EXR");
-  cmd->add_option("input", args->in, "input .svo file")->required();
+  cmd->add_option("input", args->in, "input .svo store: a file, or its http(s):// URL on a static server")
+      ->required();
+  addTokenOption(cmd, args->token);
   cmd->add_option("-o,--output", args->out, "output image (.png or .exr)")->required();
   cmd->add_option("--camera", args->cameraFile, "camera JSON {eye, target, up, fov, width, height}");
   cmd->add_option("--eye", args->eye, "camera position x,y,z (world)")->expected(3)->delimiter(',');
@@ -277,7 +286,8 @@ void addRenderCommand(CLI::App& app) {
   cmd->callback([args] {
     if (args->pathFile.empty()) checkImageOutput(*args);
     if (args->budget == 0) return renderDefault(*args);
-    renderStreaming(*args, args->budget, "streamed through a " + formatBytes(args->budget) + " block pool");
+    renderStreaming(*args, openSliceSource(args->in, remoteOptions(args->token)), args->budget,
+                    "streamed through a " + formatBytes(args->budget) + " block pool");
   });
 }
 

@@ -1,5 +1,6 @@
 // `svo verify STORE` and `svo inspect STORE`: every checksum and structural invariant of a slice store, and
-// what it holds per level (slices, voxels, branching, bytes per voxel per part, slice sizes).
+// what it holds per level (slices, voxels, branching, bytes per voxel per part, slice sizes). STORE is a file
+// or an http(s):// URL of one.
 #include <unistd.h>
 
 #include <algorithm>
@@ -13,7 +14,9 @@
 
 #include "commands.hpp"
 #include "progress.hpp"
+#include "remote.hpp"
 #include "store_stats.hpp"
+#include "svo/client/locator.hpp"
 #include "svo/store/store_reader.hpp"
 
 namespace svo::tools {
@@ -26,8 +29,8 @@ double per(std::uint64_t bytes, std::uint64_t voxels) {
   return voxels ? double(bytes) / double(voxels) : 0.0;
 }
 
-void inspect(const std::string& path, bool json) {
-  const StoreReader reader(path);
+void inspect(const std::string& path, const std::string& token, bool json) {
+  const StoreReader reader(openByteSource(path, remoteOptions(token)));
   const StoreHeader& h = reader.header();
   std::map<int, LevelSummary> levels;
   LevelSummary total;
@@ -94,33 +97,38 @@ void inspect(const std::string& path, bool json) {
 
 void addStoreCommands(CLI::App& app) {
   {
-    auto path = std::make_shared<std::string>();
+    struct Args {
+      std::string path, token;
+    };
+    auto args = std::make_shared<Args>();
     auto* cmd = app.add_subcommand("verify", "check every checksum and structural invariant of a .svo store");
-    cmd->add_option("store", *path, "the .svo file")->required();
-    cmd->callback([path] {
+    cmd->add_option("store", args->path, "the .svo store: a file, or its http(s):// URL")->required();
+    addTokenOption(cmd, args->token);
+    cmd->callback([args] {
       // Any problem throws with the file and, for a slice, its number: main prints it and exits 1.
-      const StoreReader reader(*path);
+      const StoreReader reader(openByteSource(args->path, remoteOptions(args->token)));
       // A bar on a terminal only: in a log, the one line a failure prints stays the only one.
       std::unique_ptr<ProgressBar> bar = ::isatty(2) ? std::make_unique<ProgressBar>("verify") : nullptr;
       const std::uint64_t voxels = reader.verify([&bar](double f) {
         if (bar) bar->update(f);
       });
       bar.reset();
-      std::printf("%s: ok (%zu slices, %llu voxels, %.2f MiB)\n", path->c_str(), reader.slices().size(),
+      std::printf("%s: ok (%zu slices, %llu voxels, %.2f MiB)\n", args->path.c_str(), reader.slices().size(),
                   static_cast<unsigned long long>(voxels), double(reader.header().fileBytes) / (1 << 20));
     });
   }
   {
     struct Args {
-      std::string path;
+      std::string path, token;
       bool json = false;
     };
     auto args = std::make_shared<Args>();
     auto* cmd =
         app.add_subcommand("inspect", "per level: slices, voxels, branching, bytes per voxel, slice sizes");
-    cmd->add_option("store", args->path, "the .svo file")->required();
+    cmd->add_option("store", args->path, "the .svo store: a file, or its http(s):// URL")->required();
     cmd->add_flag("--json", args->json, "print JSON instead of a table");
-    cmd->callback([args] { inspect(args->path, args->json); });
+    addTokenOption(cmd, args->token);
+    cmd->callback([args] { inspect(args->path, args->token, args->json); });
   }
 }
 

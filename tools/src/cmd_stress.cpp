@@ -23,7 +23,9 @@
 #include "machine.hpp"
 #include "measure.hpp"
 #include "plot.hpp"
+#include "remote.hpp"
 #include "report.hpp"
+#include "svo/client/locator.hpp"
 #include "svo/client/streaming.hpp"
 #include "svo/client/whole_scene.hpp"
 
@@ -31,7 +33,7 @@ namespace svo::tools {
 namespace {
 
 struct StressArgs {
-  std::string input, output = "stress-report";
+  std::string input, output = "stress-report", token;
   std::vector<std::size_t> budgets{std::size_t(4) << 20, std::size_t(64) << 20};
   int frames = 120;
   int size = 256;
@@ -249,9 +251,10 @@ Table stressTable() {
                 "failed"});
 }
 
-PagerOptions pagerOptionsFor(std::size_t budget) {
+PagerOptions pagerOptionsFor(std::size_t budget, const StressArgs& args) {
   PagerOptions options;
   options.budgetBytes = budget;
+  options.fetchThreads = fetchThreadsFor(args.input);
   return options;
 }
 
@@ -263,11 +266,13 @@ void runStress(const StressArgs& args) {
   std::uint64_t storeDecoded = 0;
   RenderOptions render;
   render.lodPixels = args.lodPixels;
+  // Opened once: a store that cannot be read fails the command; each budget's pager starts cold all the same.
+  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token));
   for (const std::size_t budget : args.budgets) {
     const std::string text = formatBytes(budget);
     std::unique_ptr<Pager> pager;
     try {
-      pager = std::make_unique<Pager>(args.input, pagerOptionsFor(budget));
+      pager = std::make_unique<Pager>(source, pagerOptionsFor(budget, args));
     } catch (const std::runtime_error& e) {
       table.addRow({text, "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", e.what()});
       continue;
@@ -326,9 +331,10 @@ void runSoak(const StressArgs& args) {
   const double perBudget = args.minutes * 60.0 / double(args.budgets.size());
   std::vector<plot::Series> curves;
   std::vector<std::string> leaks;
+  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token));
   for (const std::size_t budget : args.budgets) {
     const std::string text = formatBytes(budget);
-    Pager pager(args.input, pagerOptionsFor(budget));
+    Pager pager(source, pagerOptionsFor(budget, args));
     std::mt19937 rng(args.seed);
     const std::vector<SurfacePoint> surface = surfacePoints(pager, rng);
     const double finest = finestDistance(pager, args.size, args.lodPixels);
@@ -379,7 +385,10 @@ void addStressCommand(CLI::App& app) {
   auto args = std::make_shared<StressArgs>();
   auto* cmd =
       app.add_subcommand("stress", "memory-budget stress test: hostile camera sequences against budgets");
-  cmd->add_option("input", args->input, "a .svo store")->required()->check(CLI::ExistingFile);
+  cmd->add_option("input", args->input, "a .svo store: a file, or its http(s):// URL on a static server")
+      ->required()
+      ->check(storeLocator());
+  addTokenOption(cmd, args->token);
   cmd->add_option("--budgets", args->budgets, "pool budgets, e.g. 4M,64M (default 4M,64M)")
       ->delimiter(',')
       ->transform(CLI::AsSizeValue(false));

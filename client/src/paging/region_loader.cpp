@@ -1,5 +1,6 @@
 #include "paging/region_loader.hpp"
 
+#include <cassert>
 #include <ctime>
 #include <map>
 #include <optional>
@@ -108,20 +109,20 @@ RegionLoader::RegionLoader(const SliceSource& source, RegionTable& regions, std:
 FetchedChain RegionLoader::fetch(const LoadRequest& request) {
   const StageClock clock(cpu_.read);
   const Region& region = regions_[regions_.regionOf(request.slice)];  // its slice list never changes
-  const std::uint32_t first = regions_.indexInRegion(request.slice);
+  const std::span<const std::uint32_t> chain =
+      std::span(region.slices).subspan(regions_.indexInRegion(request.slice), request.count);
   FetchedChain out;
-  for (std::uint32_t k = 0; k < request.count; ++k) {
-    const std::uint32_t slice = region.slices[first + k];
-    try {
-      source_.fetch(slice, out.slices.emplace_back());
-      bytesRead_.fetch_add(index_.slices()[slice].compressedBytes, std::memory_order_relaxed);
-    } catch (const std::exception& e) {
-      out.slices.pop_back();
-      out.error = e.what();
-      out.failedSlice = slice;
-      break;
-    }
+  try {
+    source_.fetchAll(chain, out.slices);
+  } catch (const std::exception& e) {
+    out.error = e.what();
+    assert(out.slices.size() < chain.size());
+    out.failedSlice = chain[out.slices.size()];
+    const auto* sliceError = dynamic_cast<const SliceError*>(&e);
+    out.transient = sliceError && sliceError->transient;
   }
+  for (std::size_t k = 0; k < out.slices.size(); ++k)
+    bytesRead_.fetch_add(index_.slices()[chain[k]].compressedBytes, std::memory_order_relaxed);
   return out;
 }
 
@@ -222,11 +223,14 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   out.requested = request.count;
   out.error = std::move(fetched.error);
   out.failedSlice = fetched.failedSlice;
+  out.transient = fetched.transient;
   const Region& region = regions_[out.region];  // its slice list never changes: no lock needed
   const std::uint32_t first = regions_.indexInRegion(request.slice);
+  // A slice that fails here has wrong bytes (an earlier one than any the fetch could not get): never retried.
   const auto fail = [&](std::uint32_t slice, const std::string& what) {
     out.failedSlice = slice;
     out.error = index_.name() + ": slice " + std::to_string(slice) + ": " + what;
+    out.transient = false;
   };
   if (fetched.slices.empty()) return out;
 
@@ -241,6 +245,7 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
     } catch (const std::exception& e) {
       out.error = e.what();
       out.failedSlice = slice;
+      out.transient = false;
       break;
     }
   }

@@ -23,6 +23,7 @@ struct FetchedChain {
   std::vector<SliceBytes> slices;
   std::uint32_t failedSlice = SliceInfo::kNoSlice;
   std::string error;
+  bool transient = false;  // the source failed for a reason that may pass (SliceError::transient)
 };
 
 // Worker CPU time per stage in nanoseconds (thread CPU time), and the voxels decoded and laid out.

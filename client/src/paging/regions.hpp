@@ -55,6 +55,7 @@ struct BuiltBlock {
   std::map<std::uint32_t, EntrySlots> childSlots;
   std::uint32_t failedSlice = SliceInfo::kNoSlice;
   std::string error;
+  bool transient = false;  // failedSlice's source failed for a reason that may pass: ask again later
 };
 
 // Where a region is entered from its parent's block: the cube's voxel, or each sub-cube's voxel of a run

@@ -19,11 +19,23 @@ constexpr double kLeastBlockBytesPerRawByte = 1.0;
 
 }  // namespace
 
-Scheduler::Scheduler(const std::vector<SliceInfo>& slices, const RegionTable& regions)
-    : slices_(slices), regions_(regions) {
+Scheduler::Scheduler(const std::vector<SliceInfo>& slices, const RegionTable& regions,
+                     const RetryBackoff& backoff)
+    : slices_(slices), regions_(regions), backoff_(backoff) {
   const std::size_t n = slices.size();
   viewPriority_.assign(n, 0.0), wantedPriority_.assign(n, 0.0), denied_.assign(n, 0);
   inView_.assign(n, 0), failed_.assign(n, 0), inFlight_.assign(n, 0);
+  deferrals_.assign(n, 0), retryAt_.assign(n, {});
+}
+
+void Scheduler::markDeferred(std::uint32_t slice) {
+  // The fetch itself retried with its own short backoff; this one spaces out whole rounds of those while a
+  // server stays away. No jitter: at most maxInFlight requests come back at once.
+  const double seconds = std::min(
+      backoff_.maxSeconds, backoff_.firstSeconds * std::ldexp(1.0, std::min<int>(deferrals_[slice], 30)));
+  retryAt_[slice] =
+      Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
+  deferrals_[slice] = std::uint8_t(std::min(255, deferrals_[slice] + 1));
 }
 
 std::uint64_t Scheduler::rank(const std::vector<SliceRequest>& wanted, RegionTable& regions) {
@@ -63,7 +75,7 @@ void Scheduler::learnBlockGrowth(double rawBytes, double grownBytes) {
 }
 
 bool Scheduler::requestable(std::uint32_t slice) const {
-  if (failed_[slice] || inFlight_[slice]) return false;
+  if (failed_[slice] || inFlight_[slice] || deferred(slice)) return false;
   const Region& region = regions_[regions_.regionOf(slice)];
   if (region.resident != regions_.indexInRegion(slice)) return false;
   if (region.resident == 0 && region.parent >= 0 && !regions_[std::uint32_t(region.parent)].complete())
@@ -128,7 +140,9 @@ std::uint32_t Scheduler::chainLength(std::uint32_t slice) const {
   for (std::uint32_t i = regions_.indexInRegion(slice) + 1; i < region.slices.size(); ++i, ++count) {
     const std::uint32_t s = region.slices[i];
     estimate += kBlockBytesPerRawByte * slices_[s].rawBytes;
-    if (viewPriority_[s] <= 0.0 || failed_[s] || denied_[s] > free || estimate > double(free)) break;
+    if (viewPriority_[s] <= 0.0 || failed_[s] || deferrals_[s] || denied_[s] > free ||
+        estimate > double(free))
+      break;
   }
   return count;
 }
@@ -144,7 +158,9 @@ Scheduler::Candidates Scheduler::candidates() {
     const bool candidate =
         requestable(s) && roomFor(leastBlockGrowth(s), viewPriority_[s], regions_.regionOf(s));
     if (candidate) out.requests.push_back({s, wantedPriority_[s], 0.0, true});
-    out.viewPending += inView_[s] && (candidate || inFlight_[s]);
+    const bool waiting = deferred(s);
+    out.deferred += waiting;
+    out.viewPending += inView_[s] && (candidate || inFlight_[s] || waiting);
   }
   std::sort(out.requests.begin(), out.requests.end(),
             [](const SliceRequest& a, const SliceRequest& b) { return a.priority > b.priority; });
@@ -203,6 +219,13 @@ std::vector<std::uint32_t> Scheduler::wantedSlices() const {
   std::vector<std::uint32_t> out;
   for (std::uint32_t s = 0; s < viewPriority_.size(); ++s)
     if (viewPriority_[s] > 0.0) out.push_back(s);
+  return out;
+}
+
+std::vector<std::uint32_t> Scheduler::deferredSlices() const {
+  std::vector<std::uint32_t> out;
+  for (std::uint32_t s = 0; s < deferrals_.size(); ++s)
+    if (deferrals_[s]) out.push_back(s);
   return out;
 }
 

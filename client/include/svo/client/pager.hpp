@@ -55,11 +55,18 @@ struct PagerOptions {
   // stage until the frame ends. A moving camera's frames keep most of the cores, and a still view, rendered
   // a few times a second, leaves the workers the time between frames.
   int decodersDuringFrames = 1;
+  // A slice whose fetch failed for a reason that may pass (a server restarting or overloaded, a timeout: the
+  // source's own retries ran out) is asked for again after this many seconds, twice as long after each
+  // further failure, at most sourceRetryMaxSeconds; a corrupt slice is never asked for again. 1 s to 10 s:
+  // a restarted server is used again within seconds, and a dead one costs a few requests a second.
+  double sourceRetrySeconds = 1.0;
+  double sourceRetryMaxSeconds = 10.0;
 };
 
 // What one update() did. Counts are slices.
 struct PagerStats {
   std::uint32_t loaded = 0, evicted = 0, requested = 0, cancelled = 0, failed = 0;
+  std::uint32_t deferred = 0;        // fetches that failed for a reason that may pass: asked again later
   std::uint32_t denied = 0;          // read and laid out, then dropped: no room at their priority
   std::uint32_t wanted = 0;          // slices the view wants that are not resident
   std::uint64_t wantedRawBytes = 0;  // decoded bytes of every slice the view wants, resident or not
@@ -127,8 +134,8 @@ class Pager {
   };
   // Blocks until a worker finishes something or `seconds` pass (loops that converge a view; never a frame).
   void waitForWork(double seconds);
-  // Nothing the last view wanted is missing (or everything missing failed or does not fit) and no request
-  // is in flight.
+  // Nothing the last view wanted is missing (or everything missing failed or does not fit), no request is in
+  // flight and no slice waits to be asked for again after a failure that may pass.
   bool converged() const;
   // The same for the view frustum alone: nothing missing inside it can load, so the frame shows all the
   // detail it will get; slices around it (wanted for turns, ranked lower) may still be loading.
@@ -143,8 +150,12 @@ class Pager {
   // The slices the last update's view wanted, resident or not, in directory order.
   std::vector<std::uint32_t> wantedSlices() const;
   std::vector<std::uint32_t> failedSlices() const;
+  // Slices whose last fetch failed for a reason that may pass (PagerOptions::sourceRetrySeconds) and that
+  // have not loaded since.
+  std::vector<std::uint32_t> deferredSlices() const;
   // Messages of slices that failed (checksum, decode) since the last call; each slice fails once and is never
-  // requested again.
+  // requested again. A source that stops answering (failures that may pass) gives one message until a slice
+  // loads again.
   std::vector<std::string> takeErrors() { return std::exchange(errors_, {}); }
   // Pool invariants, every link leads to its region's root descriptor, every resident non-root region is
   // linked from its parent, page headers lead to each block's info section. Throws std::logic_error.
@@ -163,7 +174,8 @@ class Pager {
   std::unique_ptr<paging::RegionLoader> loader_;
   std::unique_ptr<paging::LoadWorkers> workers_;  // last: its threads stop first
   std::vector<std::string> errors_;
-  std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0;
+  bool sourceFailing_ = false;  // a fetch failed for a reason that may pass, and nothing has loaded since
+  std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0, lastDeferred_ = 0;
 };
 
 }  // namespace svo

@@ -6,6 +6,8 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <span>
+#include <vector>
 
 #include "svo/store/byte_source.hpp"
 #include "svo/store/store_index.hpp"
@@ -20,6 +22,10 @@ class SliceSource {
   // Slice `slice`'s compressed bytes into `compressed` (resized). Safe to call from several threads at once.
   // Throws SliceError naming the store and the slice.
   virtual void fetch(std::uint32_t slice, SliceBytes& compressed) const = 0;
+  // The compressed bytes of `slices` (a region's chain), appended to `compressed` in order; a source may
+  // fetch neighbours together. Stops at the first that fails and throws its SliceError; `compressed` then
+  // holds the ones before it. By default one fetch() each.
+  virtual void fetchAll(std::span<const std::uint32_t> slices, std::vector<SliceBytes>& compressed) const;
 };
 
 // The slices of a store read through a byte source; its header and directory are read and checked on
@@ -29,6 +35,8 @@ class StoreSliceSource final : public SliceSource {
   explicit StoreSliceSource(std::shared_ptr<const ByteSource> bytes);
   const StoreIndex& index() const override { return index_; }
   void fetch(std::uint32_t slice, SliceBytes& compressed) const override;
+  // Slices that lie back to back in the file come with one read (fetchSlices).
+  void fetchAll(std::span<const std::uint32_t> slices, std::vector<SliceBytes>& compressed) const override;
 
  private:
   std::shared_ptr<const ByteSource> bytes_;

@@ -19,6 +19,12 @@ struct ByteSourceError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// A source could not deliver bytes for a reason that may pass (a server restarting or overloaded, a timeout):
+// the same read may succeed later, unlike bytes that are missing or wrong.
+struct TransientSourceError : ByteSourceError {
+  using ByteSourceError::ByteSourceError;
+};
+
 class ByteSource {
  public:
   virtual ~ByteSource() = default;

@@ -24,6 +24,14 @@ namespace svo {
 // Slice `slice`'s compressed bytes into `compressed` (resized; its capacity is reused).
 void fetchSlice(const ByteSource& source, const StoreIndex& index, std::uint32_t slice,
                 SliceBytes& compressed);
+// The most bytes fetchSlices reads at once: a region's chain of slices, a few MB at the default slice size.
+inline constexpr std::uint64_t kMaxSlicesReadBytes = std::uint64_t(16) << 20;
+// The compressed bytes of `slices`, appended to `compressed` in order, each run of them that lies back to
+// back in the file (a region's chain of slices does) read at once (at most kMaxSlicesReadBytes): one request
+// over a network instead of one per slice. Stops at the first read that fails and throws the SliceError of
+// the first slice it was for; `compressed` then holds the slices before it.
+void fetchSlices(const ByteSource& source, const StoreIndex& index, std::span<const std::uint32_t> slices,
+                 std::vector<SliceBytes>& compressed);
 // Slice `slice`'s decoded bytes from its compressed bytes, after its checksum and size checks.
 SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
 // Decodes slice `slice` (its bytes from unpackSlice) onto its parents: the voxels of the level above in its
@@ -70,5 +78,6 @@ class StoreReader {
 
 // The whole store as one in-memory octree (loadTree + layoutBlock): the same block the in-core builder makes.
 Octree readOctree(const std::filesystem::path& path);
+Octree readOctree(const StoreReader& reader);
 
 }  // namespace svo

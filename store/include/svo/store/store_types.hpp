@@ -158,11 +158,13 @@ struct StoreHeader {
   std::uint64_t directoryChecksum = 0;  // XXH3-64 of the directory's bytes
 };
 
-// A slice that failed its checksum, does not decompress or does not decode. `slice` is its directory index;
-// the message names the store, the slice, its level and cube.
+// A slice that failed its checksum, does not decompress or does not decode, or whose bytes could not be
+// fetched. `slice` is its directory index; the message names the store, the slice, its level and cube.
 struct SliceError : std::runtime_error {
-  SliceError(std::uint32_t slice, const std::string& message);
+  SliceError(std::uint32_t slice, const std::string& message, bool transient = false);
   std::uint32_t slice;
+  // The source failed for a reason that may pass (TransientSourceError): asking again later may succeed.
+  bool transient;
 };
 
 }  // namespace svo

@@ -1,0 +1,538 @@
+// Stores read from a real nginx by range requests (client/http_source.hpp, client/locator.hpp), against
+// independent references: the local file's bytes, the local store's index and slices, and the frame a local
+// pager converges to, bit for bit. Servers listen on 127.0.0.1 only and are stopped by the tests; retries and
+// backoffs are kept tiny, and every wait is bounded in count.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include <nlohmann/json.hpp>
+
+#include "link_delay.hpp"
+#include "nginx_fixture.hpp"
+#include "reference.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/client/http_source.hpp"
+#include "svo/client/locator.hpp"
+#include "svo/client/pager.hpp"
+#include "svo/store/store_reader.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// A sphere and a box at 8 levels in 4 KB slices (many slices, so a pager makes many requests);
+// `sliceBytes` changes the file without changing the scene.
+fs::path writeStore(const fs::path& path, std::uint32_t sliceBytes = 4096) {
+  svo::Mesh mesh = svotest::makeSphere({0, 0, 0}, 1.0, 24, 24);
+  svotest::appendMesh(mesh, svotest::makeBox({-1.2, -1.2, -0.2}, {0.3, -0.9, 0.9}));
+  for (const glm::dvec3& p : mesh.positions)
+    mesh.colors.push_back(glm::vec4(0.5 + 0.4 * p.x, 0.5 + 0.4 * p.y, 0.5 - 0.4 * p.z, 1.0));
+  svo::BuildOptions options;
+  options.levels = 8;
+  svo::StoreWriteOptions write;
+  write.sliceBytes = sliceBytes;
+  svo::writeOctree(path, svo::buildOctree(mesh, options), write);
+  return path;
+}
+
+const fs::path& sphereStore() {
+  static const svotest::TempFile file = [] {
+    svotest::TempFile f("svo_http_store", ".svo");
+    writeStore(f.path);
+    return f;
+  }();
+  return file.path;
+}
+
+std::vector<std::byte> fileBytes(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::vector<char> chars((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::vector<std::byte> out(chars.size());
+  std::memcpy(out.data(), chars.data(), chars.size());
+  return out;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// Retries that end within a second: tests see the final error quickly.
+svo::RemoteOptions quickRetries() {
+  svo::RemoteOptions o;
+  o.retries = 2;
+  o.backoffBaseSeconds = 0.01;
+  o.backoffMaxSeconds = 0.05;
+  o.retryBudgetSeconds = 1.0;
+  o.connectTimeoutSeconds = 2.0;
+  o.requestTimeoutSeconds = 10.0;
+  return o;
+}
+
+svo::Camera cameraAt(glm::dvec3 eye, glm::dvec3 target, int size) {
+  svo::Camera c;
+  c.eye = eye, c.target = target, c.fovYDegrees = 50.0, c.width = c.height = size;
+  return c;
+}
+
+// Every slice of the store, whatever the camera sees.
+svo::ViewQuery everything(const svo::Pager& pager, const svo::Camera& camera) {
+  svo::ViewQuery view = svo::viewOf(pager.transform(), camera, 1e-9);
+  view.frustum.clear();
+  return view;
+}
+
+// Updates until the view has converged; bounded. Returns the slices deferred on the way.
+std::uint32_t converge(svo::Pager& pager, const svo::ViewQuery& view) {
+  std::uint32_t deferred = 0;
+  for (int i = 0; i < 4000; ++i) {
+    deferred += pager.update(view).deferred;
+    if (pager.converged()) return deferred;
+    pager.waitForWork(0.02);
+  }
+  ADD_FAILURE() << "the pager did not converge";
+  return deferred;
+}
+
+// Both frames bit for bit: color and depth of every pixel.
+void expectSameFrame(const svo::Frame& a, const svo::Frame& b) {
+  ASSERT_EQ(a.color.size(), b.color.size());
+  std::size_t hits = 0;
+  for (const glm::vec4& c : b.color) hits += c.a > 0.0f;
+  EXPECT_GT(hits, 0u);
+  EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(glm::vec4)), 0);
+  EXPECT_EQ(std::memcmp(a.depth.data(), b.depth.data(), a.depth.size() * sizeof(float)), 0);
+}
+
+svo::Frame renderFinest(const svo::Pager& pager, const svo::Camera& camera) {
+  svo::RenderOptions options;
+  options.lodPixels = 0.0f, options.threads = 1;
+  return svo::render(pager.trunk(), pager.transform(), camera, options);
+}
+
+// The message of what `open` throws ("" when it does not).
+template <class F>
+std::string errorOf(F&& open) {
+  try {
+    open();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// A folder served by nginx, holding the sphere store as scene.svo.
+class Http : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (svotest::nginxBinary().empty())
+      GTEST_SKIP() << "nginx is not installed (Debian: nginx-light): the HTTP range tests need a real server";
+    std::string pattern = (fs::temp_directory_path() / "svo_http_root_XXXXXX").string();
+    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
+    root_ = pattern;
+    fs::copy_file(sphereStore(), root_ / "scene.svo");
+  }
+  void TearDown() override {
+    server_.reset();
+    if (!root_.empty()) fs::remove_all(root_);
+  }
+  svotest::NginxServer& serve(svotest::NginxServer::Options options = {}) {
+    server_ = std::make_unique<svotest::NginxServer>(root_, std::move(options));
+    return *server_;
+  }
+
+  fs::path root_;
+  std::unique_ptr<svotest::NginxServer> server_;
+};
+
+}  // namespace
+
+TEST_F(Http, EveryByteRangeEqualsTheFile) {
+  // Random bytes, not a store: any file is served alike.
+  std::vector<std::byte> bytes(300'001);
+  std::mt19937 rng(7);
+  for (std::byte& b : bytes) b = std::byte(rng() & 0xff);
+  std::ofstream(root_ / "random.bin", std::ios::binary)
+      .write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+  svotest::NginxServer& server = serve();
+  const svo::HttpByteSource source(server.url("random.bin"), quickRetries());
+  EXPECT_EQ(source.name(), server.url("random.bin"));
+  ASSERT_EQ(source.size(), bytes.size());
+  EXPECT_FALSE(source.validator().empty());  // nginx sends an ETag for static files
+
+  // Reads that need a request: those with bytes to give beyond the first ones the opening request kept.
+  std::uint64_t requests = 1;
+  const auto expectRead = [&](std::uint64_t offset, std::size_t length) {
+    std::vector<std::byte> out(length, std::byte(0xee));
+    const std::size_t got = source.read(offset, out);
+    const std::size_t expected =
+        offset >= bytes.size() ? 0 : std::min<std::size_t>(length, bytes.size() - offset);
+    requests += expected > 0 && offset + expected > svo::kHttpPrefixBytes;
+    ASSERT_EQ(got, expected) << "offset " << offset << " length " << length;
+    EXPECT_EQ(std::memcmp(out.data(), bytes.data() + std::min<std::uint64_t>(offset, bytes.size()), got), 0)
+        << "offset " << offset << " length " << length;
+    for (std::size_t i = got; i < length; ++i) ASSERT_EQ(out[i], std::byte(0xee)) << "written past the end";
+  };
+  std::uniform_int_distribution<std::uint64_t> offsets(0, bytes.size() - 1);
+  std::uniform_int_distribution<std::size_t> lengths(1, 70'000);
+  for (int i = 0; i < 100; ++i) expectRead(offsets(rng), lengths(rng));
+  expectRead(0, bytes.size());          // the whole file
+  expectRead(bytes.size() - 1, 1);      // its last byte
+  expectRead(bytes.size() - 10, 100);   // across the end: the 10 there are
+  expectRead(bytes.size(), 16);         // at the end: nothing
+  expectRead(bytes.size() + 1000, 16);  // past it
+  expectRead(12345, 0);                 // nothing asked
+  expectRead(0, 256);                   // among the first bytes: no request
+  expectRead(svo::kHttpPrefixBytes - 100, 200);  // across their end
+  const svo::HttpStats sequential = source.stats();
+  EXPECT_EQ(sequential.requests, requests);
+  EXPECT_EQ(sequential.retries, 0u);
+
+  // Several threads at once, each on its own kept-alive connection.
+  std::vector<std::thread> threads;
+  std::atomic<int> wrong{0};
+  for (int t = 0; t < 4; ++t)
+    threads.emplace_back([&, t] {
+      std::mt19937 local(100 + t);
+      for (int i = 0; i < 50; ++i) {
+        const std::uint64_t offset = offsets(local);
+        std::vector<std::byte> out(lengths(local));
+        const std::size_t got = source.read(offset, out);
+        wrong += got != std::min<std::size_t>(out.size(), bytes.size() - offset) ||
+                 std::memcmp(out.data(), bytes.data() + offset, got) != 0;
+      }
+    });
+  for (std::thread& t : threads) t.join();
+  EXPECT_EQ(wrong.load(), 0);
+
+  // Connections are kept alive: 305 requests came over at most one per thread that ever read.
+  std::set<std::string> connections;
+  std::size_t lines = 0;
+  std::istringstream log(server.accessLog());
+  for (std::string line; std::getline(log, line); ++lines) {
+    EXPECT_NE(line.find(" 206 "), std::string::npos) << line;
+    connections.insert(line.substr(0, line.find(' ')));
+  }
+  EXPECT_EQ(lines, source.stats().requests);
+  EXPECT_LE(connections.size(), 5u);
+}
+
+TEST_F(Http, StoreIndexAndSlicesEqualTheLocalOnes) {
+  svotest::NginxServer& server = serve();
+  const auto local = svo::openSliceSource(sphereStore().string());
+  const auto remote = svo::openSliceSource(server.url("scene.svo"), quickRetries());
+  const svo::StoreIndex &a = local->index(), &b = remote->index();
+  EXPECT_EQ(b.name(), server.url("scene.svo"));
+  EXPECT_EQ(a.header().fileBytes, b.header().fileBytes);
+  EXPECT_EQ(a.header().directoryOffset, b.header().directoryOffset);
+  EXPECT_EQ(a.header().directoryChecksum, b.header().directoryChecksum);
+  EXPECT_EQ(a.header().parameters.levels, b.header().parameters.levels);
+  ASSERT_EQ(a.slices().size(), b.slices().size());
+  ASSERT_GT(a.slices().size(), 20u);
+  svo::SliceBytes x, y;
+  for (std::uint32_t s = 0; s < a.slices().size(); ++s) {
+    EXPECT_EQ(a.slices()[s].offset, b.slices()[s].offset) << s;
+    EXPECT_EQ(a.slices()[s].checksum, b.slices()[s].checksum) << s;
+    EXPECT_EQ(a.slices()[s].parentSlice, b.slices()[s].parentSlice) << s;
+    local->fetch(s, x);
+    remote->fetch(s, y);
+    ASSERT_EQ(x.size(), y.size()) << s;
+    EXPECT_EQ(std::memcmp(x.data(), y.data(), x.size()), 0) << "slice " << s;
+  }
+  // Through the store reader too: every checksum and invariant holds over HTTP.
+  const svo::StoreReader reader(svo::openByteSource(server.url("scene.svo"), quickRetries()));
+  EXPECT_EQ(reader.verify(), svo::StoreReader(sphereStore()).verify());
+}
+
+TEST_F(Http, PagerOverHttpConvergesToTheLocalImage) {
+  svotest::NginxServer& server = serve();
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  for (const std::size_t budget : {std::size_t(256) << 20, std::size_t(512) << 10}) {
+    svo::PagerOptions options;
+    options.budgetBytes = budget;
+    options.fetchThreads = 4;
+    svo::Pager local(sphereStore(), options);
+    svo::Pager remote(svo::openSliceSource(server.url("scene.svo"), quickRetries()), options);
+    // The view's own frustum, finest detail: what a render command converges.
+    const svo::ViewQuery view = svo::viewOf(local.transform(), camera, 0.0);
+    converge(local, view);
+    converge(remote, view);
+    EXPECT_TRUE(remote.failedSlices().empty());
+    EXPECT_EQ(remote.residentSlices(), local.residentSlices()) << "budget " << budget;
+    // The tight budget holds part of what the view wants: which part is the scheduler's choice, the same
+    // over either source.
+    if (budget < (std::size_t(1) << 20))
+      EXPECT_LT(remote.residentSlices().size(), remote.index().slices().size());
+    EXPECT_GE(remote.bytesRead(), remote.index().slices()[remote.residentSlices().back()].compressedBytes);
+    remote.checkInvariants();
+    expectSameFrame(renderFinest(remote, camera), renderFinest(local, camera));
+  }
+}
+
+TEST_F(Http, MissingStoresClosedPortsAndBadUrlsAreOneClearLine) {
+  svotest::NginxServer& server = serve();
+  const std::string missing = server.url("missing.svo");
+  const std::string notFound = errorOf([&] { svo::openSliceSource(missing, quickRetries()); });
+  EXPECT_NE(notFound.find(missing), std::string::npos) << notFound;
+  EXPECT_NE(notFound.find("no such store"), std::string::npos) << notFound;
+  EXPECT_NE(notFound.find("404"), std::string::npos) << notFound;
+  EXPECT_EQ(server.accessLog().find("missing.svo"), server.accessLog().rfind("missing.svo"))
+      << "a 404 is not retried:\n"
+      << server.accessLog();
+
+  // A port nothing listens on: the retries run out, and the error says the failure may pass.
+  const std::string url = server.url("scene.svo");
+  server.stop();
+  try {
+    svo::HttpByteSource source(url, quickRetries());
+    ADD_FAILURE() << "opened a store on a stopped server";
+  } catch (const svo::TransientSourceError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find(url), std::string::npos) << what;
+    EXPECT_NE(what.find("connect"), std::string::npos) << what;
+    EXPECT_NE(what.find("gave up after 3 attempts"), std::string::npos) << what;
+  }
+
+  const std::string ftp = errorOf([] { svo::openSliceSource("ftp://127.0.0.1/scene.svo"); });
+  EXPECT_NE(ftp.find("ftp://127.0.0.1/scene.svo"), std::string::npos) << ftp;
+  EXPECT_NE(ftp.find("http://"), std::string::npos) << ftp;
+  const std::string bad = errorOf([] { svo::openSliceSource("http://127.0.0.1:99999/scene.svo"); });
+  EXPECT_NE(bad.find("not a valid URL"), std::string::npos) << bad;
+  EXPECT_FALSE(svo::isUrl("scenes/a.svo"));
+  EXPECT_FALSE(svo::isUrl("/abs/a:b.svo"));
+  EXPECT_TRUE(svo::isUrl("HTTPS://host/a.svo"));
+}
+
+TEST_F(Http, ServerWithoutRangeRequestsIsRefused) {
+  fs::create_directories(root_ / "norange");
+  fs::copy_file(sphereStore(), root_ / "norange" / "scene.svo");
+  svotest::NginxServer::Options options;
+  options.serverBlock =
+      "server {\n listen 127.0.0.1:{port};\n root {root};\n location /norange/ { max_ranges 0; }\n}\n";
+  svotest::NginxServer& server = serve(options);
+  const std::string what =
+      errorOf([&] { svo::HttpByteSource(server.url("norange/scene.svo"), quickRetries()); });
+  EXPECT_NE(what.find(server.url("norange/scene.svo")), std::string::npos) << what;
+  EXPECT_NE(what.find("does not answer range requests"), std::string::npos) << what;
+}
+
+// The token check of the README's nginx snippet: no token is a 401 naming --token, a wrong one is refused,
+// the right one reads the same bytes.
+TEST_F(Http, BearerTokenIsSentAndItsAbsenceExplained) {
+  fs::create_directories(root_ / "private");
+  fs::copy_file(sphereStore(), root_ / "private" / "scene.svo");
+  svotest::NginxServer::Options options;
+  options.serverBlock =
+      "server {\n listen 127.0.0.1:{port};\n root {root};\n"
+      " location /private/ { if ($http_authorization != \"Bearer secret\") { return 401; } }\n}\n";
+  svotest::NginxServer& server = serve(options);
+  const std::string url = server.url("private/scene.svo");
+  svo::RemoteOptions remote = quickRetries();
+  const std::string none = errorOf([&] { svo::openSliceSource(url, remote); });
+  EXPECT_NE(none.find(url), std::string::npos) << none;
+  EXPECT_NE(none.find("needs a token (--token or SVO_TOKEN"), std::string::npos) << none;
+  remote.token = "wrong";
+  const std::string wrong = errorOf([&] { svo::openSliceSource(url, remote); });
+  EXPECT_NE(wrong.find("token refused"), std::string::npos) << wrong;
+  remote.token = "secret";
+  const auto source = svo::openSliceSource(url, remote);
+  const auto local = svo::openSliceSource(sphereStore().string());
+  ASSERT_EQ(source->index().slices().size(), local->index().slices().size());
+  svo::SliceBytes x, y;
+  const std::uint32_t last = std::uint32_t(local->index().slices().size() - 1);
+  source->fetch(last, x);
+  local->fetch(last, y);
+  EXPECT_TRUE(x == y);
+}
+
+TEST_F(Http, StoreReplacedOnTheServerMidStreamIsAClearError) {
+  svotest::NginxServer& server = serve();
+  const auto source = svo::openSliceSource(server.url("scene.svo"), quickRetries());
+  const std::uint32_t last = std::uint32_t(source->index().slices().size() - 1);
+  ASSERT_GT(source->index().slices()[last].offset, svo::kHttpPrefixBytes) << "a slice the opening read kept";
+  svo::SliceBytes bytes;
+  source->fetch(last - 1, bytes);
+  // Another build of the scene, renamed over the served file as a deploy would: another size and time, so
+  // another ETag.
+  const fs::path next = root_ / "scene.svo.next";
+  writeStore(next, 8192);
+  fs::last_write_time(next, fs::last_write_time(root_ / "scene.svo") + std::chrono::seconds(10));
+  fs::rename(next, root_ / "scene.svo");
+  try {
+    source->fetch(last, bytes);
+    ADD_FAILURE() << "read a slice of a replaced store";
+  } catch (const svo::SliceError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find(server.url("scene.svo")), std::string::npos) << what;
+    EXPECT_NE(what.find("changed on the server"), std::string::npos) << what;
+    EXPECT_FALSE(e.transient) << what;
+  }
+  // Opened again, it is the new store.
+  const auto reopened = svo::openSliceSource(server.url("scene.svo"), quickRetries());
+  EXPECT_EQ(reopened->index().header().fileBytes, fs::file_size(root_ / "scene.svo"));
+}
+
+// The server is killed mid-stream and restarted on the same port: the fetches that failed meanwhile are
+// deferred, not failed, and the pager resumes with its pool and converges to the local pager's frame.
+TEST_F(Http, PagerResumesAfterTheServerIsKilledAndRestarted) {
+  svotest::NginxServer& server = serve();
+  svo::PagerOptions options;
+  options.fetchThreads = 4;
+  options.sourceRetrySeconds = 0.02;
+  options.sourceRetryMaxSeconds = 0.1;
+  svo::Pager pager(svo::openSliceSource(server.url("scene.svo"), quickRetries()), options);
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  converge(pager, svo::viewOf(pager.transform(), camera, 16.0));  // the coarse levels
+  const std::vector<std::uint32_t> before = pager.residentSlices();
+  ASSERT_LT(before.size(), pager.index().slices().size());
+
+  server.kill();
+  const svo::ViewQuery all = everything(pager, camera);
+  std::uint32_t deferred = 0;
+  for (int i = 0; i < 500 && deferred == 0; ++i) {
+    deferred += pager.update(all).deferred;
+    pager.waitForWork(0.02);
+  }
+  EXPECT_GT(deferred, 0u) << "no fetch failed while the server was down";
+  EXPECT_FALSE(pager.converged());
+  EXPECT_TRUE(pager.failedSlices().empty());
+  EXPECT_FALSE(pager.deferredSlices().empty());
+  const std::vector<std::string> errors = pager.takeErrors();
+  ASSERT_EQ(errors.size(), 1u) << "one message for the outage";
+  EXPECT_NE(errors[0].find("asking again later"), std::string::npos) << errors[0];
+
+  server.start();
+  converge(pager, all);
+  EXPECT_TRUE(pager.failedSlices().empty());
+  EXPECT_TRUE(pager.deferredSlices().empty());
+  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
+  const std::vector<std::uint32_t> after = pager.residentSlices();
+  EXPECT_TRUE(std::includes(after.begin(), after.end(), before.begin(), before.end())) << "the pool was kept";
+  pager.checkInvariants();
+  svo::Pager local(sphereStore(), options);
+  converge(local, all);
+  expectSameFrame(renderFinest(pager, camera), renderFinest(local, camera));
+}
+
+// The README's nginx snippet, as printed there, serves stores to `svo`: public ones, and private ones with
+// the token.
+TEST_F(Http, ReadmeNginxSnippetServesStores) {
+  const std::string readme = slurp(fs::path(SVO_SOURCE_DIR) / "README.md");
+  const std::size_t begin = readme.find("```nginx\n");
+  ASSERT_NE(begin, std::string::npos) << "README.md has no nginx snippet";
+  const std::size_t end = readme.find("```", begin + 9);
+  std::string snippet = readme.substr(begin + 9, end - begin - 9);
+  // The snippet's port and folder, replaced by the test's.
+  for (const auto& [from, to] :
+       {std::pair<std::string, std::string>{"listen 8080;", "listen 127.0.0.1:{port};"},
+        {"/srv/scenes", "{root}"}}) {
+    const std::size_t at = snippet.find(from);
+    ASSERT_NE(at, std::string::npos) << "the snippet has no \"" << from << "\":\n" << snippet;
+    snippet.replace(at, from.size(), to);
+  }
+  fs::create_directories(root_ / "private");
+  fs::copy_file(sphereStore(), root_ / "private" / "scene.svo");
+  svotest::NginxServer& server = serve({snippet});
+  const auto open = svo::openSliceSource(server.url("scene.svo"), quickRetries());
+  EXPECT_EQ(open->index().header().fileBytes, fs::file_size(sphereStore()));
+  const std::string refused =
+      errorOf([&] { svo::openSliceSource(server.url("private/scene.svo"), quickRetries()); });
+  EXPECT_NE(refused.find("needs a token"), std::string::npos) << refused;
+  svo::RemoteOptions remote = quickRetries();
+  remote.token = "secret";  // the snippet's example token
+  EXPECT_EQ(svo::openSliceSource(server.url("private/scene.svo"), remote)->index().slices().size(),
+            open->index().slices().size());
+}
+
+// The commands take a URL wherever they take a store: the same images, byte for byte, as from the file.
+TEST_F(Http, CommandsReadUrlsAsTheyReadFiles) {
+  fs::create_directories(root_ / "private");
+  fs::copy_file(sphereStore(), root_ / "private" / "scene.svo");
+  svotest::NginxServer::Options options;
+  options.serverBlock =
+      "server {\n listen 127.0.0.1:{port};\n root {root};\n"
+      " location /private/ { if ($http_authorization != \"Bearer secret\") { return 401; } }\n}\n";
+  svotest::NginxServer& server = serve(options);
+  const fs::path out = root_ / "out";
+  fs::create_directories(out);
+  const auto svo = [&](const std::string& args, const std::string& env = "") {
+    const std::string command = env + " " + SVO_BINARY + " " + args + " >" + (out / "stdout").string() +
+                                " 2>" + (out / "stderr").string();
+    const int status = std::system(command.c_str());
+    return std::make_pair(WIFEXITED(status) ? WEXITSTATUS(status) : 128, slurp(out / "stderr"));
+  };
+  const std::string local = sphereStore().string(), url = server.url("scene.svo");
+  const std::string size = " --width 64 --height 64";
+  for (const std::string& mode : {std::string(""), std::string(" --budget 1M")}) {
+    ASSERT_EQ(svo("render " + local + " -o " + (out / "local.png").string() + size + mode).first, 0);
+    const auto [code, err] = svo("render " + url + " -o " + (out / "http.png").string() + size + mode);
+    ASSERT_EQ(code, 0) << err;
+    EXPECT_EQ(slurp(out / "local.png"), slurp(out / "http.png")) << "render" << mode;
+  }
+  const auto [tokenCode, tokenErr] =
+      svo("render " + server.url("private/scene.svo") + " -o " + (out / "private.png").string() + size,
+          "SVO_TOKEN=secret");
+  ASSERT_EQ(tokenCode, 0) << tokenErr;
+  EXPECT_EQ(slurp(out / "local.png"), slurp(out / "private.png"));
+
+  ASSERT_EQ(svo("inspect --json " + local).first, 0);
+  nlohmann::json a = nlohmann::json::parse(slurp(out / "stdout"));
+  ASSERT_EQ(svo("inspect --json " + url).first, 0);
+  nlohmann::json b = nlohmann::json::parse(slurp(out / "stdout"));
+  EXPECT_EQ(b["file"], url);
+  a.erase("file"), b.erase("file");
+  EXPECT_EQ(a, b);
+  const auto [verifyCode, verifyErr] = svo("verify " + url);
+  EXPECT_EQ(verifyCode, 0) << verifyErr;
+
+  // One line naming the URL: a missing store, a missing token, an unsupported scheme.
+  const std::vector<std::pair<std::string, std::string>> failures{
+      {"render " + server.url("missing.svo") + " -o " + (out / "x.png").string(), "no such store"},
+      {"render " + server.url("private/scene.svo") + " -o " + (out / "x.png").string(), "needs a token"},
+      {"stress " + server.url("missing.svo"), "no such store"},
+      {"verify ftp://127.0.0.1/scene.svo", "http:// or https://"}};
+  for (const auto& [args, needle] : failures) {
+    const auto [code, err] = svo(args);
+    EXPECT_EQ(code, 1) << args << ": " << err;
+    EXPECT_NE(err.find(needle), std::string::npos) << args << ": " << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << args << ": " << err;
+  }
+  EXPECT_FALSE(fs::exists(out / "x.png"));
+}
+
+// The benchmarks' link-delay relay passes every byte through intact, in both directions and over kept-alive
+// connections, from several threads at once.
+TEST_F(Http, LinkDelayRelayPassesBytesIntact) {
+  svotest::NginxServer& server = serve();
+  const svo::tools::bench::LinkDelay link("127.0.0.1", server.port(), 0.002);
+  const std::string url = "http://127.0.0.1:" + std::to_string(link.port()) + "/scene.svo";
+  const auto remote = svo::openSliceSource(url, quickRetries());
+  const auto local = svo::openSliceSource(sphereStore().string());
+  const std::uint32_t count = std::uint32_t(local->index().slices().size());
+  std::atomic<int> wrong{0};
+  std::vector<std::thread> threads;
+  for (std::uint32_t t = 0; t < 3; ++t)
+    threads.emplace_back([&, t] {
+      svo::SliceBytes x, y;
+      for (std::uint32_t s = t; s < count; s += 3) {
+        remote->fetch(s, x);
+        local->fetch(s, y);
+        wrong += !(x == y);
+      }
+    });
+  for (std::thread& t : threads) t.join();
+  EXPECT_EQ(wrong.load(), 0);
+}

@@ -1,0 +1,33 @@
+#include "remote.hpp"
+
+#include <cstdlib>
+
+#include "svo/client/locator.hpp"
+#include "svo/client/pager.hpp"
+
+namespace svo::tools {
+
+void addTokenOption(CLI::App* command, std::string& token) {
+  command->add_option("--token", token,
+                      "for a store URL: bearer token sent to the server (default: the SVO_TOKEN environment "
+                      "variable)");
+}
+
+RemoteOptions remoteOptions(const std::string& token) {
+  RemoteOptions options;
+  options.token = token;
+  if (const char* env = std::getenv("SVO_TOKEN"); options.token.empty() && env) options.token = env;
+  return options;
+}
+
+int fetchThreadsFor(const std::string& locator) {
+  return isUrl(locator) ? kRemoteFetchThreads : PagerOptions{}.fetchThreads;
+}
+
+CLI::Validator storeLocator() {
+  return CLI::Validator(
+      [](std::string& locator) { return isUrl(locator) ? std::string() : CLI::ExistingFile(locator); },
+      "FILE or URL");
+}
+
+}  // namespace svo::tools
