@@ -194,7 +194,7 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
 PagerStats Pager::update(const ViewQuery& view) {
   PagerStats stats;
   // 1. What the view wants, with ray feedback.
-  stats.wantedRawBytes = scheduler_->rank(scheduleSlices(index().slices(), view), *regions_);
+  stats.wantedRawBytes = scheduler_->rank(scheduleSlices(index(), view), *regions_);
 
   // 2. Commit what the workers finished, most wanted first, within the time slice.
   std::vector<paging::BuiltBlock> finished = workers_->takeDone();

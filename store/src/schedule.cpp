@@ -28,10 +28,22 @@ bool boxInView(const ViewQuery& view, const SliceBox& box) {
 
 }  // namespace
 
-std::vector<SliceRequest> scheduleSlices(const std::vector<SliceInfo>& slices, const ViewQuery& view) {
-  std::vector<double> priority(slices.size(), 0.0);
+std::vector<SliceRequest> scheduleSlices(const StoreIndex& index, const ViewQuery& view,
+                                         std::size_t* visited) {
+  const std::vector<SliceInfo>& slices = index.slices();
   std::vector<SliceRequest> wanted;
-  for (std::uint32_t i = 0; i < slices.size(); ++i) {
+  // Depth first: a slice is looked at once its parent slice is wanted, and carries the parent's priority.
+  struct Visit {
+    std::uint32_t slice;
+    double parentPriority;
+  };
+  std::vector<Visit> stack;
+  for (const std::uint32_t root : index.rootSlices()) stack.push_back({root, HUGE_VAL});
+  std::size_t looked = 0;
+  while (!stack.empty()) {
+    const auto [i, parentPriority] = stack.back();
+    stack.pop_back();
+    ++looked;
     const SliceInfo& s = slices[i];
     const SliceBox box = sliceBox(s);
     const double parentVoxel = std::ldexp(1.0, -(s.voxelLevel - 1));
@@ -44,16 +56,18 @@ std::vector<SliceRequest> scheduleSlices(const std::vector<SliceInfo>& slices, c
     const glm::dvec3 extent = box.upper - box.lower;
     const double halfExtent = 0.5 * std::max({extent.x, extent.y, extent.z});
     const double pixelsAtCentre = parentVoxel / ((nearest + halfExtent) * view.pixelAngle);
-    priority[i] = pixelsAtCentre * (r.inFrustum ? 1.0 : view.outsideWeight);
-    // Never above the slice holding the parents (the reader guarantees it comes first).
-    if (s.parentSlice != SliceInfo::kNoSlice && s.parentSlice < i)
-      priority[i] = std::min(priority[i], priority[s.parentSlice]);
-    r.priority = priority[i];
-    if (r.parentPixels > view.lodPixels) wanted.push_back(r);
+    // Never above the slice holding the parents.
+    r.priority = std::min(pixelsAtCentre * (r.inFrustum ? 1.0 : view.outsideWeight), parentPriority);
+    if (!(r.parentPixels > view.lodPixels)) continue;
+    wanted.push_back(r);
+    for (const std::uint32_t child : index.childSlices(i)) stack.push_back({child, r.priority});
   }
-  std::stable_sort(wanted.begin(), wanted.end(), [&](const SliceRequest& a, const SliceRequest& b) {
+  if (visited) *visited = looked;
+  std::sort(wanted.begin(), wanted.end(), [&](const SliceRequest& a, const SliceRequest& b) {
     if (a.priority != b.priority) return a.priority > b.priority;
-    return slices[a.slice].voxelLevel < slices[b.slice].voxelLevel;
+    if (slices[a.slice].voxelLevel != slices[b.slice].voxelLevel)
+      return slices[a.slice].voxelLevel < slices[b.slice].voxelLevel;
+    return a.slice < b.slice;
   });
   return wanted;
 }

@@ -316,7 +316,7 @@ TEST(Pager, ViewConvergedMeansTheFrustumIsCompleteAndTheFrameFinal) {
     if (!atViewConverged && pager.viewConverged()) {
       const std::vector<std::uint32_t> resident = pager.residentSlices();
       std::size_t inside = 0, outside = 0;
-      for (const svo::SliceRequest& r : svo::scheduleSlices(pager.index().slices(), view)) {
+      for (const svo::SliceRequest& r : svo::scheduleSlices(pager.index(), view)) {
         (r.inFrustum ? inside : outside)++;
         if (r.inFrustum)
           EXPECT_TRUE(std::binary_search(resident.begin(), resident.end(), r.slice)) << "slice " << r.slice;

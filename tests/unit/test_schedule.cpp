@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <random>
 #include <set>
 
 #include <glm/common.hpp>
@@ -74,7 +75,7 @@ TEST(Schedule, NoHolesParentsFirstAndSorted) {
     svo::ViewQuery view;
     view.eye = eye;
     view.pixelAngle = 2e-3;
-    const auto wanted = svo::scheduleSlices(slices, view);
+    const auto wanted = svo::scheduleSlices(f.reader->index(), view);
     std::map<std::uint32_t, std::size_t> rank;
     for (std::size_t i = 0; i < wanted.size(); ++i) rank[wanted[i].slice] = i;
     for (std::size_t i = 1; i < wanted.size(); ++i) EXPECT_GE(wanted[i - 1].priority, wanted[i].priority);
@@ -113,13 +114,14 @@ TEST(Schedule, FarEyeWantsOnlyCoarseLevelsAndViewBeatsOutside) {
   far.pixelAngle = 1e-3;
   // Level L's parents are 2^-(L-1) wide; from ~198 away they look 2^-(L-1) / 0.198 pixels: wanted up to L
   // = 3.
-  for (const auto& r : svo::scheduleSlices(slices, far)) EXPECT_LE(slices[r.slice].voxelLevel, 3);
+  const StoreFixture& f = store();
+  for (const auto& r : svo::scheduleSlices(f.reader->index(), far)) EXPECT_LE(slices[r.slice].voxelLevel, 3);
   // A frustum holding only x < 1.5: the x > 1.5 half waits behind every visible slice of the same level.
   svo::ViewQuery half;
   half.eye = {1.5, 1.5, 1.5};
   half.pixelAngle = 2e-3;
   half.frustum = {{-1.0, 0.0, 0.0, -1.5}};  // -x >= -1.5
-  const auto wanted = svo::scheduleSlices(slices, half);
+  const auto wanted = svo::scheduleSlices(f.reader->index(), half);
   std::size_t inside = 0, outside = 0;
   for (const auto& r : wanted) (r.inFrustum ? inside : outside)++;
   EXPECT_GT(inside, 0u);
@@ -131,6 +133,62 @@ TEST(Schedule, FarEyeWantsOnlyCoarseLevelsAndViewBeatsOutside) {
           slices[wanted[i].slice].voxelLevel > 2)
         ADD_FAILURE() << "out-of-view slice " << wanted[i].slice << " ranks before in-view slice "
                       << wanted[j].slice;
+}
+
+// The walk against a scan of every slice, written here from the query's definition: the same wanted slices,
+// priorities and order, while it looks only at the wanted slices, their child slices and the root.
+TEST(Schedule, HierarchyWalkEqualsAScanOfEverySliceAndLooksAtFewer) {
+  const StoreFixture& f = store();
+  const svo::StoreIndex& index = f.reader->index();
+  const auto& slices = index.slices();
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> coord(-1.0, 4.0), angle(2e-4, 4e-3), logDistance(-3.0, 6.0);
+  std::size_t fewer = 0;
+  for (int trial = 0; trial < 40; ++trial) {
+    svo::ViewQuery view;
+    // From inside the scene cube out to where only the coarsest levels are wanted.
+    const glm::dvec3 direction = glm::normalize(glm::dvec3(coord(rng), coord(rng), coord(rng)) - 1.5);
+    view.eye = glm::dvec3(1.5) + direction * std::exp(logDistance(rng));
+    view.pixelAngle = angle(rng);
+    if (trial % 2) view.frustum = {{coord(rng) - 1.5, coord(rng) - 1.5, 1.0, coord(rng)}};
+    // The scan: each slice's own pixels, its priority capped by every ancestor's, wanted when its parent
+    // voxels look wider than the target.
+    std::vector<double> priority(slices.size());
+    std::vector<std::tuple<double, int, std::uint32_t>> expected;
+    for (std::uint32_t i = 0; i < slices.size(); ++i) {
+      const svo::SliceBox box = svo::sliceBox(slices[i]);
+      const double voxel = std::ldexp(1.0, 1 - slices[i].voxelLevel);
+      const glm::dvec3 outside =
+          glm::max(glm::max(box.lower - view.eye, view.eye - box.upper), glm::dvec3(0.0));
+      const double nearest = std::max(glm::length(outside), 0.5 * voxel);
+      const glm::dvec3 extent = box.upper - box.lower;
+      bool inView = true;
+      for (const auto& plane : view.frustum) {
+        double best = -plane[3];
+        for (int a = 0; a < 3; ++a) best += plane[a] * (plane[a] > 0.0 ? box.upper[a] : box.lower[a]);
+        inView = inView && best >= 0.0;
+      }
+      priority[i] = voxel / ((nearest + 0.5 * std::max({extent.x, extent.y, extent.z})) * view.pixelAngle) *
+                    (inView ? 1.0 : view.outsideWeight);
+      if (slices[i].parentSlice != svo::SliceInfo::kNoSlice)
+        priority[i] = std::min(priority[i], priority[slices[i].parentSlice]);
+      if (voxel / (nearest * view.pixelAngle) > view.lodPixels)
+        expected.emplace_back(-priority[i], slices[i].voxelLevel, i);
+    }
+    std::sort(expected.begin(), expected.end());
+    std::size_t visited = 0;
+    const auto wanted = svo::scheduleSlices(index, view, &visited);
+    ASSERT_EQ(wanted.size(), expected.size()) << "trial " << trial;
+    std::size_t bound = index.rootSlices().size();
+    for (std::size_t k = 0; k < wanted.size(); ++k) {
+      EXPECT_EQ(wanted[k].slice, std::get<2>(expected[k])) << "trial " << trial << ", rank " << k;
+      EXPECT_DOUBLE_EQ(wanted[k].priority, -std::get<0>(expected[k]));
+      bound += index.childSlices(wanted[k].slice).size();
+    }
+    EXPECT_LE(visited, bound);
+    fewer += visited < slices.size();
+  }
+  EXPECT_GT(fewer, 0u);  // some views leave whole subtrees unvisited
 }
 
 }  // namespace

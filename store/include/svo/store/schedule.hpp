@@ -4,7 +4,9 @@
 // the finer level there. Its priority is the released code's 2^scale / (distance to the cube + half its
 // size), in pixels: how large its parent voxels look; slices outside the view frustum are discounted. A slice
 // never ranks above the slice that holds its parents, so the coarser levels always arrive first and the image
-// never has holes.
+// never has holes. The query walks the slice hierarchy from its root and stops where a slice is not
+// wanted: a child slice's cube lies inside its parent's and its parent voxels are half as wide, so they never
+// look larger than the parent's; a view update costs the wanted slices and their children, not the store.
 #pragma once
 
 #include <array>
@@ -13,6 +15,7 @@
 
 #include <glm/vec3.hpp>
 
+#include "svo/store/store_index.hpp"
 #include "svo/store/store_types.hpp"
 
 namespace svo {
@@ -35,8 +38,9 @@ struct SliceRequest {
   bool inFrustum = true;
 };
 
-// The wanted slices of `slices` (a store's directory) for the view, most valuable first. Ties go to the
-// coarser level, then to the directory order.
-std::vector<SliceRequest> scheduleSlices(const std::vector<SliceInfo>& slices, const ViewQuery& view);
+// The wanted slices of the store for the view, most valuable first. Ties go to the coarser level, then to
+// the directory order. `visited`, when given, counts the slices the walk looked at.
+std::vector<SliceRequest> scheduleSlices(const StoreIndex& index, const ViewQuery& view,
+                                         std::size_t* visited = nullptr);
 
 }  // namespace svo
