@@ -13,6 +13,8 @@
 #include <gtest/gtest.h>
 #include <glm/geometric.hpp>
 
+#include "svo/builder/build.hpp"
+
 namespace svotest {
 
 TempFile::TempFile(const std::string& stem, const std::string& extension)
@@ -36,6 +38,18 @@ std::filesystem::path TempDir::file(const std::string& name, const std::string& 
   const std::filesystem::path p = path_ / name;
   std::ofstream(p, std::ios::binary) << bytes;
   return p;
+}
+
+void writeSphereAndBoxStore(const std::filesystem::path& path, std::uint32_t sliceBytes) {
+  svo::Mesh mesh = makeSphere({0, 0, 0}, 1.0, 24, 24);
+  appendMesh(mesh, makeBox({-1.2, -1.2, -0.2}, {0.3, -0.9, 0.9}));
+  for (const glm::dvec3& p : mesh.positions)
+    mesh.colors.push_back(glm::vec4(0.5 + 0.4 * p.x, 0.5 + 0.4 * p.y, 0.5 - 0.4 * p.z, 1.0));
+  svo::BuildOptions options;
+  options.levels = 8;
+  svo::StoreWriteOptions write;
+  write.sliceBytes = sliceBytes;
+  svo::writeOctree(path, svo::buildOctree(mesh, options), write);
 }
 
 std::size_t differingVoxels(const svo::VoxelTree& a, const svo::VoxelTree& b) {

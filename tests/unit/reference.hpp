@@ -57,6 +57,11 @@ inline double srgbToLinearRef(double c) {
   return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
 }
 
+// A colored sphere and box at 8 levels with `sliceBytes` slices (4 KB: many regions, cubes that split at
+// once, regions whose cube voxel is the parent's deepest level, attributes inherited across blocks), written
+// to `path`. The pager, HTTP and server tests stream it.
+void writeSphereAndBoxStore(const std::filesystem::path& path, std::uint32_t sliceBytes = 4096);
+
 inline constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // ---------------------------------------------------------------------------------------------------------

@@ -31,18 +31,10 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// A sphere and a box at 8 levels in 4 KB slices (many slices, so a pager makes many requests);
-// `sliceBytes` changes the file without changing the scene.
+// The sphere and box store (many slices, so a pager makes many requests); `sliceBytes` changes the file
+// without changing the scene.
 fs::path writeStore(const fs::path& path, std::uint32_t sliceBytes = 4096) {
-  svo::Mesh mesh = svotest::makeSphere({0, 0, 0}, 1.0, 24, 24);
-  svotest::appendMesh(mesh, svotest::makeBox({-1.2, -1.2, -0.2}, {0.3, -0.9, 0.9}));
-  for (const glm::dvec3& p : mesh.positions)
-    mesh.colors.push_back(glm::vec4(0.5 + 0.4 * p.x, 0.5 + 0.4 * p.y, 0.5 - 0.4 * p.z, 1.0));
-  svo::BuildOptions options;
-  options.levels = 8;
-  svo::StoreWriteOptions write;
-  write.sliceBytes = sliceBytes;
-  svo::writeOctree(path, svo::buildOctree(mesh, options), write);
+  svotest::writeSphereAndBoxStore(path, sliceBytes);
   return path;
 }
 
@@ -189,13 +181,13 @@ TEST_F(Http, EveryByteRangeEqualsTheFile) {
   std::uniform_int_distribution<std::uint64_t> offsets(0, bytes.size() - 1);
   std::uniform_int_distribution<std::size_t> lengths(1, 70'000);
   for (int i = 0; i < 100; ++i) expectRead(offsets(rng), lengths(rng));
-  expectRead(0, bytes.size());          // the whole file
-  expectRead(bytes.size() - 1, 1);      // its last byte
-  expectRead(bytes.size() - 10, 100);   // across the end: the 10 there are
-  expectRead(bytes.size(), 16);         // at the end: nothing
-  expectRead(bytes.size() + 1000, 16);  // past it
-  expectRead(12345, 0);                 // nothing asked
-  expectRead(0, 256);                   // among the first bytes: no request
+  expectRead(0, bytes.size());                   // the whole file
+  expectRead(bytes.size() - 1, 1);               // its last byte
+  expectRead(bytes.size() - 10, 100);            // across the end: the 10 there are
+  expectRead(bytes.size(), 16);                  // at the end: nothing
+  expectRead(bytes.size() + 1000, 16);           // past it
+  expectRead(12345, 0);                          // nothing asked
+  expectRead(0, 256);                            // among the first bytes: no request
   expectRead(svo::kHttpPrefixBytes - 100, 200);  // across their end
   const svo::HttpStats sequential = source.stats();
   EXPECT_EQ(sequential.requests, requests);

@@ -30,20 +30,10 @@ namespace {
 
 using TempStore = svotest::TempFile;
 
-// A colored sphere and box at 8 levels with 4 KB slices: many regions, cubes that split at once, regions
-// whose cube voxel is the parent's deepest level (stubs) and attributes inherited across blocks.
 const TempStore& sphereStore() {
   static const TempStore f = [] {
     TempStore s("svo_pager", ".svo");
-    svo::Mesh mesh = svotest::makeSphere({0, 0, 0}, 1.0, 24, 24);
-    svotest::appendMesh(mesh, svotest::makeBox({-1.2, -1.2, -0.2}, {0.3, -0.9, 0.9}));
-    for (const glm::dvec3& p : mesh.positions)
-      mesh.colors.push_back(glm::vec4(0.5 + 0.4 * p.x, 0.5 + 0.4 * p.y, 0.5 - 0.4 * p.z, 1.0));
-    svo::BuildOptions options;
-    options.levels = 8;
-    svo::StoreWriteOptions write;
-    write.sliceBytes = 4096;
-    svo::writeOctree(s.path, svo::buildOctree(mesh, options), write);
+    svotest::writeSphereAndBoxStore(s.path);
     return s;
   }();
   return f;
@@ -126,9 +116,8 @@ void expectSameAsReference(svo::Pager& pager, const svo::Camera& camera, float l
   options.lodPixels = lodPixels;
   options.threads = 1;
   const svo::Frame paged = svo::render(pager.trunk(), pager.transform(), camera, options);
-  const svo::Block block =
-      svo::layoutBlock(truncatedTree(reference ? *reference : svo::StoreReader(pager.index().name()),
-                                     pager.residentSlices()));
+  const svo::Block block = svo::layoutBlock(
+      truncatedTree(reference ? *reference : svo::StoreReader(pager.index().name()), pager.residentSlices()));
   const svo::Frame whole = svo::render(block.view(), pager.transform(), camera, options);
   std::size_t differing = 0, hits = 0;
   for (std::size_t i = 0; i < paged.color.size(); ++i) {
