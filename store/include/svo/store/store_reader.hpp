@@ -24,7 +24,10 @@ namespace svo {
 // Slice `slice`'s compressed bytes into `compressed` (resized; its capacity is reused).
 void fetchSlice(const ByteSource& source, const StoreIndex& index, std::uint32_t slice,
                 SliceBytes& compressed);
-// Slice `slice`'s decoded bytes from its compressed bytes, after its checksum and size checks.
+// Checks slice `slice`'s compressed bytes against the directory (size, checksum) without decompressing
+// them: what a server verifies before it sends stored bytes on, and unpackSlice's first step.
+void checkSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
+// Slice `slice`'s decoded bytes from its compressed bytes, after checkSlice and the frame's size check.
 SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
 // Decodes slice `slice` (its bytes from unpackSlice) onto its parents: the voxels of the level above in its
 // cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
