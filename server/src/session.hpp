@@ -1,5 +1,5 @@
 // One client connection: reads requests with Beast under a deadline and writes each answer before reading
-// the next (HTTP/1.1 keep-alive), all on the connection's own strand.
+// the next (HTTP/1.1 keep-alive), all on the one thread that runs the connection's I/O context.
 #pragma once
 
 #include <chrono>
