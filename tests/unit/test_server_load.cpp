@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cstdlib>
 #include <filesystem>
 #include <random>
 #include <regex>
@@ -281,6 +282,24 @@ TEST(ServeCommand, RefusesAFolderWithoutStores) {
   EXPECT_EQ(exitStatus(child.pid), 1);
   ::close(child.out);
   fs::remove_all(empty);
+}
+
+TEST(ServeCommand, BenchServeMeasuresBothPeers) {
+  if (std::system("command -v wrk >/dev/null && command -v nginx >/dev/null") != 0)
+    GTEST_SKIP() << "wrk or nginx is not installed (tools/scripts/install-deps.sh installs them)";
+  const fs::path out = fs::temp_directory_path() / ("svo_bench_serve_" + std::to_string(::getpid()) + ".txt");
+  const std::string command = std::string(SVO_BINARY) + " bench serve " +
+                              (servedStores().root / "sphere.svo").string() +
+                              " --seconds 1 --runs 1 --connections 8 --threads 1 >" + out.string() + " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << slurp(out);
+  const std::string text = slurp(out);
+  fs::remove(out);
+  // Both peers served every request: some requests each, and no error on either side.
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(text, m, std::regex(R"(requests/s +([0-9,]+) +([0-9,]+) +[0-9.]+)"))) << text;
+  EXPECT_NE(m[1].str(), "0") << text;
+  EXPECT_NE(m[2].str(), "0") << text;
+  EXPECT_TRUE(std::regex_search(text, std::regex(R"(errors \(status >= 400, socket\) +0 +0)"))) << text;
 }
 
 }  // namespace
