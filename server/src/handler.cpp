@@ -73,20 +73,27 @@ std::optional<Answer> deny(const Request& request, Context& context, const Scene
 // `full`, a representation with entity tag `etag`, as the request asks for it: 304 when If-None-Match
 // matches, 206 for one satisfiable range (unless If-Range names another version), 416 for an
 // unsatisfiable one, else 200.
+void describe(Response& res, const std::string& etag, std::string_view cacheControl) {
+  res.set(http::field::etag, etag);
+  res.set(http::field::cache_control, cacheControl);
+  res.set(http::field::accept_ranges, "bytes");
+}
+
+// The 304 answer when If-None-Match matches `etag`.
+std::optional<Answer> notModified(const Request& request, std::string_view route, const std::string& etag,
+                                  std::string_view cacheControl) {
+  const auto inm = request[http::field::if_none_match];
+  if (inm.empty() || !ifNoneMatchMatches(inm, etag)) return std::nullopt;
+  Response res{http::status::not_modified, request.version()};
+  res.set(http::field::server, kServerName);
+  res.keep_alive(request.keep_alive());
+  describe(res, etag, cacheControl);
+  return Answer{std::move(res), route};
+}
+
 Answer represent(const Request& request, std::string_view route, std::string_view contentType,
                  const Payload& full, const std::string& etag, std::string_view cacheControl) {
-  const auto decorate = [&](Response& res) {
-    res.set(http::field::etag, etag);
-    res.set(http::field::cache_control, cacheControl);
-    res.set(http::field::accept_ranges, "bytes");
-  };
-  if (const auto inm = request[http::field::if_none_match]; !inm.empty() && ifNoneMatchMatches(inm, etag)) {
-    Response res{http::status::not_modified, request.version()};
-    res.set(http::field::server, kServerName);
-    res.keep_alive(request.keep_alive());
-    decorate(res);
-    return {std::move(res), route};
-  }
+  if (auto unchanged = notModified(request, route, etag, cacheControl)) return std::move(*unchanged);
   RangeRequest range;
   const auto rangeField = request[http::field::range];
   const auto ifRange = request[http::field::if_range];
@@ -110,7 +117,7 @@ Answer represent(const Request& request, std::string_view route, std::string_vie
       a.response.set(http::field::content_range, fmt::format("bytes */{}", full.length));
       break;
   }
-  decorate(a.response);
+  describe(a.response, etag, cacheControl);
   return a;
 }
 
@@ -155,6 +162,13 @@ nlohmann::json info(const Scene& scene) {
             {"contours", h.parameters.contours}}}};
 }
 
+// A store's error as clients see it: named by the scene rather than by its path on the server.
+std::string publicMessage(const std::string& what, const Scene& scene) {
+  const std::string prefix = scene.index->name() + ": ";
+  return what.rfind(prefix, 0) == 0 ? scene.name + ": " + what.substr(prefix.size())
+                                    : scene.name + ": " + what;
+}
+
 Answer scenes(const Request& request, Context& context) {
   nlohmann::json list = nlohmann::json::array();
   for (const std::string& name : context.catalog.names()) {
@@ -167,7 +181,8 @@ Answer scenes(const Request& request, Context& context) {
         entry["protected"] = scene->token.has_value();
       }
     } catch (const std::exception& e) {
-      entry["error"] = e.what();
+      context.log.error(e.what());
+      entry["error"] = "does not open (the server's log says why)";
     }
     list.push_back(std::move(entry));
   }
@@ -181,22 +196,23 @@ Answer slice(const Request& request, Context& context, const Scene& scene, const
   if (*id >= count)
     return line(request, http::status::not_found, "slice",
                 fmt::format("{} has no slice {} (it has {})", scene.name, *id, count));
+  // The client holding this version needs no byte of it: answered before the slice is read.
+  const std::string etag = fmt::format("\"{:016x}\"", scene.index->slices()[*id].checksum);
+  if (auto unchanged = notModified(request, "slice", etag, kImmutable)) return std::move(*unchanged);
   SliceCache::Result cached;
   try {
     cached = context.cache.get(scene, *id);
   } catch (const SliceError& e) {
     context.metrics.countCorruptSlice();
     context.log.error(e.what());
-    return line(request, http::status::internal_server_error, "slice", e.what());
+    return line(request, http::status::internal_server_error, "slice", publicMessage(e.what(), scene));
   }
   if (cached.hit)
     context.metrics.countCacheHit();
   else
     context.metrics.countCacheMiss();
-  const SliceInfo& info = scene.index->slices()[*id];
   const Payload bytes{cached.bytes, cached.bytes->data(), nullptr, 0, cached.bytes->size()};
-  Answer a =
-      represent(request, "slice", kBinary, bytes, fmt::format("\"{:016x}\"", info.checksum), kImmutable);
+  Answer a = represent(request, "slice", kBinary, bytes, etag, kImmutable);
   a.slice = true;
   return a;
 }
@@ -215,7 +231,8 @@ Answer sceneRoute(const Request& request, Context& context, const TargetPath& pa
   } catch (const std::exception& e) {
     if (auto denied = deny(request, context, nullptr, "scene")) return std::move(*denied);
     context.log.error(e.what());
-    return line(request, http::status::internal_server_error, "scene", e.what());
+    return line(request, http::status::internal_server_error, "scene",
+                "a store of this name does not open (the server's log says why)");
   }
   if (auto denied = deny(request, context, scene.get(), "scene")) return std::move(*denied);
   if (!scene) return line(request, http::status::not_found, "scene", "no scene " + route.scene);

@@ -25,6 +25,10 @@ class Metrics {
   void countCacheHit() { cacheHits_.Increment(); }
   void countCacheMiss() { cacheMisses_.Increment(); }
   void countCorruptSlice() { corruptSlices_.Increment(); }
+  // The view-driven stream route's counters.
+  void countStream() { streams_.Increment(); }
+  void countViewUpdate() { viewUpdates_.Increment(); }
+  void countSupersededSlices(std::uint64_t n) { supersededSlices_.Increment(double(n)); }
   void connectionOpened() { connections_.Increment(); }
   void connectionClosed() { connections_.Decrement(); }
   // The text exposition of every metric, with the cache's fill as of now.

@@ -27,7 +27,7 @@ constexpr std::chrono::seconds kWriteIdleTimeout{30};
 // destroy the refusal before the client reads it (nginx's lingering close does the same).
 constexpr std::chrono::seconds kLingerTimeout{2};
 constexpr std::uint64_t kLingerBytes = 1 << 20;
-constexpr std::size_t kLingerReadBytes = 16 * 1024;
+constexpr std::size_t kLingerReadBytes = 16 * 1024;  // dropped per read while lingering
 
 std::string peerOf(const net::ip::tcp::socket& socket) {
   beast::error_code ec;

@@ -350,11 +350,19 @@ TEST(Server, CorruptSliceAnswers500NamingIt) {
   for (int attempt = 0; attempt < 2; ++attempt) {  // never cached: the second read fails the same way
     const HttpReply bad = httpGet(r.port, target);
     EXPECT_EQ(bad.status, 500u);
-    EXPECT_NE(bad.body.find("corrupt.svo"), std::string::npos) << bad.body;
-    EXPECT_NE(bad.body.find("slice " + std::to_string(stores.corruptSlice)), std::string::npos) << bad.body;
+    // Named by scene and slice, not by the server's path to the file.
+    EXPECT_EQ(bad.body.rfind("corrupt: slice " + std::to_string(stores.corruptSlice) + " (", 0), 0u)
+        << bad.body;
     EXPECT_NE(bad.body.find("checksum mismatch"), std::string::npos) << bad.body;
+    EXPECT_EQ(bad.body.find(stores.root.string()), std::string::npos) << bad.body;
   }
-  EXPECT_TRUE(r.log->contains("slice " + std::to_string(stores.corruptSlice)));
+  EXPECT_TRUE(r.log->contains("corrupt.svo: slice " + std::to_string(stores.corruptSlice)));
+  // A client holding the slice's version is told so without the slice being read.
+  char etag[32];
+  std::snprintf(etag, sizeof etag, "\"%016llx\"",
+                static_cast<unsigned long long>(
+                    svo::StoreReader(stores.root / "corrupt.svo").slices()[stores.corruptSlice].checksum));
+  EXPECT_EQ(httpGet(r.port, target, {{"If-None-Match", etag}}).status, 304u);
   const std::string file = slurp(stores.root / "corrupt.svo");
   const svo::StoreReader reader(stores.root / "corrupt.svo");
   for (std::uint32_t id = 0; id < 5; ++id) {

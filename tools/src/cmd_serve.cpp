@@ -46,8 +46,9 @@ void addServeCommand(CLI::App& app) {
     options.logRequests = !args->quiet;
     server::Server server(options);  // a missing or empty folder throws: one line, exit 1
     server.serveUntilSignal([&](const server::Server& s) {
-      std::printf("svo serve: %s/ (%zu stores under %s; SIGINT or SIGTERM stops)\n", s.url().c_str(),
-                  s.storeCount(), args->folder.c_str());
+      const std::size_t stores = s.storeCount();
+      std::printf("svo serve: %s/ (%zu store%s under %s; SIGINT or SIGTERM stops)\n", s.url().c_str(), stores,
+                  stores == 1 ? "" : "s", args->folder.c_str());
       std::fflush(stdout);
     });
   });
