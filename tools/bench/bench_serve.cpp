@@ -1,9 +1,10 @@
 // `svo bench serve STORE`: raw slice GETs on loopback, `svo serve` against nginx serving the same file by
 // byte ranges, measured in the same run with wrk (64 keep-alive connections by default). Each peer runs as
 // its own process from a scratch folder holding the store; wrk cycles through every slice (GET
-// /NAME/slices/ID for svo serve; GET /NAME.svo with Range: bytes=OFFSET-END for nginx: the same bytes).
-// Runs alternate between the peers after one warm-up each; medians of requests/s, MB/s, p50 and p99
-// latency (wrk's), and each peer's peak resident set (svo serve's process; nginx's master and workers).
+// /NAME/slices/ID for svo serve; GET /NAME.svo with Range: bytes=OFFSET-END for nginx: the same bytes),
+// then fetches the whole store (GET /NAME.svo from both). Runs alternate between the peers and the two
+// loads after one warm-up each; medians of requests/s, MB/s, p50 and p99 latency (wrk's), and each peer's
+// resident set when listening and at its peak (svo serve's process; nginx's master and workers).
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <signal.h>
@@ -308,30 +309,27 @@ std::string urlSegment(const std::string& name) {
 struct Peer {
   std::unique_ptr<Child> process;
   std::uint16_t port = 0;
-  fs::path script;
-  std::vector<Load> runs;
   std::uint64_t startResident = 0, peakResident = 0;
 };
 
-void printResults(const ServeArgs& args, const StoreReader& reader, int threads, const Peer& svo,
-                  const Peer& nginx) {
-  std::uint64_t compressed = 0;
-  for (const SliceInfo& s : reader.slices()) compressed += s.compressedBytes;
-  printTitle(fmt::format("Slice GETs on loopback: {} ({} slices, mean {:.1f} KB compressed)", args.store,
-                         formatCount(reader.slices().size()),
-                         double(compressed) / double(reader.slices().size()) / 1e3));
-  std::printf(
-      "%d keep-alive connections, wrk %d threads; %d svo serve threads / nginx workers; median of %d "
-      "runs of %g s after a warm-up\n\n",
-      args.connections, args.wrkThreads, threads, args.runs, args.seconds);
-  const auto median = [](const Peer& p, double Load::*field) {
-    std::vector<double> v;
-    for (const Load& l : p.runs) v.push_back(l.*field);
-    return summarize(v).median;
-  };
-  Table table({"", "svo serve", "nginx (byte ranges)", "svo / nginx"});
+// One kind of request, measured on both peers: the wrk script of each and their runs.
+struct Workload {
+  std::string title, nginxColumn;
+  fs::path scripts[2];  // svo serve's, nginx's
+  std::vector<Load> runs[2];
+};
+
+double median(const std::vector<Load>& runs, double Load::*field) {
+  std::vector<double> v;
+  for (const Load& l : runs) v.push_back(l.*field);
+  return summarize(v).median;
+}
+
+void printWorkload(const Workload& w) {
+  printTitle(w.title);
+  Table table({"", "svo serve", w.nginxColumn, "svo / nginx"});
   const auto row = [&](const std::string& what, double Load::*field, auto format) {
-    const double a = median(svo, field), b = median(nginx, field);
+    const double a = median(w.runs[0], field), b = median(w.runs[1], field);
     table.addRow({what, format(a), format(b), ratio(a, b)});
   };
   row("requests/s", &Load::requestsPerSecond, [](double v) { return formatCount(std::uint64_t(v)); });
@@ -339,22 +337,60 @@ void printResults(const ServeArgs& args, const StoreReader& reader, int threads,
       [](double v) { return fmt::format("{:.0f}", v); });
   row("p50 latency", &Load::p50Seconds, micros);
   row("p99 latency", &Load::p99Seconds, micros);
-  table.addRow({"RSS when listening (nginx: master + workers)", formatBytes(svo.startResident),
-                formatBytes(nginx.startResident),
-                ratio(double(svo.startResident), double(nginx.startResident))});
-  table.addRow({"peak RSS (nginx: master + workers)", formatBytes(svo.peakResident),
-                formatBytes(nginx.peakResident),
-                ratio(double(svo.peakResident), double(nginx.peakResident))});
-  std::uint64_t errorsA = 0, errorsB = 0;
-  for (const Load& l : svo.runs) errorsA += l.errors;
-  for (const Load& l : nginx.runs) errorsB += l.errors;
-  table.addRow({"errors (status >= 400, socket)", formatCount(errorsA), formatCount(errorsB), ""});
+  std::uint64_t errors[2] = {0, 0};
+  for (int p = 0; p < 2; ++p)
+    for (const Load& l : w.runs[p]) errors[p] += l.errors;
+  table.addRow({"errors (status >= 400, socket)", formatCount(errors[0]), formatCount(errors[1]), ""});
   table.print();
+}
+
+void printResults(const ServeArgs& args, const StoreReader& reader, int threads,
+                  const std::vector<Workload>& workloads, const Peer& svo, const Peer& nginx) {
+  std::uint64_t compressed = 0;
+  for (const SliceInfo& s : reader.slices()) compressed += s.compressedBytes;
+  std::printf("%s: %s, %s slices (mean %.1f KB compressed)\n", args.store.c_str(),
+              formatBytes(reader.header().fileBytes).c_str(), formatCount(reader.slices().size()).c_str(),
+              double(compressed) / double(reader.slices().size()) / 1e3);
   std::printf(
-      "\nsvo serve sends slices from its cache (checked once against their checksums); nginx sends them\n"
-      "from the page cache with sendfile. svo serve's resident set starts with the whole svo binary's\n"
-      "libraries. Ratios above 1: svo serve higher (better for requests/s and MB/s, worse for latency\n"
-      "and memory).\n");
+      "loopback, %d keep-alive connections, wrk %d threads; %d svo serve threads / nginx workers; "
+      "median of %d runs of %g s after a warm-up\n",
+      args.connections, args.wrkThreads, threads, args.runs, args.seconds);
+  for (const Workload& w : workloads) printWorkload(w);
+  printTitle("Memory (nginx: master + workers)");
+  Table memory({"", "svo serve", "nginx", "svo / nginx"});
+  memory.addRow({"RSS when listening", formatBytes(svo.startResident), formatBytes(nginx.startResident),
+                 ratio(double(svo.startResident), double(nginx.startResident))});
+  memory.addRow({"peak RSS", formatBytes(svo.peakResident), formatBytes(nginx.peakResident),
+                 ratio(double(svo.peakResident), double(nginx.peakResident))});
+  memory.print();
+  std::printf(
+      "\nsvo serve sends slices from its cache (checked once against their checksums) and whole files by\n"
+      "pread in 256 KiB chunks; nginx sends from the page cache with sendfile. svo serve's resident set\n"
+      "starts with the whole svo binary's libraries. Ratios above 1: svo serve higher (better for\n"
+      "requests/s and MB/s, worse for latency and memory).\n");
+}
+
+// The peer `which` (0: svo serve, 1: nginx) started over `root`, listening.
+Peer startPeer(int which, const ServeArgs& args, const fs::path& scratch, const fs::path& root, int threads) {
+  Peer p;
+  p.port = freePort();
+  if (which == 0) {
+    p.process = std::make_unique<Child>(
+        std::vector<std::string>{fs::read_symlink("/proc/self/exe").string(), "serve", root.string(),
+                                 "--port", std::to_string(p.port), "--threads", std::to_string(threads),
+                                 "--no-request-log"},
+        scratch / "svo-serve.log");
+  } else {
+    const fs::path config = scratch / "nginx.conf";
+    std::ofstream(config) << nginxConfig(scratch, root, p.port, threads);
+    p.process = std::make_unique<Child>(
+        std::vector<std::string>{args.nginx, "-c", config.string(), "-p", scratch.string() + "/", "-e",
+                                 (scratch / "nginx-start.log").string()},
+        scratch / "nginx.log");
+  }
+  waitUntilListening(*p.process, p.port, which == 0 ? "svo serve" : "nginx");
+  p.startResident = residentBytes(p.process->pid(), "VmRSS");
+  return p;
 }
 
 void runServeBench(const ServeArgs& args) {
@@ -374,51 +410,44 @@ void runServeBench(const ServeArgs& args) {
   const std::vector<SliceInfo>& slices = reader.slices();
   const std::size_t count = std::min(slices.size(), kMaxTargets);
   std::vector<Target> bySlice, byRange;
+  const std::string file = "/" + urlSegment(name + ".svo");
   for (std::size_t k = 0; k < count; ++k) {
     const std::size_t id = k * slices.size() / count;
     const SliceInfo& s = slices[id];
     bySlice.push_back({fmt::format("/{}/slices/{}", urlSegment(name), id), ""});
-    byRange.push_back({"/" + urlSegment(name + ".svo"),
-                       fmt::format("bytes={}-{}", s.offset, s.offset + s.compressedBytes - 1)});
+    byRange.push_back({file, fmt::format("bytes={}-{}", s.offset, s.offset + s.compressedBytes - 1)});
   }
-  Peer svo, nginx;
-  svo.script = scratch.path / "slices.lua";
-  nginx.script = scratch.path / "ranges.lua";
-  std::ofstream(svo.script) << wrkScript(bySlice);
-  std::ofstream(nginx.script) << wrkScript(byRange);
+  std::vector<Workload> workloads(2);
+  workloads[0].title = "Slice GETs (every slice in turn)";
+  workloads[0].nginxColumn = "nginx (byte ranges)";
+  workloads[0].scripts[0] = scratch.path / "slices.lua";
+  workloads[0].scripts[1] = scratch.path / "ranges.lua";
+  std::ofstream(workloads[0].scripts[0]) << wrkScript(bySlice);
+  std::ofstream(workloads[0].scripts[1]) << wrkScript(byRange);
+  workloads[1].title = "Whole-store GETs";
+  workloads[1].nginxColumn = "nginx";
+  workloads[1].scripts[0] = workloads[1].scripts[1] = scratch.path / "file.lua";
+  std::ofstream(workloads[1].scripts[0]) << wrkScript({{file, ""}});
 
-  svo.port = freePort();
-  svo.process = std::make_unique<Child>(
-      std::vector<std::string>{fs::read_symlink("/proc/self/exe").string(), "serve", root.string(), "--port",
-                               std::to_string(svo.port), "--threads", std::to_string(threads),
-                               "--no-request-log"},
-      scratch.path / "svo-serve.log");
-  waitUntilListening(*svo.process, svo.port, "svo serve");
-  nginx.port = freePort();
-  const fs::path config = scratch.path / "nginx.conf";
-  std::ofstream(config) << nginxConfig(scratch.path, root, nginx.port, threads);
-  nginx.process = std::make_unique<Child>(
-      std::vector<std::string>{args.nginx, "-c", config.string(), "-p", scratch.path.string() + "/", "-e",
-                               (scratch.path / "nginx-start.log").string()},
-      scratch.path / "nginx.log");
-  waitUntilListening(*nginx.process, nginx.port, "nginx");
-
-  for (Peer* p : {&svo, &nginx}) {
-    p->startResident = residentBytes(p->process->pid(), "VmRSS");
-    runWrk(args, p->port, p->script, kWarmupSeconds);
-  }
+  Peer peers[2] = {startPeer(0, args, scratch.path, root, threads),
+                   startPeer(1, args, scratch.path, root, threads)};
+  for (Workload& w : workloads)
+    for (int p = 0; p < 2; ++p) runWrk(args, peers[p].port, w.scripts[p], kWarmupSeconds);
   for (int run = 0; run < args.runs; ++run)
-    for (Peer* p : {&svo, &nginx}) p->runs.push_back(runWrk(args, p->port, p->script, args.seconds));
-  for (Peer* p : {&svo, &nginx}) p->peakResident = residentBytes(p->process->pid(), "VmHWM");
-  printResults(args, reader, threads, svo, nginx);
+    for (Workload& w : workloads)
+      for (int p = 0; p < 2; ++p)
+        w.runs[p].push_back(runWrk(args, peers[p].port, w.scripts[p], args.seconds));
+  for (Peer& p : peers) p.peakResident = residentBytes(p.process->pid(), "VmHWM");
+  printResults(args, reader, threads, workloads, peers[0], peers[1]);
 }
 
 }  // namespace
 
 void addServeBench(CLI::App& bench) {
   auto args = std::make_shared<ServeArgs>();
-  CLI::App* cmd = bench.add_subcommand(
-      "serve", "slice GETs from `svo serve` vs nginx serving the same file by byte ranges (wrk, loopback)");
+  CLI::App* cmd = bench.add_subcommand("serve",
+                                       "slice and whole-store GETs from `svo serve` vs nginx serving the "
+                                       "same file by byte ranges (wrk, loopback)");
   cmd->add_option("store", args->store, "a .svo store")->required()->check(CLI::ExistingFile);
   cmd->add_option("--connections", args->connections, "concurrent keep-alive connections")
       ->check(CLI::Range(1, 10000))
