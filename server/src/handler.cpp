@@ -53,8 +53,9 @@ std::optional<Answer> deny(const Request& request, Context& context, const Scene
   std::string_view required = context.options.token;
   if (scene && scene->token) {
     if (scene->token->empty()) {
-      context.log.error(scene->name + ": its token file is empty; the scene is refused to every client");
-      return line(request, http::status::forbidden, route, scene->name + ": access refused");
+      Answer a = line(request, http::status::forbidden, route, scene->name + ": access refused");
+      a.failure = scene->name + ": its token file is empty; the scene is refused to every client";
+      return a;
     }
     required = *scene->token;
   }
@@ -171,6 +172,7 @@ std::string publicMessage(const std::string& what, const Scene& scene) {
 
 Answer scenes(const Request& request, Context& context) {
   nlohmann::json list = nlohmann::json::array();
+  std::string failures;
   for (const std::string& name : context.catalog.names()) {
     nlohmann::json entry = {{"name", name}};
     try {
@@ -181,12 +183,14 @@ Answer scenes(const Request& request, Context& context) {
         entry["protected"] = scene->token.has_value();
       }
     } catch (const std::exception& e) {
-      context.log.error(e.what());
+      failures += (failures.empty() ? "" : "; ") + std::string(e.what());
       entry["error"] = "does not open (the server's log says why)";
     }
     list.push_back(std::move(entry));
   }
-  return {respond(&request, http::status::ok, kJson, memory(list.dump() + "\n")), "scenes"};
+  Answer a{respond(&request, http::status::ok, kJson, memory(list.dump() + "\n")), "scenes"};
+  a.failure = std::move(failures);
+  return a;
 }
 
 Answer slice(const Request& request, Context& context, const Scene& scene, const std::string& idText) {
@@ -204,8 +208,9 @@ Answer slice(const Request& request, Context& context, const Scene& scene, const
     cached = context.cache.get(scene, *id);
   } catch (const SliceError& e) {
     context.metrics.countCorruptSlice();
-    context.log.error(e.what());
-    return line(request, http::status::internal_server_error, "slice", publicMessage(e.what(), scene));
+    Answer a = line(request, http::status::internal_server_error, "slice", publicMessage(e.what(), scene));
+    a.failure = e.what();
+    return a;
   }
   if (cached.hit)
     context.metrics.countCacheHit();
@@ -230,9 +235,10 @@ Answer sceneRoute(const Request& request, Context& context, const TargetPath& pa
       }
   } catch (const std::exception& e) {
     if (auto denied = deny(request, context, nullptr, "scene")) return std::move(*denied);
-    context.log.error(e.what());
-    return line(request, http::status::internal_server_error, "scene",
-                "a store of this name does not open (the server's log says why)");
+    Answer a = line(request, http::status::internal_server_error, "scene",
+                    "a store of this name does not open (the server's log says why)");
+    a.failure = e.what();
+    return a;
   }
   if (auto denied = deny(request, context, scene.get(), "scene")) return std::move(*denied);
   if (!scene) return line(request, http::status::not_found, "scene", "no scene " + route.scene);
@@ -289,16 +295,17 @@ Answer handle(const Request& request, Context& context) {
   try {
     return route(request, context);
   } catch (const std::exception& e) {
-    context.log.error(fmt::format("{} {}: {}", std::string_view(request.method_string()),
-                                  std::string_view(request.target()), e.what()));
     Answer a = line(request, http::status::internal_server_error, "other", "internal error");
     a.response.keep_alive(false);
+    a.failure = e.what();
     return a;
   }
 }
 
 Answer refuse(http::status status, std::string_view reason) {
-  return {respond(nullptr, status, kText, memory(std::string(reason) + "\n")), "other"};
+  Answer a{respond(nullptr, status, kText, memory(std::string(reason) + "\n")), "other"};
+  a.failure = "refused: " + std::string(reason);
+  return a;
 }
 
 }  // namespace svo::server

@@ -41,9 +41,10 @@ struct Answer {
   Response response;
   std::string_view route = "other";  // the metrics' route label
   bool slice = false;                // a slice's bytes: counted as sent once written
+  std::string failure = {};          // what went wrong, for the request's log line (logged as an error)
 };
 
-// The answer to `request`. Never throws: a failure answers 500 and is logged.
+// The answer to `request`. Never throws: a failure answers 500 and says why in Answer::failure.
 Answer handle(const Request& request, Context& context);
 // The answer to a request Beast could not read (malformed, too large): `status` with one line, closing.
 Answer refuse(http::status status, std::string_view reason);

@@ -64,16 +64,18 @@ Log::Log(LogFormat format, bool requests, std::function<void(std::string_view)> 
 Log::~Log() = default;
 
 void Log::request(const RequestRecord& r) {
-  if (!requests_) return;
+  const bool failed = !r.failure.empty();
+  if (!failed && !requests_) return;
+  const spdlog::level::level_enum level = failed ? spdlog::level::err : spdlog::level::info;
   if (format_ == LogFormat::Json) {
     nlohmann::json j = {{"method", r.method}, {"target", r.target},   {"status", r.status},
                         {"bytes", r.bytes},   {"us", r.microseconds}, {"peer", r.peer}};
-    if (!r.error.empty()) j["cut"] = r.error;
-    logger_->info("{}", members(j));
+    if (failed) j["failure"] = r.failure;
+    logger_->log(level, "{}", members(j));
     return;
   }
-  logger_->info("{} {} {} {}B {}us {}{}{}", r.method, r.target, r.status, r.bytes, r.microseconds, r.peer,
-                r.error.empty() ? "" : " cut: ", r.error);
+  logger_->log(level, "{} {} {} {}B {}us {}{}{}", r.method, r.target, r.status, r.bytes, r.microseconds,
+               r.peer, failed ? ": " : "", r.failure);
 }
 
 void Log::info(std::string_view what) {

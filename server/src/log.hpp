@@ -19,12 +19,13 @@ struct RequestRecord {
   unsigned status = 0;
   std::uint64_t bytes = 0;  // written, head and body
   std::int64_t microseconds = 0;
-  std::string_view error;  // why the response was cut short (the client went away), or empty
+  std::string_view failure;  // what went wrong (a refusal, a corrupt slice, a client gone), or empty
 };
 
 class Log {
  public:
-  // Lines go to `sink` when given, else to stderr. `requests` false leaves out the per-request lines.
+  // Lines go to `sink` when given, else to stderr. `requests` false leaves out the lines of requests that
+  // went well; a request's failure is always one line, at error level.
   Log(LogFormat format, bool requests, std::function<void(std::string_view)> sink);
   ~Log();
   void request(const RequestRecord& r);

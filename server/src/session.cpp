@@ -131,7 +131,6 @@ void Session::refuse(beast::error_code ec) {
     status = http::status::request_header_fields_too_large;
   else if (ec == http::error::body_limit)
     status = http::status::payload_too_large;
-  context_.log.error(fmt::format("{}: refused a request: {}", peer_, ec.message()));
   method_.clear();
   target_.clear();
   if (parser_->is_header_done()) target_ = parser_->get().target();
@@ -196,9 +195,10 @@ void Session::account(beast::error_code ec) {
   // A refused request may have no method or target to name.
   const std::string_view method = method_.empty() ? std::string_view("-") : std::string_view(method_);
   const std::string_view target = target_.empty() ? std::string_view("-") : std::string_view(target_);
+  std::string failure = answer_.failure;
+  if (ec) failure += (failure.empty() ? "cut: " : "; cut: ") + ec.message();
   context_.log.request({method, target, peer_, status, written_,
-                        std::chrono::duration_cast<std::chrono::microseconds>(elapsed).count(),
-                        ec ? ec.message() : ""});
+                        std::chrono::duration_cast<std::chrono::microseconds>(elapsed).count(), failure});
 }
 
 void Session::close() {

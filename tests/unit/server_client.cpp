@@ -111,4 +111,12 @@ unsigned statusOf(const std::string& raw) {
   return unsigned(std::stoul(raw.substr(9, 3)));
 }
 
+unsigned rawStatus(std::uint16_t port, const std::string& request) {
+  const int fd = connectRaw(port);
+  sendRaw(fd, request);
+  const std::string raw = receiveAll(fd);
+  ::close(fd);
+  return statusOf(raw);
+}
+
 }  // namespace svotest

@@ -50,5 +50,7 @@ bool sendRaw(int fd, const std::string& bytes);
 std::string receiveAll(int fd);
 // The status of the first response in `raw` ("HTTP/1.1 400 ..."), 0 when there is none.
 unsigned statusOf(const std::string& raw);
+// The status the server answers to `request` sent raw on a fresh connection, read to its end.
+unsigned rawStatus(std::uint16_t port, const std::string& request);
 
 }  // namespace svotest

@@ -95,7 +95,13 @@ TEST(ServerLoad, ConcurrentClientsGetTheStoredBytes) {
     });
   for (std::thread& t : threads) t.join();
   EXPECT_EQ(wrong, 0);
-  const std::string metrics = httpGet(r.port, "/metrics").body;
+  // A response is counted once written, which the client may see before the server does: the last ones
+  // are waited for.
+  std::string metrics = httpGet(r.port, "/metrics").body;
+  for (int i = 0; i < 200 && metric(metrics, "svo_slices_sent_total") != double(sliceRequests); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    metrics = httpGet(r.port, "/metrics").body;
+  }
   EXPECT_EQ(metric(metrics, "svo_slice_cache_hits_total") + metric(metrics, "svo_slice_cache_misses_total"),
             double(sliceRequests));
   EXPECT_EQ(metric(metrics, "svo_slices_sent_total"), double(sliceRequests));
@@ -105,13 +111,13 @@ TEST(ServerLoad, ConcurrentClientsGetTheStoredBytes) {
 TEST(ServerLoad, MetricsCountWhatWasServed) {
   RunningServer r = svotest::startServer();
   const svo::SliceInfo s = svo::StoreReader(servedStores().root / "sphere.svo").slices()[0];
-  {
-    svotest::HttpClient client(r.port);
-    for (int i = 0; i < 3; ++i) EXPECT_EQ(client.get("/sphere/slices/0").status, 200u);
-    EXPECT_EQ(client.get("/nosuch").status, 404u);
-    EXPECT_EQ(client.request("HEAD", "/sphere/slices/0").status, 200u);
-  }
-  const HttpReply reply = httpGet(r.port, "/metrics");
+  // One connection: the server counts a response once written, before it reads the connection's next
+  // request, so /metrics on it sees every request before it.
+  svotest::HttpClient client(r.port);
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(client.get("/sphere/slices/0").status, 200u);
+  EXPECT_EQ(client.get("/nosuch").status, 404u);
+  EXPECT_EQ(client.request("HEAD", "/sphere/slices/0").status, 200u);
+  const HttpReply reply = client.get("/metrics");
   EXPECT_EQ(reply.header("content-type"), "text/plain; version=0.0.4; charset=utf-8");
   const std::string& m = reply.body;
   EXPECT_EQ(metric(m, "svo_slice_cache_misses_total"), 1);
@@ -125,6 +131,21 @@ TEST(ServerLoad, MetricsCountWhatWasServed) {
   EXPECT_GE(metric(m, "svo_http_sent_bytes_total"), 3.0 * s.compressedBytes);
   EXPECT_EQ(metric(m, "svo_http_open_connections"), 1);  // this one
   EXPECT_EQ(metric(m, "svo_stream_sessions_total"), 0);
+  {
+    std::vector<std::unique_ptr<svotest::HttpClient>> more;
+    for (int i = 0; i < 3; ++i) {
+      more.push_back(std::make_unique<svotest::HttpClient>(r.port));
+      EXPECT_EQ(more.back()->get("/healthz").status, 200u);  // accepted and served: counted as open
+    }
+    EXPECT_EQ(metric(client.get("/metrics").body, "svo_http_open_connections"), 4);
+  }
+  // Closed by the clients; the server notices each as it reads the end of its stream.
+  double open = 4;
+  for (int i = 0; i < 200 && open != 1; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    open = metric(client.get("/metrics").body, "svo_http_open_connections");
+  }
+  EXPECT_EQ(open, 1);
 }
 
 TEST(ServerLoad, JsonLogHasOneObjectPerRequest) {
@@ -258,9 +279,15 @@ int exitStatus(pid_t pid) {
   return -1;
 }
 
+// The command under test: the AddressSanitizer build when tools/scripts/test.sh made one.
+std::string svoBinary() {
+  const char* asan = std::getenv("SVO_ASAN_BINARY");
+  return asan && *asan ? asan : SVO_BINARY;
+}
+
 TEST(ServeCommand, ServesUntilSigterm) {
   const Child child =
-      spawn({SVO_BINARY, "serve", servedStores().root.string(), "--port", "0", "--threads", "2"});
+      spawn({svoBinary(), "serve", servedStores().root.string(), "--port", "0", "--threads", "2"});
   const std::string line = firstLine(child.out);
   std::smatch match;
   ASSERT_TRUE(std::regex_search(line, match, std::regex("http://127\\.0\\.0\\.1:([0-9]+)/"))) << line;
@@ -269,6 +296,18 @@ TEST(ServeCommand, ServesUntilSigterm) {
   EXPECT_EQ(httpGet(port, "/healthz").body, "ok\n");
   const std::string file = slurp(servedStores().root / "sub" / "box.svo");
   EXPECT_EQ(httpGet(port, "/sub/box.svo").body, file);
+  // A little of every path through the command's server (under AddressSanitizer in tools/scripts/test.sh).
+  const svo::StoreReader reader(servedStores().root / "sub" / "box.svo");
+  const svo::SliceInfo& s = reader.slices().back();
+  svotest::HttpClient client(port);
+  EXPECT_EQ(client.get("/scenes/sub/box/slices/" + std::to_string(reader.slices().size() - 1)).body,
+            file.substr(s.offset, s.compressedBytes));
+  EXPECT_EQ(client.get("/sub/box", {{"Range", "bytes=-100"}}).body, file.substr(file.size() - 100));
+  EXPECT_EQ(client.get("/sub/box/info").status, 200u);
+  EXPECT_EQ(client.get("/%2E%2E/x.svo").status, 400u);
+  EXPECT_EQ(client.get("/corrupt/slices/" + std::to_string(servedStores().corruptSlice)).status, 500u);
+  EXPECT_EQ(client.get("/metrics").status, 200u);
+  EXPECT_EQ(svotest::rawStatus(port, "GARBAGE\r\n\r\n"), 400u);
   ::kill(child.pid, SIGTERM);
   EXPECT_EQ(exitStatus(child.pid), 0);
   ::close(child.out);
@@ -277,7 +316,7 @@ TEST(ServeCommand, ServesUntilSigterm) {
 TEST(ServeCommand, RefusesAFolderWithoutStores) {
   const fs::path empty = fs::temp_directory_path() / ("svo_serve_none_" + std::to_string(::getpid()));
   fs::create_directories(empty);
-  const Child child = spawn({SVO_BINARY, "serve", empty.string(), "--port", "0"});
+  const Child child = spawn({svoBinary(), "serve", empty.string(), "--port", "0"});
   EXPECT_EQ(firstLine(child.out), "");  // nothing on stdout: the error is one line on stderr
   EXPECT_EQ(exitStatus(child.pid), 1);
   ::close(child.out);
