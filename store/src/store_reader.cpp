@@ -108,13 +108,18 @@ void fetchSlices(const ByteSource& source, const StoreIndex& index, std::span<co
   }
 }
 
-SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed) {
+void checkSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed) {
   if (slice >= index.slices().size()) throw index.sliceError(slice, "no such slice");
   const SliceInfo& s = index.slices()[slice];
   if (compressed.size() != s.compressedBytes)
     throw index.sliceError(slice, "compressed size does not match the directory");
   if (file::kCheckChecksums && XXH3_64bits(compressed.data(), compressed.size()) != s.checksum)
     throw index.sliceError(slice, "checksum mismatch");
+}
+
+SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed) {
+  checkSlice(index, slice, compressed);
+  const SliceInfo& s = index.slices()[slice];
   if (ZSTD_getFrameContentSize(compressed.data(), compressed.size()) != s.rawBytes)
     throw index.sliceError(slice, "size does not match its compressed frame");
   SliceBytes raw(s.rawBytes);

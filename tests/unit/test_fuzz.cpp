@@ -1,11 +1,13 @@
-// Runs the libFuzzer targets over the store reader (tests/fuzz/fuzz_store.cpp) and the streaming PLY reader
-// (tests/fuzz/fuzz_ply.cpp) for a bounded number of inputs, each seeded with a small valid file.
-// tools/scripts/test.sh builds the targets with clang and sets SVO_FUZZ_STORE and SVO_FUZZ_PLY; without them
-// (a plain g++ build) the tests are skipped.
+// Runs the libFuzzer targets over the store reader (tests/fuzz/fuzz_store.cpp), the streaming PLY reader
+// (tests/fuzz/fuzz_ply.cpp) and the server's request parsers (tests/fuzz/fuzz_request.cpp) for a bounded
+// number of inputs, each seeded with small valid inputs. tools/scripts/test.sh builds the targets with clang
+// and sets SVO_FUZZ_STORE, SVO_FUZZ_PLY and SVO_FUZZ_REQUEST; without them (a plain g++ build) the tests are
+// skipped.
 #include <gtest/gtest.h>
 
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 #include "reference.hpp"
@@ -68,6 +70,26 @@ TEST(Fuzz, PlyReaderRejectsMutatedFilesCleanly) {
   for (const glm::dvec3& p : mesh.positions) mesh.colors.push_back(glm::vec4(glm::vec3(0.5 + 0.4 * p), 1.0f));
   svo::writePly(dir / "seeds" / "triangles.ply", mesh);
   ASSERT_LT(fs::file_size(dir / "seeds" / "triangles.ply"), std::uintmax_t(kFuzzMaxBytes));
+  EXPECT_TRUE(fuzz(fuzzer, dir)) << "the fuzzer found a failing input; its log and the input are in " << dir;
+}
+
+TEST(Fuzz, RequestParsersKeepTheirPromises) {
+  const char* fuzzer = std::getenv("SVO_FUZZ_REQUEST");
+  if (!fuzzer || !*fuzzer)
+    GTEST_SKIP() << "SVO_FUZZ_REQUEST is not set (tools/scripts/test.sh builds the target)";
+  const fs::path dir = freshDir("svo_fuzz_request_");
+  // Inputs are "target NUL header NUL size" (fuzz_request.cpp): the forms the server meets.
+  using namespace std::string_literals;  // the seeds hold NUL bytes
+  const std::string seeds[] = {
+      "/scene/slices/12\0bytes=0-99\0"s + "1000",
+      "/sub/scene.svo?x=1\0bytes=-500\0"s + "300",
+      "/%2E%2E%2Fetc/passwd\0W/\"abc\", \"def\"\0"s + "0",
+      "/scenes/a/b/info\0Bearer tok-en.1~\0"s + "18446744073709551615",
+      "/a/directory\0bytes=5-\0"s + "5",
+  };
+  int n = 0;
+  for (const std::string& seed : seeds)
+    std::ofstream(dir / "seeds" / ("seed" + std::to_string(n++)), std::ios::binary) << seed;
   EXPECT_TRUE(fuzz(fuzzer, dir)) << "the fuzzer found a failing input; its log and the input are in " << dir;
 }
 

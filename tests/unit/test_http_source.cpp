@@ -1,4 +1,4 @@
-// Stores read from a real nginx by range requests (client/http_source.hpp, client/locator.hpp), against
+// Stores read from a real nginx and from svo serve by range requests (client/http_source.hpp, client/locator.hpp), against
 // independent references: the local file's bytes, the local store's index and slices, and the frame a local
 // pager converges to, bit for bit. Servers listen on 127.0.0.1 only and are stopped by the tests; retries and
 // backoffs are kept tiny, and every wait is bounded in count.
@@ -25,6 +25,7 @@
 #include "svo/client/http_source.hpp"
 #include "svo/client/locator.hpp"
 #include "svo/client/pager.hpp"
+#include "svo/server/server.hpp"
 #include "svo/store/store_reader.hpp"
 
 namespace fs = std::filesystem;
@@ -527,4 +528,100 @@ TEST_F(Http, LinkDelayRelayPassesBytesIntact) {
     });
   for (std::thread& t : threads) t.join();
   EXPECT_EQ(wrong.load(), 0);
+}
+
+// ----- the same client against `svo serve` (svo::server::Server in process) --------------------------------
+
+namespace {
+
+// svo::server over a folder holding the sphere store as scene.svo, on a loopback port the first start picks
+// and later starts reuse.
+class ServeHttp : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string pattern = (fs::temp_directory_path() / "svo_serve_root_XXXXXX").string();
+    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
+    root_ = pattern;
+    fs::copy_file(sphereStore(), root_ / "scene.svo");
+  }
+  void TearDown() override {
+    server_.reset();
+    if (!root_.empty()) fs::remove_all(root_);
+  }
+  void start(const std::string& token = "") {
+    svo::server::ServerOptions options;
+    options.root = root_;
+    options.port = port_;
+    options.threads = 2;
+    options.token = token;
+    options.logSink = [](std::string_view) {};
+    server_ = std::make_unique<svo::server::Server>(options);
+    server_->start();
+    port_ = server_->port();
+  }
+  void stop() { server_.reset(); }
+  std::string url() const { return "http://127.0.0.1:" + std::to_string(port_) + "/scene"; }
+
+  fs::path root_;
+  std::uint16_t port_ = 0;
+  std::unique_ptr<svo::server::Server> server_;
+};
+
+}  // namespace
+
+// `svo serve`'s /NAME is the store file with range requests, as nginx serves it: the pager converges to the
+// local frame through it, with and without a token.
+TEST_F(ServeHttp, PagerOverSvoServeConvergesToTheLocalImage) {
+  start("secret");
+  svo::RemoteOptions remote = quickRetries();
+  EXPECT_NE(errorOf([&] { svo::openSliceSource(url(), remote); }).find("needs a token"), std::string::npos);
+  remote.token = "secret";
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  svo::PagerOptions options;
+  options.fetchThreads = 4;
+  svo::Pager local(sphereStore(), options);
+  svo::Pager served(svo::openSliceSource(url(), remote), options);
+  const svo::ViewQuery view = svo::viewOf(local.transform(), camera, 0.0);
+  converge(local, view);
+  converge(served, view);
+  EXPECT_TRUE(served.failedSlices().empty());
+  EXPECT_EQ(served.residentSlices(), local.residentSlices());
+  served.checkInvariants();
+  expectSameFrame(renderFinest(served, camera), renderFinest(local, camera));
+}
+
+// The server stops mid-stream and starts again on the same port: the pager defers what failed meanwhile,
+// keeps its pool, and converges to the local frame.
+TEST_F(ServeHttp, PagerResumesAfterSvoServeStopsAndStartsAgain) {
+  start();
+  svo::PagerOptions options;
+  options.fetchThreads = 4;
+  options.sourceRetrySeconds = 0.02;
+  options.sourceRetryMaxSeconds = 0.1;
+  svo::Pager pager(svo::openSliceSource(url(), quickRetries()), options);
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  converge(pager, svo::viewOf(pager.transform(), camera, 16.0));
+  const std::vector<std::uint32_t> before = pager.residentSlices();
+  ASSERT_LT(before.size(), pager.index().slices().size());
+
+  stop();
+  const svo::ViewQuery all = everything(pager, camera);
+  std::uint32_t deferred = 0;
+  for (int i = 0; i < 500 && deferred == 0; ++i) {
+    deferred += pager.update(all).deferred;
+    pager.waitForWork(0.02);
+  }
+  EXPECT_GT(deferred, 0u) << "no fetch failed while the server was down";
+  EXPECT_TRUE(pager.failedSlices().empty());
+
+  start();
+  converge(pager, all);
+  EXPECT_TRUE(pager.failedSlices().empty());
+  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
+  const std::vector<std::uint32_t> after = pager.residentSlices();
+  EXPECT_TRUE(std::includes(after.begin(), after.end(), before.begin(), before.end())) << "the pool was kept";
+  pager.checkInvariants();
+  svo::Pager local(sphereStore(), options);
+  converge(local, all);
+  expectSameFrame(renderFinest(pager, camera), renderFinest(local, camera));
 }

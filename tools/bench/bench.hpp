@@ -5,7 +5,8 @@
 
 namespace svo::tools {
 
-// Registers `svo bench raycast`, `build`, `accel`, `stability`, `quality`, `store` and `stream` on `bench`.
+// Registers `svo bench raycast`, `build`, `accel`, `stability`, `quality`, `store`, `stream` and `serve` on
+// `bench`.
 void addBenchCommands(CLI::App& bench);
 
 }  // namespace svo::tools

@@ -28,6 +28,7 @@ void addBenchCommands(CLI::App& bench) {
   bench::addQualityBench(bench);
   bench::addStoreBench(bench);
   bench::addStreamBench(bench);
+  bench::addServeBench(bench);
 }
 
 }  // namespace svo::tools

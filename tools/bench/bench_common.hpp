@@ -35,6 +35,7 @@ void addStabilityBench(CLI::App& bench);  // bench_stability.cpp
 void addQualityBench(CLI::App& bench);    // bench_quality.cpp
 void addStoreBench(CLI::App& bench);      // bench_store.cpp
 void addStreamBench(CLI::App& bench);     // bench_stream.cpp
+void addServeBench(CLI::App& bench);      // bench_serve.cpp
 
 // ----- the OpenVDB peer of a build (bench_build.cpp; shared by `bench build` and `bench store`) ----------
 // OpenVDB's default narrow-band half width, in voxels (LEVEL_SET_HALF_WIDTH).

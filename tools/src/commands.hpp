@@ -12,5 +12,6 @@ void addRenderCommand(CLI::App& app);  // cmd_render.cpp
 void addStoreCommands(CLI::App& app);  // cmd_store.cpp: `svo verify`, `svo inspect`
 void addGenCommand(CLI::App& app);     // cmd_gen.cpp: `svo gen`
 void addStressCommand(CLI::App& app);  // cmd_stress.cpp: `svo stress`
+void addServeCommand(CLI::App& app);   // cmd_serve.cpp: `svo serve`
 
 }  // namespace svo::tools

@@ -32,7 +32,10 @@ inline constexpr std::uint64_t kMaxSlicesReadBytes = std::uint64_t(16) << 20;
 // the first slice it was for; `compressed` then holds the slices before it.
 void fetchSlices(const ByteSource& source, const StoreIndex& index, std::span<const std::uint32_t> slices,
                  std::vector<SliceBytes>& compressed);
-// Slice `slice`'s decoded bytes from its compressed bytes, after its checksum and size checks.
+// Checks slice `slice`'s compressed bytes against the directory (size, checksum) without decompressing
+// them: what a server verifies before it sends stored bytes on, and unpackSlice's first step.
+void checkSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
+// Slice `slice`'s decoded bytes from its compressed bytes, after checkSlice and the frame's size check.
 SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
 // Decodes slice `slice` (its bytes from unpackSlice) onto its parents: the voxels of the level above in its
 // cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
