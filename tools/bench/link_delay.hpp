@@ -1,6 +1,6 @@
 // A TCP relay on loopback that holds every byte for a fixed one-way time in each direction: a link of that
 // round trip between a client and a server on this machine, for benchmarks where tc netem is not available
-// (DESIGN.md: loopback only, or namespaces the test creates).
+// (loopback only).
 #pragma once
 
 #include <memory>

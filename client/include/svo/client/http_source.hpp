@@ -1,4 +1,4 @@
-// A store read from any static HTTP server by range requests (DESIGN.md, "The service": nginx, an object
+// A store read from any static HTTP server by range requests (docs/architecture.md: nginx, an object
 // store, a CDN). Each read is one `Range: bytes=a-b` request whose answer must be 206 with exactly that
 // Content-Range; the store's size comes from the first answer. The ETag (or else Last-Modified) of that first
 // answer pins the file: every later request carries it in If-Range and every answer must carry it too, so a

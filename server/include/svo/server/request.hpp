@@ -54,7 +54,7 @@ struct Route {
 Route parseRoute(const std::vector<std::string>& segments);
 // The readings of a scene route's segments, in the order the server tries them against its stores:
 // parseRoute's; the whole file (/a/b/info when there is no scene a/b but a/b/info.svo); and both again
-// without a leading "scenes" segment (/scenes/NAME/..., as DESIGN.md's viewer names a scene's URL).
+// without a leading "scenes" segment (/scenes/NAME/..., as a viewer may name a scene's URL).
 std::vector<Route> sceneRoutes(const std::vector<std::string>& segments);
 
 // Whether `name` is a scene name parseTargetPath could give: '/'-separated segments, none empty, none
