@@ -45,11 +45,7 @@ Metrics::Metrics()
                    .Name("svo_http_request_duration_seconds")
                    .Help("from a request's last byte read to its response's last byte written")
                    .Register(*registry_)
-                   .Add({}, kLatencyBuckets)),
-      streams_(counter(*registry_, "svo_stream_sessions_total", "view-driven stream sessions opened")),
-      viewUpdates_(counter(*registry_, "svo_stream_view_updates_total", "views received on stream sessions")),
-      supersededSlices_(counter(*registry_, "svo_stream_superseded_slices_total",
-                                "queued stream slices dropped because a newer view no longer wanted them")) {}
+                   .Add({}, kLatencyBuckets)) {}
 
 void Metrics::countRequest(std::string_view route, unsigned status, double seconds,
                            std::uint64_t bytesWritten) {

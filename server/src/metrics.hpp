@@ -25,10 +25,6 @@ class Metrics {
   void countCacheHit() { cacheHits_.Increment(); }
   void countCacheMiss() { cacheMisses_.Increment(); }
   void countCorruptSlice() { corruptSlices_.Increment(); }
-  // The view-driven stream route's counters.
-  void countStream() { streams_.Increment(); }
-  void countViewUpdate() { viewUpdates_.Increment(); }
-  void countSupersededSlices(std::uint64_t n) { supersededSlices_.Increment(double(n)); }
   void connectionOpened() { connections_.Increment(); }
   void connectionClosed() { connections_.Decrement(); }
   // The text exposition of every metric, with the cache's fill as of now.
@@ -47,10 +43,6 @@ class Metrics {
   prometheus::Gauge& cacheCapacity_;
   prometheus::Gauge& connections_;
   prometheus::Histogram& latency_;
-  // The view-driven stream route's: sessions opened, views received, slices dropped for a newer view.
-  prometheus::Counter& streams_;
-  prometheus::Counter& viewUpdates_;
-  prometheus::Counter& supersededSlices_;
 };
 
 }  // namespace svo::server
