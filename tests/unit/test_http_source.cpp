@@ -1,7 +1,7 @@
-// Stores read from a real nginx and from svo serve by range requests (client/http_source.hpp, client/locator.hpp), against
-// independent references: the local file's bytes, the local store's index and slices, and the frame a local
-// pager converges to, bit for bit. Servers listen on 127.0.0.1 only and are stopped by the tests; retries and
-// backoffs are kept tiny, and every wait is bounded in count.
+// Stores read from a real nginx and from svo serve by range requests (client/http_source.hpp,
+// client/locator.hpp), against independent references: the local file's bytes, the local store's index and
+// slices, and the frame a local pager converges to, bit for bit. Servers listen on 127.0.0.1 only and are
+// stopped by the tests; retries and backoffs are kept tiny, and every wait is bounded in count.
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -127,27 +127,38 @@ std::string errorOf(F&& open) {
   return "";
 }
 
-// A folder served by nginx, holding the sphere store as scene.svo.
-class Http : public ::testing::Test {
+// A folder to serve, holding the sphere store as scene.svo; removed after the test.
+class ServedFolder : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (svotest::nginxBinary().empty())
-      GTEST_SKIP() << "nginx is not installed (Debian: nginx-light): the HTTP range tests need a real server";
     std::string pattern = (fs::temp_directory_path() / "svo_http_root_XXXXXX").string();
     ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
     root_ = pattern;
     fs::copy_file(sphereStore(), root_ / "scene.svo");
   }
   void TearDown() override {
-    server_.reset();
+    stopServer();
     if (!root_.empty()) fs::remove_all(root_);
   }
+  virtual void stopServer() = 0;
+
+  fs::path root_;
+};
+
+// The folder served by nginx.
+class Http : public ServedFolder {
+ protected:
+  void SetUp() override {
+    if (svotest::nginxBinary().empty())
+      GTEST_SKIP() << "nginx is not installed (Debian: nginx-light): the HTTP range tests need a real server";
+    ServedFolder::SetUp();
+  }
+  void stopServer() override { server_.reset(); }
   svotest::NginxServer& serve(svotest::NginxServer::Options options = {}) {
     server_ = std::make_unique<svotest::NginxServer>(root_, std::move(options));
     return *server_;
   }
 
-  fs::path root_;
   std::unique_ptr<svotest::NginxServer> server_;
 };
 
@@ -536,18 +547,9 @@ namespace {
 
 // svo::server over a folder holding the sphere store as scene.svo, on a loopback port the first start picks
 // and later starts reuse.
-class ServeHttp : public ::testing::Test {
+class ServeHttp : public ServedFolder {
  protected:
-  void SetUp() override {
-    std::string pattern = (fs::temp_directory_path() / "svo_serve_root_XXXXXX").string();
-    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
-    root_ = pattern;
-    fs::copy_file(sphereStore(), root_ / "scene.svo");
-  }
-  void TearDown() override {
-    server_.reset();
-    if (!root_.empty()) fs::remove_all(root_);
-  }
+  void stopServer() override { server_.reset(); }
   void start(const std::string& token = "") {
     svo::server::ServerOptions options;
     options.root = root_;
@@ -559,10 +561,8 @@ class ServeHttp : public ::testing::Test {
     server_->start();
     port_ = server_->port();
   }
-  void stop() { server_.reset(); }
   std::string url() const { return "http://127.0.0.1:" + std::to_string(port_) + "/scene"; }
 
-  fs::path root_;
   std::uint16_t port_ = 0;
   std::unique_ptr<svo::server::Server> server_;
 };
@@ -604,7 +604,7 @@ TEST_F(ServeHttp, PagerResumesAfterSvoServeStopsAndStartsAgain) {
   const std::vector<std::uint32_t> before = pager.residentSlices();
   ASSERT_LT(before.size(), pager.index().slices().size());
 
-  stop();
+  stopServer();
   const svo::ViewQuery all = everything(pager, camera);
   std::uint32_t deferred = 0;
   for (int i = 0; i < 500 && deferred == 0; ++i) {
