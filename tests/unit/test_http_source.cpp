@@ -528,27 +528,30 @@ TEST_F(Http, CommandsReadUrlsAsTheyReadFiles) {
 }
 
 // The benchmarks' link-delay relay passes every byte through intact, in both directions and over kept-alive
-// connections, from several threads at once.
+// connections, from several threads at once, also when its connections share a link of bounded rate.
 TEST_F(Http, LinkDelayRelayPassesBytesIntact) {
   svotest::NginxServer& server = serve();
-  const svo::tools::bench::LinkDelay link("127.0.0.1", server.port(), 0.002);
-  const std::string url = "http://127.0.0.1:" + std::to_string(link.port()) + "/scene.svo";
-  const auto remote = svo::openSliceSource(url, quickRetries());
-  const auto local = svo::openSliceSource(sphereStore().string());
-  const std::uint32_t count = std::uint32_t(local->index().slices().size());
-  std::atomic<int> wrong{0};
-  std::vector<std::thread> threads;
-  for (std::uint32_t t = 0; t < 3; ++t)
-    threads.emplace_back([&, t] {
-      svo::SliceBytes x, y;
-      for (std::uint32_t s = t; s < count; s += 3) {
-        remote->fetch(s, x);
-        local->fetch(s, y);
-        wrong += !(x == y);
-      }
-    });
-  for (std::thread& t : threads) t.join();
-  EXPECT_EQ(wrong.load(), 0);
+  for (const double bitsPerSecond : {0.0, 400e6}) {
+    const svo::tools::bench::LinkDelay link("127.0.0.1", server.port(), 0.002, bitsPerSecond);
+    const std::string url = "http://127.0.0.1:" + std::to_string(link.port()) + "/scene.svo";
+    const auto remote = svo::openSliceSource(url, quickRetries());
+    const auto local = svo::openSliceSource(sphereStore().string());
+    const std::uint32_t count = std::uint32_t(local->index().slices().size());
+    std::atomic<int> wrong{0};
+    std::vector<std::thread> threads;
+    for (std::uint32_t t = 0; t < 3; ++t)
+      threads.emplace_back([&, t] {
+        svo::SliceBytes x, y;
+        for (std::uint32_t s = t; s < count; s += 3) {
+          remote->fetch(s, x);
+          local->fetch(s, y);
+          wrong += !(x == y);
+        }
+      });
+    for (std::thread& t : threads) t.join();
+    EXPECT_EQ(wrong.load(), 0) << bitsPerSecond << " bits per second";
+  }
+  EXPECT_THROW(svo::tools::bench::LinkDelay("127.0.0.1", server.port(), 0.002, -1.0), std::runtime_error);
 }
 
 // ----- the same client against `svo serve` (svo::server::Server in process) --------------------------------

@@ -19,6 +19,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 #include <thread>
 
 #include <fmt/format.h>
@@ -47,6 +48,7 @@ struct StreamArgs {
   PagerOptions pager;        // threads; the budget is set per measurement
   int backgroundLoad = 0;    // busy threads at normal priority beside the bench
   double linkDelayMs = 0.0;  // one-way delay a relay adds in front of an http:// input
+  double linkRate = 0.0;     // bits per second of that relay's link (0: unbounded)
   float lodPixels = 1.0f;
   double timeout = 300.0;
 };
@@ -263,9 +265,10 @@ void addCpuRow(Table& table, std::size_t budget, const CloseUp& closeUp) {
 // With --link-delay: a relay in front of the input's http:// server, and the input rewritten to go through
 // it.
 std::unique_ptr<LinkDelay> delayLink(StreamArgs& args) {
-  if (args.linkDelayMs <= 0.0) return nullptr;
+  if (args.linkDelayMs <= 0.0 && args.linkRate <= 0.0) return nullptr;
   const std::string scheme = "http://";
-  if (args.input.rfind(scheme, 0) != 0) throw UsageError("--link-delay needs an http:// store URL");
+  if (args.input.rfind(scheme, 0) != 0)
+    throw UsageError("--link-delay and --link-rate need an http:// store URL");
   const std::size_t slash = args.input.find('/', scheme.size());
   const std::string authority = args.input.substr(scheme.size(), slash - scheme.size());
   const std::size_t colon = authority.rfind(':');
@@ -273,7 +276,7 @@ std::unique_ptr<LinkDelay> delayLink(StreamArgs& args) {
   const std::string host = authority.substr(0, hasPort ? colon : authority.size());
   const int port = hasPort ? std::atoi(authority.c_str() + colon + 1) : 80;
   auto link = std::make_unique<LinkDelay>(host.starts_with('[') ? host.substr(1, host.size() - 2) : host,
-                                          port, args.linkDelayMs * 1e-3);
+                                          port, args.linkDelayMs * 1e-3, args.linkRate);
   args.input = scheme + "127.0.0.1:" + std::to_string(link->port()) +
                (slash == std::string::npos ? "/" : args.input.substr(slash));
   return link;
@@ -336,8 +339,10 @@ void runStreamBench(StreamArgs args) {
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
   printTitle(
       "svo bench stream " + input +
-      (link ? fmt::format(" through a relay adding {:g} ms each way", args.linkDelayMs) : "") + " (" +
-      std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
+      (link ? fmt::format(" through a relay adding {:g} ms each way{}", args.linkDelayMs,
+                          args.linkRate > 0.0 ? fmt::format(" at {:g} Mbit/s", args.linkRate * 1e-6) : "")
+            : "") +
+      " (" + std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
       std::to_string(args.runs) + " runs, " +
       fmt::format("{} fetch and {} decode threads at nice {}, {} decoding during frames",
                   pagerOptionsOf(args, 0).fetchThreads, args.pager.decodeThreads, args.pager.workerNice,
@@ -407,6 +412,12 @@ void addStreamBench(CLI::App& bench) {
                   "for an http:// URL: milliseconds a loopback relay adds to each direction (a link of twice "
                   "that round trip)")
       ->check(CLI::Range(0.0, 10000.0));
+  cmd->add_option("--link-rate", args->linkRate,
+                  "for an http:// URL: bits per second the relay's link carries in each direction, shared by "
+                  "every connection (100M: a 100 Mbit/s link; default unbounded)")
+      ->transform(CLI::AsNumberWithUnit(std::map<std::string, double>{{"k", 1e3}, {"M", 1e6}, {"G", 1e9}},
+                                        CLI::AsNumberWithUnit::CASE_SENSITIVE))
+      ->check(CLI::NonNegativeNumber);
   cmd->callback([args] { runStreamBench(*args); });
 }
 

@@ -2,6 +2,7 @@
 
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <deque>
 #include <stdexcept>
 #include <thread>
@@ -20,15 +21,33 @@ using Clock = std::chrono::steady_clock;
 // Bytes taken from a socket per read: a TCP window's worth on loopback.
 constexpr std::size_t kChunkBytes = 64 * 1024;
 
+// The link every connection shares: its one-way delay, its rate, and per direction when it has carried the
+// bytes handed to it so far. Touched by the relay's one I/O thread only.
+struct Link {
+  Clock::duration delay{};
+  double bytesPerSecond = 0.0;  // 0: unbounded
+  std::array<Clock::time_point, 2> freeAt{};
+
+  // When `bytes` arriving now in direction `d` reach the far end.
+  Clock::time_point due(int d, std::size_t bytes) {
+    const Clock::time_point now = Clock::now();
+    if (bytesPerSecond <= 0.0) return now + delay;
+    const auto sending = std::chrono::duration_cast<Clock::duration>(
+        std::chrono::duration<double>(double(bytes) / bytesPerSecond));
+    freeAt[d] = std::max(freeAt[d], now) + sending;
+    return freeAt[d] + delay;
+  }
+};
+
 // One relayed connection: two directions, each a queue of chunks stamped with when they may be delivered.
 class Session : public std::enable_shared_from_this<Session> {
  public:
   Session(const asio::any_io_executor& executor, tcp::socket client, const tcp::endpoint& upstream,
-          Clock::duration delay)
+          std::shared_ptr<Link> link)
       : sockets_{std::move(client), tcp::socket(executor)},
         upstream_(upstream),
-        delay_(delay),
-        handshakeDone_(Clock::now() + 2 * delay),
+        link_(std::move(link)),
+        handshakeDone_(Clock::now() + 2 * link_->delay),
         pipes_{Pipe(executor), Pipe(executor)} {}
 
   void start() {
@@ -60,7 +79,7 @@ class Session : public std::enable_shared_from_this<Session> {
                                   if (n > 0) {
                                     // The handshake's round trip holds a new connection's first bytes.
                                     const Clock::time_point due =
-                                        std::max(Clock::now() + self->delay_, self->handshakeDone_);
+                                        std::max(self->link_->due(d, n), self->handshakeDone_);
                                     p.queue.push_back({due, {p.buffer.begin(), p.buffer.begin() + n}});
                                     if (!p.writing) self->deliver(d);
                                   }
@@ -107,7 +126,7 @@ class Session : public std::enable_shared_from_this<Session> {
 
   std::array<tcp::socket, 2> sockets_;  // the client's, the server's
   tcp::endpoint upstream_;
-  Clock::duration delay_;
+  std::shared_ptr<Link> link_;
   Clock::time_point handshakeDone_;
   std::array<Pipe, 2> pipes_;
 };
@@ -118,27 +137,31 @@ struct LinkDelay::Impl {
   asio::io_context io;
   tcp::acceptor acceptor{io};
   tcp::endpoint upstream;
-  Clock::duration delay{};
+  std::shared_ptr<Link> link = std::make_shared<Link>();
   std::thread thread;
 
   void accept() {
     acceptor.async_accept([this](boost::system::error_code ec, tcp::socket socket) {
       if (ec) return;  // stopped
-      std::make_shared<Session>(io.get_executor(), std::move(socket), upstream, delay)->start();
+      std::make_shared<Session>(io.get_executor(), std::move(socket), upstream, link)->start();
       accept();
     });
   }
 };
 
-LinkDelay::LinkDelay(const std::string& host, int port, double oneWaySeconds)
+LinkDelay::LinkDelay(const std::string& host, int port, double oneWaySeconds, double bitsPerSecond)
     : impl_(std::make_unique<Impl>()) {
   if (!(oneWaySeconds >= 0.0)) throw std::runtime_error("link delay: the delay must be >= 0");
+  if (!(bitsPerSecond >= 0.0) || std::isinf(bitsPerSecond))
+    throw std::runtime_error("link delay: the rate must be a finite number of bits per second >= 0");
   boost::system::error_code ec;
   const auto resolved = tcp::resolver(impl_->io).resolve(host, std::to_string(port), ec);
   if (ec || resolved.empty())
     throw std::runtime_error("link delay: cannot resolve " + host + " (" + ec.message() + ")");
   impl_->upstream = resolved.begin()->endpoint();
-  impl_->delay = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(oneWaySeconds));
+  impl_->link->delay =
+      std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(oneWaySeconds));
+  impl_->link->bytesPerSecond = bitsPerSecond / 8.0;
   const tcp::endpoint local(asio::ip::address_v4::loopback(), 0);
   impl_->acceptor.open(local.protocol());
   impl_->acceptor.bind(local, ec);
