@@ -12,6 +12,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <random>
 #include <set>
 #include <sstream>
@@ -126,6 +127,49 @@ std::string errorOf(F&& open) {
     return e.what();
   }
   return "";
+}
+
+// Streams the store at `url` into a pager, takes the server `down` mid-stream and brings it `up` again on
+// the same port: the fetches that failed meanwhile are deferred, not failed, with one message for the outage,
+// and the pager resumes with its pool and converges to the local pager's frame.
+void expectResumesAcrossAnOutage(const std::string& url, const std::function<void()>& down,
+                                 const std::function<void()>& up) {
+  svo::PagerOptions options;
+  options.fetchThreads = 4;
+  options.sourceRetrySeconds = 0.02;
+  options.sourceRetryMaxSeconds = 0.1;
+  svo::Pager pager(svo::openSliceSource(url, quickRetries()), options);
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  converge(pager, svo::viewOf(pager.transform(), camera, 16.0));  // the coarse levels
+  const std::vector<std::uint32_t> before = pager.residentSlices();
+  ASSERT_LT(before.size(), pager.index().slices().size());
+
+  down();
+  const svo::ViewQuery all = everything(pager, camera);
+  std::uint32_t deferred = 0;
+  for (int i = 0; i < 500 && deferred == 0; ++i) {
+    deferred += pager.update(all).deferred;
+    pager.waitForWork(0.02);
+  }
+  EXPECT_GT(deferred, 0u) << "no fetch failed while the server was down";
+  EXPECT_FALSE(pager.converged());
+  EXPECT_TRUE(pager.failedSlices().empty());
+  EXPECT_FALSE(pager.deferredSlices().empty());
+  const std::vector<std::string> errors = pager.takeErrors();
+  ASSERT_EQ(errors.size(), 1u) << "one message for the outage";
+  EXPECT_NE(errors[0].find("asking again later"), std::string::npos) << errors[0];
+
+  up();
+  converge(pager, all);
+  EXPECT_TRUE(pager.failedSlices().empty());
+  EXPECT_TRUE(pager.deferredSlices().empty());
+  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
+  const std::vector<std::uint32_t> after = pager.residentSlices();
+  EXPECT_TRUE(std::includes(after.begin(), after.end(), before.begin(), before.end())) << "the pool was kept";
+  pager.checkInvariants();
+  svo::Pager local(sphereStore(), options);
+  converge(local, all);
+  expectSameFrame(renderFinest(pager, camera), renderFinest(local, camera));
 }
 
 // A folder to serve, holding the sphere store as scene.svo; removed after the test.
@@ -399,46 +443,11 @@ TEST_F(Http, StoreReplacedOnTheServerMidStreamIsAClearError) {
   EXPECT_EQ(reopened->index().header().fileBytes, fs::file_size(root_ / "scene.svo"));
 }
 
-// The server is killed mid-stream and restarted on the same port: the fetches that failed meanwhile are
-// deferred, not failed, and the pager resumes with its pool and converges to the local pager's frame.
+// nginx is killed mid-stream and restarted on the same port.
 TEST_F(Http, PagerResumesAfterTheServerIsKilledAndRestarted) {
   svotest::NginxServer& server = serve();
-  svo::PagerOptions options;
-  options.fetchThreads = 4;
-  options.sourceRetrySeconds = 0.02;
-  options.sourceRetryMaxSeconds = 0.1;
-  svo::Pager pager(svo::openSliceSource(server.url("scene.svo"), quickRetries()), options);
-  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
-  converge(pager, svo::viewOf(pager.transform(), camera, 16.0));  // the coarse levels
-  const std::vector<std::uint32_t> before = pager.residentSlices();
-  ASSERT_LT(before.size(), pager.index().slices().size());
-
-  server.kill();
-  const svo::ViewQuery all = everything(pager, camera);
-  std::uint32_t deferred = 0;
-  for (int i = 0; i < 500 && deferred == 0; ++i) {
-    deferred += pager.update(all).deferred;
-    pager.waitForWork(0.02);
-  }
-  EXPECT_GT(deferred, 0u) << "no fetch failed while the server was down";
-  EXPECT_FALSE(pager.converged());
-  EXPECT_TRUE(pager.failedSlices().empty());
-  EXPECT_FALSE(pager.deferredSlices().empty());
-  const std::vector<std::string> errors = pager.takeErrors();
-  ASSERT_EQ(errors.size(), 1u) << "one message for the outage";
-  EXPECT_NE(errors[0].find("asking again later"), std::string::npos) << errors[0];
-
-  server.start();
-  converge(pager, all);
-  EXPECT_TRUE(pager.failedSlices().empty());
-  EXPECT_TRUE(pager.deferredSlices().empty());
-  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
-  const std::vector<std::uint32_t> after = pager.residentSlices();
-  EXPECT_TRUE(std::includes(after.begin(), after.end(), before.begin(), before.end())) << "the pool was kept";
-  pager.checkInvariants();
-  svo::Pager local(sphereStore(), options);
-  converge(local, all);
-  expectSameFrame(renderFinest(pager, camera), renderFinest(local, camera));
+  expectResumesAcrossAnOutage(
+      server.url("scene.svo"), [&] { server.kill(); }, [&] { server.start(); });
 }
 
 // The README's nginx snippet, as printed there, serves stores to `svo`: public ones, and private ones with
@@ -603,38 +612,9 @@ TEST_F(ServeHttp, PagerOverSvoServeConvergesToTheLocalImage) {
   expectSameFrame(renderFinest(served, camera), renderFinest(local, camera));
 }
 
-// The server stops mid-stream and starts again on the same port: the pager defers what failed meanwhile,
-// keeps its pool, and converges to the local frame.
+// svo serve stops mid-stream and starts again on the same port.
 TEST_F(ServeHttp, PagerResumesAfterSvoServeStopsAndStartsAgain) {
   start();
-  svo::PagerOptions options;
-  options.fetchThreads = 4;
-  options.sourceRetrySeconds = 0.02;
-  options.sourceRetryMaxSeconds = 0.1;
-  svo::Pager pager(svo::openSliceSource(url(), quickRetries()), options);
-  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
-  converge(pager, svo::viewOf(pager.transform(), camera, 16.0));
-  const std::vector<std::uint32_t> before = pager.residentSlices();
-  ASSERT_LT(before.size(), pager.index().slices().size());
-
-  stopServer();
-  const svo::ViewQuery all = everything(pager, camera);
-  std::uint32_t deferred = 0;
-  for (int i = 0; i < 500 && deferred == 0; ++i) {
-    deferred += pager.update(all).deferred;
-    pager.waitForWork(0.02);
-  }
-  EXPECT_GT(deferred, 0u) << "no fetch failed while the server was down";
-  EXPECT_TRUE(pager.failedSlices().empty());
-
-  start();
-  converge(pager, all);
-  EXPECT_TRUE(pager.failedSlices().empty());
-  EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
-  const std::vector<std::uint32_t> after = pager.residentSlices();
-  EXPECT_TRUE(std::includes(after.begin(), after.end(), before.begin(), before.end())) << "the pool was kept";
-  pager.checkInvariants();
-  svo::Pager local(sphereStore(), options);
-  converge(local, all);
-  expectSameFrame(renderFinest(pager, camera), renderFinest(local, camera));
+  expectResumesAcrossAnOutage(
+      url(), [&] { stopServer(); }, [&] { start(); });
 }
