@@ -1,5 +1,7 @@
 #include "svo/client/locator.hpp"
 
+#include "svo/client/stream_source.hpp"
+
 #include <algorithm>
 #include <cctype>
 #include <stdexcept>
@@ -28,7 +30,14 @@ std::shared_ptr<const ByteSource> openByteSource(const std::string& locator, con
 }
 
 std::shared_ptr<SliceSource> openSliceSource(const std::string& locator, const RemoteOptions& remote) {
-  return std::make_shared<StoreSliceSource>(openByteSource(locator, remote));
+  return sliceSourceOver(openByteSource(locator, remote), locator, remote);
+}
+
+std::shared_ptr<SliceSource> sliceSourceOver(std::shared_ptr<const ByteSource> bytes, const std::string& locator,
+                                             const RemoteOptions& remote) {
+  if (isUrl(locator) && remote.viewStream)
+    return std::make_shared<ViewStreamSource>(std::move(bytes), locator, remote);
+  return std::make_shared<StoreSliceSource>(std::move(bytes));
 }
 
 }  // namespace svo

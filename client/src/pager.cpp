@@ -193,6 +193,7 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
 
 PagerStats Pager::update(const ViewQuery& view) {
   PagerStats stats;
+  source_->follow(view, options_.budgetBytes);
   // 1. What the view wants, with ray feedback.
   stats.wantedRawBytes = scheduler_->rank(scheduleSlices(index(), view), *regions_);
 

@@ -6,6 +6,7 @@
 #include <optional>
 
 #include <fmt/format.h>
+#include <boost/beast/websocket/rfc6455.hpp>
 #include <nlohmann/json.hpp>
 
 #include "svo/server/request.hpp"
@@ -163,13 +164,6 @@ nlohmann::json info(const Scene& scene) {
             {"contours", h.parameters.contours}}}};
 }
 
-// A store's error as clients see it: named by the scene rather than by its path on the server.
-std::string publicMessage(const std::string& what, const Scene& scene) {
-  const std::string prefix = scene.index->name() + ": ";
-  return what.rfind(prefix, 0) == 0 ? scene.name + ": " + what.substr(prefix.size())
-                                    : scene.name + ": " + what;
-}
-
 Answer scenes(const Request& request, Context& context) {
   nlohmann::json list = nlohmann::json::array();
   std::string failures;
@@ -203,20 +197,15 @@ Answer slice(const Request& request, Context& context, const Scene& scene, const
   // The client holding this version needs no byte of it: answered before the slice is read.
   const std::string etag = fmt::format("\"{:016x}\"", scene.index->slices()[*id].checksum);
   if (auto unchanged = notModified(request, "slice", etag, kImmutable)) return std::move(*unchanged);
-  SliceCache::Result cached;
+  SliceCache::Bytes cached;
   try {
-    cached = context.cache.get(scene, *id);
+    cached = cachedSlice(context, scene, *id);
   } catch (const SliceError& e) {
-    context.metrics.countCorruptSlice();
     Answer a = line(request, http::status::internal_server_error, "slice", publicMessage(e.what(), scene));
     a.failure = e.what();
     return a;
   }
-  if (cached.hit)
-    context.metrics.countCacheHit();
-  else
-    context.metrics.countCacheMiss();
-  const Payload bytes{cached.bytes, cached.bytes->data(), nullptr, 0, cached.bytes->size()};
+  const Payload bytes{cached, cached->data(), nullptr, 0, cached->size()};
   Answer a = represent(request, "slice", kBinary, bytes, etag, kImmutable);
   a.slice = true;
   return a;
@@ -255,6 +244,17 @@ Answer sceneRoute(const Request& request, Context& context, const TargetPath& pa
                        fmt::format("\"i-{:016x}\"", scene->headerChecksum), kRevalidate);
     case RouteKind::Slice:
       return slice(request, context, *scene, route.sliceId);
+    case RouteKind::Stream: {
+      if (!boost::beast::websocket::is_upgrade(request)) {
+        Answer a = line(request, http::status::upgrade_required, "stream",
+                        scene->name + "/stream is a WebSocket: send an upgrade request");
+        a.response.set(http::field::upgrade, "websocket");
+        return a;
+      }
+      Answer a{Response{http::status::switching_protocols, request.version()}, "stream"};
+      a.stream = scene;
+      return a;
+    }
     default:
       return line(request, http::status::not_found, "other", "not found");
   }
@@ -290,6 +290,27 @@ Answer route(const Request& request, Context& context) {
 }
 
 }  // namespace
+
+std::string publicMessage(const std::string& what, const Scene& scene) {
+  const std::string prefix = scene.index->name() + ": ";
+  return what.rfind(prefix, 0) == 0 ? scene.name + ": " + what.substr(prefix.size())
+                                    : scene.name + ": " + what;
+}
+
+SliceCache::Bytes cachedSlice(Context& context, const Scene& scene, std::uint32_t slice) {
+  SliceCache::Result cached;
+  try {
+    cached = context.cache.get(scene, slice);
+  } catch (const SliceError&) {
+    context.metrics.countCorruptSlice();
+    throw;
+  }
+  if (cached.hit)
+    context.metrics.countCacheHit();
+  else
+    context.metrics.countCacheMiss();
+  return std::move(cached.bytes);
+}
 
 Answer handle(const Request& request, Context& context) {
   try {

@@ -42,10 +42,16 @@ struct Answer {
   std::string_view route = "other";  // the metrics' route label
   bool slice = false;                // a slice's bytes: counted as sent once written
   std::string failure = {};          // what went wrong, for the request's log line (logged as an error)
+  std::shared_ptr<const Scene> stream = {};  // set: accept the request's WebSocket upgrade to this view stream
 };
 
 // The answer to `request`. Never throws: a failure answers 500 and says why in Answer::failure.
 Answer handle(const Request& request, Context& context);
+// Slice `slice` of `scene` through the shared cache, counted in the metrics as a hit, a miss or a corrupt
+// slice. Throws SliceError naming the store and slice.
+SliceCache::Bytes cachedSlice(Context& context, const Scene& scene, std::uint32_t slice);
+// A store's error as clients see it: named by the scene rather than by its path on the server.
+std::string publicMessage(const std::string& what, const Scene& scene);
 // The answer to a request Beast could not read (malformed, too large): `status` with one line, closing.
 Answer refuse(http::status status, std::string_view reason);
 

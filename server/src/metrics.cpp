@@ -41,6 +41,11 @@ Metrics::Metrics()
       cacheBytes_(gauge(*registry_, "svo_slice_cache_bytes", "bytes the slice cache holds")),
       cacheCapacity_(gauge(*registry_, "svo_slice_cache_capacity_bytes", "the slice cache's bound")),
       connections_(gauge(*registry_, "svo_http_open_connections", "client connections open now")),
+      streams_(gauge(*registry_, "svo_streams_open", "view streams open now")),
+      viewUpdates_(counter(*registry_, "svo_stream_view_updates_total", "views received on view streams")),
+      streamSlicesSent_(counter(*registry_, "svo_stream_slices_sent_total", "slices pushed on view streams")),
+      superseded_(counter(*registry_, "svo_stream_superseded_slices_total",
+                          "planned slices a newer view dropped before they were sent")),
       latency_(BuildHistogram()
                    .Name("svo_http_request_duration_seconds")
                    .Help("from a request's last byte read to its response's last byte written")
@@ -52,6 +57,12 @@ void Metrics::countRequest(std::string_view route, unsigned status, double secon
   requests_.Add({{"route", std::string(route)}, {"status", std::to_string(status)}}).Increment();
   bytesWritten_.Increment(double(bytesWritten));
   latency_.Observe(seconds);
+}
+
+void Metrics::streamClosed(std::uint64_t bytesWritten) {
+  streams_.Decrement();
+  requests_.Add({{"route", "stream"}, {"status", "101"}}).Increment();
+  bytesWritten_.Increment(double(bytesWritten));
 }
 
 std::string Metrics::text(std::uint64_t cacheBytes, std::uint64_t cacheCapacity) {

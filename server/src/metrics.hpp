@@ -26,6 +26,14 @@ class Metrics {
   void countCacheMiss() { cacheMisses_.Increment(); }
   void countCorruptSlice() { corruptSlices_.Increment(); }
   void connectionOpened() { connections_.Increment(); }
+  void streamOpened() { streams_.Increment(); }
+  // A view stream that ended after writing `bytesWritten` (counted as one request of route "stream", status
+  // 101, outside the latency histogram: a stream lasts as long as its viewer).
+  void streamClosed(std::uint64_t bytesWritten);
+  void countViewUpdate() { viewUpdates_.Increment(); }
+  void countStreamSliceSent() { streamSlicesSent_.Increment(); }
+  // Planned slices a newer view dropped before they were sent.
+  void countSuperseded(std::uint64_t slices) { superseded_.Increment(double(slices)); }
   void connectionClosed() { connections_.Decrement(); }
   // The text exposition of every metric, with the cache's fill as of now.
   std::string text(std::uint64_t cacheBytes, std::uint64_t cacheCapacity);
@@ -42,6 +50,10 @@ class Metrics {
   prometheus::Gauge& cacheBytes_;
   prometheus::Gauge& cacheCapacity_;
   prometheus::Gauge& connections_;
+  prometheus::Gauge& streams_;
+  prometheus::Counter& viewUpdates_;
+  prometheus::Counter& streamSlicesSent_;
+  prometheus::Counter& superseded_;
   prometheus::Histogram& latency_;
 };
 

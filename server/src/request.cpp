@@ -176,6 +176,7 @@ Route parseRoute(const std::vector<std::string>& segments) {
   }
   if (n >= 2 && last == "info") return {RouteKind::Info, join(segments, n - 1), {}};
   if (n >= 2 && last == "directory") return {RouteKind::Directory, join(segments, n - 1), {}};
+  if (n >= 2 && last == "stream") return {RouteKind::Stream, join(segments, n - 1), {}};
   if (n >= 3 && segments[n - 2] == "slices") return {RouteKind::Slice, join(segments, n - 2), last};
   return {RouteKind::File, join(segments, n), {}};
 }

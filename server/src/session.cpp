@@ -1,5 +1,7 @@
 #include "session.hpp"
 
+#include "stream_session.hpp"
+
 #include <vector>
 
 #include <fmt/format.h>
@@ -43,26 +45,26 @@ bool clientGone(const beast::error_code& ec) {
 
 }  // namespace
 
-void Sessions::add(const std::shared_ptr<Session>& session) {
+void Sessions::add(const std::shared_ptr<Connection>& connection) {
   std::lock_guard lock(mutex_);
-  live_.emplace(session.get(), session);
+  live_.emplace(connection.get(), connection);
 }
 
-void Sessions::remove(Session* session) {
+void Sessions::remove(Connection* connection) {
   std::lock_guard lock(mutex_);
-  live_.erase(session);
+  live_.erase(connection);
   if (live_.empty()) none_.notify_all();
 }
 
 void Sessions::stopAll() {
-  std::vector<std::shared_ptr<Session>> live;
+  std::vector<std::shared_ptr<Connection>> live;
   {
     std::lock_guard lock(mutex_);
     for (const auto& [raw, weak] : live_)
-      if (std::shared_ptr<Session> s = weak.lock()) live.push_back(std::move(s));
+      if (std::shared_ptr<Connection> c = weak.lock()) live.push_back(std::move(c));
   }
-  // Outside the lock: a session whose last owner is `live` removes itself when it goes.
-  for (const std::shared_ptr<Session>& s : live) s->stop();
+  // Outside the lock: a connection whose last owner is `live` removes itself when it goes.
+  for (const std::shared_ptr<Connection>& c : live) c->stop();
 }
 
 bool Sessions::waitUntilNone(std::chrono::milliseconds timeout) {
@@ -115,7 +117,16 @@ void Session::onRead(beast::error_code ec) {
   method_ = std::string(request.method_string());
   target_ = std::string(request.target());
   answered_ = std::chrono::steady_clock::now();
-  send(handle(request, context_));
+  Answer answer = handle(request, context_);
+  if (answer.stream) return upgrade(std::move(answer));
+  send(std::move(answer));
+}
+
+void Session::upgrade(Answer answer) {
+  if (context_.stopping) return send(svo::server::refuse(http::status::service_unavailable, "stopping"));
+  auto stream = std::make_shared<StreamSession>(stream_.release_socket(), context_, sessions_,
+                                                std::move(answer.stream), peer_, target_);
+  stream->start(parser_->release());
 }
 
 void Session::refuse(beast::error_code ec) {

@@ -21,13 +21,19 @@
 
 namespace svo::server {
 
-class Session;
+// An open connection as the server's registry sees it.
+class Connection {
+ public:
+  virtual ~Connection() = default;
+  // Asks the connection to end: now when idle, else at the end of what it is writing. Any thread.
+  virtual void stop() = 0;
+};
 
 // The open connections, so that a stopping server can close the idle ones and wait for the others.
 class Sessions {
  public:
-  void add(const std::shared_ptr<Session>& session);
-  void remove(Session* session);
+  void add(const std::shared_ptr<Connection>& connection);
+  void remove(Connection* connection);
   // Asks every connection to stop: idle ones close now, the others after the response in flight.
   void stopAll();
   // Waits until every connection has closed or `timeout` has passed; true when all closed.
@@ -36,24 +42,25 @@ class Sessions {
  private:
   std::mutex mutex_;
   std::condition_variable none_;
-  std::unordered_map<Session*, std::weak_ptr<Session>> live_;
+  std::unordered_map<Connection*, std::weak_ptr<Connection>> live_;
 };
 
-class Session : public std::enable_shared_from_this<Session> {
+// An HTTP connection; a request to a view stream hands its socket on to a StreamSession.
+class Session final : public Connection, public std::enable_shared_from_this<Session> {
  public:
   Session(boost::asio::ip::tcp::socket&& socket, Context& context, Sessions& sessions);
   ~Session();
   Session(const Session&) = delete;
   Session& operator=(const Session&) = delete;
   void start();
-  // Posted by Sessions::stopAll.
-  void stop();
+  void stop() override;
 
  private:
   void read();
   void onRead(boost::beast::error_code ec);
   void refuse(boost::beast::error_code ec);
   void send(Answer answer);
+  void upgrade(Answer answer);
   void writeSome();
   void onWrite(boost::beast::error_code ec, std::size_t bytes);
   void account(boost::beast::error_code ec);

@@ -1,10 +1,11 @@
 // Runs the libFuzzer targets over the store reader (tests/fuzz/fuzz_store.cpp), the streaming PLY reader
-// (tests/fuzz/fuzz_ply.cpp) and the server's request parsers (tests/fuzz/fuzz_request.cpp) for a bounded
-// number of inputs, each seeded with small valid inputs. tools/scripts/test.sh builds the targets with clang
-// and sets SVO_FUZZ_STORE, SVO_FUZZ_PLY and SVO_FUZZ_REQUEST; without them (a plain g++ build) the tests are
-// skipped.
+// (tests/fuzz/fuzz_ply.cpp), the server's request parsers (tests/fuzz/fuzz_request.cpp) and the view stream's
+// messages (tests/fuzz/fuzz_view.cpp) for a bounded number of inputs, each seeded with small valid inputs.
+// tools/scripts/test.sh builds the targets with clang and sets SVO_FUZZ_STORE, SVO_FUZZ_PLY, SVO_FUZZ_REQUEST
+// and SVO_FUZZ_VIEW; without them (a plain g++ build) the tests are skipped.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -14,6 +15,7 @@
 #include "svo/builder/build.hpp"
 #include "svo/builder/gen.hpp"
 #include "svo/store/store_writer.hpp"
+#include "svo/store/view_stream.hpp"
 
 namespace fs = std::filesystem;
 
@@ -86,6 +88,31 @@ TEST(Fuzz, RequestParsersKeepTheirPromises) {
       "/%2E%2E%2Fetc/passwd\0W/\"abc\", \"def\"\0"s + "0",
       "/scenes/a/b/info\0Bearer tok-en.1~\0"s + "18446744073709551615",
       "/a/directory\0bytes=5-\0"s + "5",
+  };
+  int n = 0;
+  for (const std::string& seed : seeds)
+    std::ofstream(dir / "seeds" / ("seed" + std::to_string(n++)), std::ios::binary) << seed;
+  EXPECT_TRUE(fuzz(fuzzer, dir)) << "the fuzzer found a failing input; its log and the input are in " << dir;
+}
+
+TEST(Fuzz, ViewStreamParsersKeepTheirPromises) {
+  const char* fuzzer = std::getenv("SVO_FUZZ_VIEW");
+  if (!fuzzer || !*fuzzer)
+    GTEST_SKIP() << "SVO_FUZZ_VIEW is not set (tools/scripts/test.sh builds the target)";
+  const fs::path dir = freshDir("svo_fuzz_view_");
+  svo::stream::View view;
+  view.id = 3;
+  view.query.frustum = {{1, 0, 0, 1.5}};
+  view.budgetBytes = 1 << 20;
+  view.held = {1, 5};
+  std::array<std::byte, svo::stream::kSliceFrameHeaderBytes> frame{};
+  svo::stream::writeSliceFrameHeader({7, 9}, frame);
+  const std::string seeds[] = {
+      svo::stream::encodeView(view),
+      svo::stream::encodeAck(4096),
+      svo::stream::encodePlan(2, std::vector<std::uint32_t>{0, 3, 99}),
+      svo::stream::encodeSliceError(2, 4, "slice 4: checksum mismatch"),
+      std::string(reinterpret_cast<const char*>(frame.data()), frame.size()),
   };
   int n = 0;
   for (const std::string& seed : seeds)

@@ -22,11 +22,13 @@
 
 #include "link_delay.hpp"
 #include "nginx_fixture.hpp"
+#include "paging_helpers.hpp"
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/client/http_source.hpp"
 #include "svo/client/locator.hpp"
 #include "svo/client/pager.hpp"
+#include "svo/client/stream_source.hpp"
 #include "svo/server/server.hpp"
 #include "svo/store/store_reader.hpp"
 
@@ -65,69 +67,13 @@ std::string slurp(const fs::path& p) {
   return s.str();
 }
 
-// Retries that end within a second: tests see the final error quickly.
-svo::RemoteOptions quickRetries() {
-  svo::RemoteOptions o;
-  o.retries = 2;
-  o.backoffBaseSeconds = 0.01;
-  o.backoffMaxSeconds = 0.05;
-  o.retryBudgetSeconds = 1.0;
-  o.connectTimeoutSeconds = 2.0;
-  o.requestTimeoutSeconds = 10.0;
-  return o;
-}
-
-svo::Camera cameraAt(glm::dvec3 eye, glm::dvec3 target, int size) {
-  svo::Camera c;
-  c.eye = eye, c.target = target, c.fovYDegrees = 50.0, c.width = c.height = size;
-  return c;
-}
-
-// Every slice of the store, whatever the camera sees.
-svo::ViewQuery everything(const svo::Pager& pager, const svo::Camera& camera) {
-  svo::ViewQuery view = svo::viewOf(pager.transform(), camera, 1e-9);
-  view.frustum.clear();
-  return view;
-}
-
-// Updates until the view has converged; bounded. Returns the slices deferred on the way.
-std::uint32_t converge(svo::Pager& pager, const svo::ViewQuery& view) {
-  std::uint32_t deferred = 0;
-  for (int i = 0; i < 4000; ++i) {
-    deferred += pager.update(view).deferred;
-    if (pager.converged()) return deferred;
-    pager.waitForWork(0.02);
-  }
-  ADD_FAILURE() << "the pager did not converge";
-  return deferred;
-}
-
-// Both frames bit for bit: color and depth of every pixel.
-void expectSameFrame(const svo::Frame& a, const svo::Frame& b) {
-  ASSERT_EQ(a.color.size(), b.color.size());
-  std::size_t hits = 0;
-  for (const glm::vec4& c : b.color) hits += c.a > 0.0f;
-  EXPECT_GT(hits, 0u);
-  EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(glm::vec4)), 0);
-  EXPECT_EQ(std::memcmp(a.depth.data(), b.depth.data(), a.depth.size() * sizeof(float)), 0);
-}
-
-svo::Frame renderFinest(const svo::Pager& pager, const svo::Camera& camera) {
-  svo::RenderOptions options;
-  options.lodPixels = 0.0f, options.threads = 1;
-  return svo::render(pager.trunk(), pager.transform(), camera, options);
-}
-
-// The message of what `open` throws ("" when it does not).
-template <class F>
-std::string errorOf(F&& open) {
-  try {
-    open();
-  } catch (const std::exception& e) {
-    return e.what();
-  }
-  return "";
-}
+using svotest::cameraAt;
+using svotest::converge;
+using svotest::errorOf;
+using svotest::everything;
+using svotest::expectSameFrame;
+using svotest::quickRetries;
+using svotest::renderFinest;
 
 // Streams the store at `url` into a pager, takes the server `down` mid-stream and brings it `up` again on
 // the same port: the fetches that failed meanwhile are deferred, not failed, with one message for the outage,
@@ -323,7 +269,8 @@ TEST_F(Http, PagerOverHttpConvergesToTheLocalImage) {
     options.budgetBytes = budget;
     options.fetchThreads = 4;
     svo::Pager local(sphereStore(), options);
-    svo::Pager remote(svo::openSliceSource(server.url("scene.svo"), quickRetries()), options);
+    const std::shared_ptr<svo::SliceSource> source = svo::openSliceSource(server.url("scene.svo"), quickRetries());
+    svo::Pager remote(source, options);
     // The view's own frustum, finest detail: what a render command converges.
     const svo::ViewQuery view = svo::viewOf(local.transform(), camera, 0.0);
     converge(local, view);
@@ -337,6 +284,12 @@ TEST_F(Http, PagerOverHttpConvergesToTheLocalImage) {
     EXPECT_GE(remote.bytesRead(), remote.index().slices()[remote.residentSlices().back()].compressedBytes);
     remote.checkInvariants();
     expectSameFrame(renderFinest(remote, camera), renderFinest(local, camera));
+    // nginx has no view stream: the source learns so from its 404 and reads by range alone.
+    const auto& stream = dynamic_cast<const svo::ViewStreamSource&>(*source);
+    for (int i = 0; i < 200 && !stream.stats().declined; ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    EXPECT_TRUE(stream.stats().declined);
+    EXPECT_EQ(stream.stats().pushed, 0u);
   }
 }
 
@@ -602,14 +555,17 @@ TEST_F(ServeHttp, PagerOverSvoServeConvergesToTheLocalImage) {
   svo::PagerOptions options;
   options.fetchThreads = 4;
   svo::Pager local(sphereStore(), options);
-  svo::Pager served(svo::openSliceSource(url(), remote), options);
   const svo::ViewQuery view = svo::viewOf(local.transform(), camera, 0.0);
   converge(local, view);
-  converge(served, view);
-  EXPECT_TRUE(served.failedSlices().empty());
-  EXPECT_EQ(served.residentSlices(), local.residentSlices());
-  served.checkInvariants();
-  expectSameFrame(renderFinest(served, camera), renderFinest(local, camera));
+  for (const bool viewStream : {false, true}) {  // by range alone, and beside the view stream
+    remote.viewStream = viewStream;
+    svo::Pager served(svo::openSliceSource(url(), remote), options);
+    converge(served, view);
+    EXPECT_TRUE(served.failedSlices().empty());
+    EXPECT_EQ(served.residentSlices(), local.residentSlices());
+    served.checkInvariants();
+    expectSameFrame(renderFinest(served, camera), renderFinest(local, camera));
+  }
 }
 
 // svo serve stops mid-stream and starts again on the same port.

@@ -36,6 +36,7 @@
 #include "plot.hpp"
 #include "remote.hpp"
 #include "svo/client/locator.hpp"
+#include "svo/client/stream_source.hpp"
 #include "svo/client/streaming.hpp"
 
 namespace svo::tools::bench {
@@ -43,6 +44,7 @@ namespace {
 
 struct StreamArgs {
   std::string input, output = "stream-report", token;
+  bool rangeOnly = false;
   std::vector<std::size_t> budgets{std::size_t(32) << 20, std::size_t(256) << 20};
   int size = 512, runs = 3, pathFrames = 120;
   PagerOptions pager;        // threads; the budget is set per measurement
@@ -151,7 +153,7 @@ std::vector<double> measureFirstImage(const StreamArgs& args, const PagerOptions
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
     const auto start = std::chrono::steady_clock::now();
-    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
+    Pager pager(openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly)), pagerOptions);
     const Camera framing = Camera::framing(pager.transform(), kDefaultViewDirection, args.size, args.size);
     render(pager.trunk(), pager.transform(), framing, options);
     firstImage.push_back(since(start));
@@ -168,6 +170,7 @@ struct CloseUp {
   std::vector<double> requests,
       retries;  // over HTTP: attempts until all converged, and the retries among them
   std::vector<WorkerCpu> cpu;
+  std::vector<StreamStats> stream;  // from svo serve's view stream
   std::uint64_t viewBytes = 0, bytes = 0;
   plot::Series errorCurve;
 };
@@ -177,8 +180,10 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
   r.errorCurve.name = formatBytes(pagerOptions.budgetBytes);
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
-    const std::shared_ptr<const ByteSource> bytes = openByteSource(args.input, remoteOptions(args.token));
-    Pager pager(std::make_shared<StoreSliceSource>(bytes), pagerOptions);
+    const RemoteOptions remote = remoteOptions(args.token, args.rangeOnly);
+    const std::shared_ptr<const ByteSource> bytes = openByteSource(args.input, remote);
+    const std::shared_ptr<const SliceSource> source = sliceSourceOver(bytes, args.input, remote);
+    Pager pager(source, pagerOptions);
     const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
     std::vector<std::pair<double, Frame>> frames;
     const Convergence c =
@@ -194,7 +199,7 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
     r.bytes = pager.bytesRead();
     r.cpu.push_back(pager.workerCpu());
     r.bytesPerCpuSecond.push_back(double(r.bytes) / std::max(1e-9, r.cpu.back().seconds()));
-    const StoreReader store(openByteSource(args.input, remoteOptions(args.token)));
+    const StoreReader store(openByteSource(args.input, remote));
     r.sequential.push_back(readSequentially(store, c.viewResidentSlices));
     r.decompressed.push_back(readAndDecompress(store, c.viewResidentSlices, args.pager.decodeThreads));
     r.viewCpu.push_back(c.viewWorkerCpu.seconds());
@@ -202,6 +207,7 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
       r.requests.push_back(double(http->stats().requests));
       r.retries.push_back(double(http->stats().retries));
     }
+    if (const auto* stream = dynamic_cast<const ViewStreamSource*>(source.get())) r.stream.push_back(stream->stats());
     if (run == 0)
       for (const auto& [t, frame] : frames)
         r.errorCurve.points.push_back(
@@ -221,7 +227,7 @@ PathTimes measurePath(const StreamArgs& args, const PagerOptions& pagerOptions,
   PathTimes r;
   for (int run = 0; run < args.runs; ++run) {
     dropFileCache(args.input);
-    Pager pager(openSliceSource(args.input, remoteOptions(args.token)), pagerOptions);
+    Pager pager(openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly)), pagerOptions);
     std::vector<double> streaming, resident;
     for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
       const StreamedFrame step = streamFrame(pager, c, options);
@@ -333,6 +339,22 @@ void runStreamBench(StreamArgs args) {
                       formatBytes(budget), requests, summarize(closeUp.retries).median,
                       formatBytes(std::uint64_t(double(closeUp.bytes) / requests))));
     }
+    if (!closeUp.stream.empty()) {
+      const auto median = [&](auto field) {
+        std::vector<double> values;
+        for (const StreamStats& s : closeUp.stream) values.push_back(double(field(s)));
+        return summarize(values).median;
+      };
+      requestLines.push_back(
+          closeUp.stream.front().declined
+              ? formatBytes(budget) + ": the server has no view stream (range requests only)"
+              : fmt::format("{}: view stream: {:.0f} slices pushed ({:.0f} fetched from them), {:.0f} read by "
+                            "range, {:.0f} views sent",
+                            formatBytes(budget), median([](const StreamStats& s) { return s.pushed; }),
+                            median([](const StreamStats& s) { return s.usedPushed; }),
+                            median([](const StreamStats& s) { return s.pulled; }),
+                            median([](const StreamStats& s) { return s.viewsSent; })));
+    }
   }
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
   plot::writeLogLogPlot(plotPath, {{"close-up from a cold start: RMSE against the converged frame", curves}},
@@ -387,6 +409,7 @@ void addStreamBench(CLI::App& bench) {
       ->required()
       ->check(storeLocator());
   addTokenOption(cmd, args->token);
+  addRangeOnlyFlag(cmd, args->rangeOnly);
   cmd->add_option("--budgets", args->budgets, "pool budgets, e.g. 32M,256M (default 32M,256M)")
       ->delimiter(',')
       ->transform(CLI::AsSizeValue(false));

@@ -13,9 +13,16 @@ void addTokenOption(CLI::App* command, std::string& token) {
                       "variable)");
 }
 
-RemoteOptions remoteOptions(const std::string& token) {
+void addRangeOnlyFlag(CLI::App* command, bool& rangeOnly) {
+  command->add_flag("--range-only", rangeOnly,
+                    "for a store URL: range requests only, without svo serve's view stream (as from a static "
+                    "server)");
+}
+
+RemoteOptions remoteOptions(const std::string& token, bool rangeOnly) {
   RemoteOptions options;
   options.token = token;
+  options.viewStream = !rangeOnly;
   if (const char* env = std::getenv("SVO_TOKEN"); options.token.empty() && env) options.token = env;
   return options;
 }

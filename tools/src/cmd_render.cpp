@@ -35,6 +35,7 @@ glm::dvec3 vec3Of(const std::vector<double>& v) {
 
 struct RenderArgs {
   std::string in, out, cameraFile, token;
+  bool rangeOnly = false;
   std::vector<double> eye, target, up{0.0, 1.0, 0.0},
       view{kDefaultViewDirection.x, kDefaultViewDirection.y, kDefaultViewDirection.z};
   double fov = 40.0;
@@ -201,7 +202,7 @@ void checkImageOutput(const RenderArgs& args) {
 // a pool of a share of the machine's memory (never more than the whole store takes).
 void renderDefault(const RenderArgs& args) {
   const std::uint64_t share = defaultMemoryShare(machineMemory());
-  const std::shared_ptr<const ByteSource> bytes = openByteSource(args.in, remoteOptions(args.token));
+  const std::shared_ptr<const ByteSource> bytes = openByteSource(args.in, remoteOptions(args.token, args.rangeOnly));
   std::size_t storeBudget = 0;
   std::string why;
   {
@@ -238,6 +239,7 @@ void addRenderCommand(CLI::App& app) {
   cmd->add_option("input", args->in, "input .svo store: a file, or its http(s):// URL on a static server")
       ->required();
   addTokenOption(cmd, args->token);
+  addRangeOnlyFlag(cmd, args->rangeOnly);
   cmd->add_option("-o,--output", args->out, "output image (.png or .exr)")->required();
   cmd->add_option("--camera", args->cameraFile, "camera JSON {eye, target, up, fov, width, height}");
   cmd->add_option("--eye", args->eye, "camera position x,y,z (world)")->expected(3)->delimiter(',');
@@ -286,7 +288,7 @@ void addRenderCommand(CLI::App& app) {
   cmd->callback([args] {
     if (args->pathFile.empty()) checkImageOutput(*args);
     if (args->budget == 0) return renderDefault(*args);
-    renderStreaming(*args, openSliceSource(args->in, remoteOptions(args->token)), args->budget,
+    renderStreaming(*args, openSliceSource(args->in, remoteOptions(args->token, args->rangeOnly)), args->budget,
                     "streamed through a " + formatBytes(args->budget) + " block pool");
   });
 }

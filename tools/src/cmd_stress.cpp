@@ -34,6 +34,7 @@ namespace {
 
 struct StressArgs {
   std::string input, output = "stress-report", token;
+  bool rangeOnly = false;
   std::vector<std::size_t> budgets{std::size_t(4) << 20, std::size_t(64) << 20};
   int frames = 120;
   int size = 256;
@@ -267,7 +268,7 @@ void runStress(const StressArgs& args) {
   RenderOptions render;
   render.lodPixels = args.lodPixels;
   // Opened once: a store that cannot be read fails the command; each budget's pager starts cold all the same.
-  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token));
+  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly));
   for (const std::size_t budget : args.budgets) {
     const std::string text = formatBytes(budget);
     std::unique_ptr<Pager> pager;
@@ -331,7 +332,7 @@ void runSoak(const StressArgs& args) {
   const double perBudget = args.minutes * 60.0 / double(args.budgets.size());
   std::vector<plot::Series> curves;
   std::vector<std::string> leaks;
-  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token));
+  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly));
   for (const std::size_t budget : args.budgets) {
     const std::string text = formatBytes(budget);
     Pager pager(source, pagerOptionsFor(budget, args));
@@ -389,6 +390,7 @@ void addStressCommand(CLI::App& app) {
       ->required()
       ->check(storeLocator());
   addTokenOption(cmd, args->token);
+  addRangeOnlyFlag(cmd, args->rangeOnly);
   cmd->add_option("--budgets", args->budgets, "pool budgets, e.g. 4M,64M (default 4M,64M)")
       ->delimiter(',')
       ->transform(CLI::AsSizeValue(false));

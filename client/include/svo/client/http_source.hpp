@@ -46,6 +46,9 @@ struct RemoteOptions {
   double backoffBaseSeconds = kDefaultBackoffBaseSeconds;
   double backoffMaxSeconds = kDefaultBackoffMaxSeconds;
   double retryBudgetSeconds = kDefaultRetryBudgetSeconds;
+  // Open svo serve's view stream beside the range requests (a server without one declines it, and then
+  // ranges alone are used); false: range requests only.
+  bool viewStream = true;
 };
 
 // What a source has asked of its server so far.

@@ -22,7 +22,12 @@ bool isUrl(std::string_view locator);
 std::shared_ptr<const ByteSource> openByteSource(const std::string& locator,
                                                  const RemoteOptions& remote = {});
 
-// The store at `locator` as the pager's slice source (its header and directory read and checked).
+// The store at `locator` as the pager's slice source (its header and directory read and checked): a URL
+// gives a ViewStreamSource (svo serve's view stream, range requests for the rest) unless
+// `remote.viewStream` is false.
 std::shared_ptr<SliceSource> openSliceSource(const std::string& locator, const RemoteOptions& remote = {});
+// The same over `bytes`, the store at `locator` already opened by openByteSource (to keep its statistics).
+std::shared_ptr<SliceSource> sliceSourceOver(std::shared_ptr<const ByteSource> bytes, const std::string& locator,
+                                             const RemoteOptions& remote = {});
 
 }  // namespace svo

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "svo/store/byte_source.hpp"
+#include "svo/store/schedule.hpp"
 #include "svo/store/store_index.hpp"
 #include "svo/store/store_types.hpp"
 
@@ -26,6 +27,9 @@ class SliceSource {
   // fetch neighbours together. Stops at the first that fails and throws its SliceError; `compressed` then
   // holds the ones before it. By default one fetch() each.
   virtual void fetchAll(std::span<const std::uint32_t> slices, std::vector<SliceBytes>& compressed) const;
+  // The view the pager schedules for, with its pool's budget, at each update: a source that sends slices
+  // ahead of their fetches (the view stream) follows it; the others need not know.
+  virtual void follow(const ViewQuery& /*view*/, std::size_t /*budgetBytes*/) const {}
 };
 
 // The slices of a store read through a byte source; its header and directory are read and checked on

@@ -42,15 +42,15 @@ struct TargetPath {
 // files). A slash decoded from %2F splits segments like a raw one, so "%2E%2E%2F" is a ".." segment.
 TargetPath parseTargetPath(std::string_view target);
 
-enum class RouteKind { NotFound, Health, Metrics, Scenes, File, Info, Directory, Slice };
+enum class RouteKind { NotFound, Health, Metrics, Scenes, File, Info, Directory, Slice, Stream };
 struct Route {
   RouteKind kind = RouteKind::NotFound;
   std::string scene;    // File, Info, Directory, Slice: the scene's name (relative path without .svo)
   std::string sliceId;  // Slice: the id as written (parseSliceId checks it)
 };
 // The route of a path's segments. /NAME.svo and /NAME are the whole file; /NAME/info, /NAME/directory and
-// /NAME/slices/ID the scene's parts (NAME may hold slashes: a store in a sub-folder). healthz, metrics and
-// scenes at the top are the service's own.
+// /NAME/slices/ID the scene's parts, /NAME/stream its view stream (NAME may hold slashes: a store in a
+// sub-folder). healthz, metrics and scenes at the top are the service's own.
 Route parseRoute(const std::vector<std::string>& segments);
 // The readings of a scene route's segments, in the order the server tries them against its stores:
 // parseRoute's; the whole file (/a/b/info when there is no scene a/b but a/b/info.svo); and both again

@@ -7,6 +7,8 @@
 //   GET /NAME/info                     JSON metadata
 //   GET /NAME/directory                the directory's bytes as stored
 //   GET /NAME/slices/ID                slice ID's compressed bytes as stored (immutable, ETag = checksum)
+//   GET /NAME/stream (WebSocket)       the view stream: the client sends views, the server pushes the
+//                                      slices each needs, most valuable first (svo/store/view_stream.hpp)
 // NAME is a store's path under the folder without .svo. Its only state is the cache: many instances can
 // stand behind a load balancer.
 #pragma once
@@ -27,6 +29,10 @@ inline constexpr std::uint64_t kDefaultCacheBytes = std::uint64_t(256) << 20;
 // How long a request may take to arrive, head and body, counted from the end of the last response: a
 // client sending a byte a second is cut after it, and an idle keep-alive connection closed.
 inline constexpr std::chrono::milliseconds kDefaultRequestReadTimeout{10'000};
+// Bytes a view stream may have sent that its client has not acknowledged: twice a 100 Mbit/s, 100 ms
+// link's 1.25 MB in flight, so the window does not idle such a link, while a superseded view wastes at most
+// this much and one client's backlog stays bounded.
+inline constexpr std::uint64_t kDefaultStreamWindowBytes = std::uint64_t(4) << 20;
 
 enum class LogFormat { Text, Json };
 
@@ -36,6 +42,7 @@ struct ServerOptions {
   std::uint16_t port = 0;          // 0: a free port (port() says which)
   unsigned threads = 0;            // I/O threads; 0: one per hardware thread
   std::uint64_t cacheBytes = kDefaultCacheBytes;
+  std::uint64_t streamWindowBytes = kDefaultStreamWindowBytes;
   std::string token;  // non-empty: "Authorization: Bearer TOKEN" on every route but /healthz
   LogFormat logFormat = LogFormat::Text;
   bool logRequests = true;  // one line per request (failures are always logged)

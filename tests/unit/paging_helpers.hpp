@@ -1,0 +1,80 @@
+// Helpers of the tests that page stores from servers: quick retries, cameras, convergence bounded in count,
+// bit-for-bit frame comparison.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <exception>
+#include <string>
+
+#include "svo/client/http_source.hpp"
+#include "svo/client/pager.hpp"
+
+namespace svotest {
+
+// Retries that end within a second: tests see the final error quickly.
+inline svo::RemoteOptions quickRetries() {
+  svo::RemoteOptions o;
+  o.retries = 2;
+  o.backoffBaseSeconds = 0.01;
+  o.backoffMaxSeconds = 0.05;
+  o.retryBudgetSeconds = 1.0;
+  o.connectTimeoutSeconds = 2.0;
+  o.requestTimeoutSeconds = 10.0;
+  return o;
+}
+
+inline svo::Camera cameraAt(glm::dvec3 eye, glm::dvec3 target, int size) {
+  svo::Camera c;
+  c.eye = eye, c.target = target, c.fovYDegrees = 50.0, c.width = c.height = size;
+  return c;
+}
+
+// Every slice of the store, whatever the camera sees.
+inline svo::ViewQuery everything(const svo::Pager& pager, const svo::Camera& camera) {
+  svo::ViewQuery view = svo::viewOf(pager.transform(), camera, 1e-9);
+  view.frustum.clear();
+  return view;
+}
+
+// Updates until the view has converged; bounded. Returns the slices deferred on the way.
+inline std::uint32_t converge(svo::Pager& pager, const svo::ViewQuery& view) {
+  std::uint32_t deferred = 0;
+  for (int i = 0; i < 4000; ++i) {
+    deferred += pager.update(view).deferred;
+    if (pager.converged()) return deferred;
+    pager.waitForWork(0.02);
+  }
+  ADD_FAILURE() << "the pager did not converge";
+  return deferred;
+}
+
+// Both frames bit for bit: color and depth of every pixel.
+inline void expectSameFrame(const svo::Frame& a, const svo::Frame& b) {
+  ASSERT_EQ(a.color.size(), b.color.size());
+  std::size_t hits = 0;
+  for (const glm::vec4& c : b.color) hits += c.a > 0.0f;
+  EXPECT_GT(hits, 0u);
+  EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(glm::vec4)), 0);
+  EXPECT_EQ(std::memcmp(a.depth.data(), b.depth.data(), a.depth.size() * sizeof(float)), 0);
+}
+
+inline svo::Frame renderFinest(const svo::Pager& pager, const svo::Camera& camera) {
+  svo::RenderOptions options;
+  options.lodPixels = 0.0f, options.threads = 1;
+  return svo::render(pager.trunk(), pager.transform(), camera, options);
+}
+
+// The message of what `open` throws ("" when it does not).
+template <class F>
+std::string errorOf(F&& open) {
+  try {
+    open();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace svotest
