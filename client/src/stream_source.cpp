@@ -175,36 +175,39 @@ void ViewStreamSource::Impl::connect() {
   out.clear();
   writing = false;
   frameBytes = 0;
-  resolver.async_resolve(endpoint.host, endpoint.port, [this, gen](beast::error_code ec, tcp::resolver::results_type r) {
-    if (gen != generation) return;
-    if (ec) return lost("resolving " + endpoint.host + ": " + ec.message());
-    beast::get_lowest_layer(*ws).expires_after(
-        std::chrono::milliseconds(std::int64_t(options.connectTimeoutSeconds * 1000)));
-    beast::get_lowest_layer(*ws).async_connect(r, [this, gen](beast::error_code ec2, const tcp::endpoint&) {
-      if (gen != generation) return;
-      if (ec2) return lost("connecting: " + ec2.message());
-      beast::get_lowest_layer(*ws).expires_never();
-      ws->set_option(websocket::stream_base::timeout{kHandshakeTimeout, kIdleTimeout, true});
-      ws->set_option(websocket::stream_base::decorator([token = options.token](websocket::request_type& req) {
-        if (!token.empty()) req.set(beast::http::field::authorization, "Bearer " + token);
-      }));
-      ws->read_message_max(0);  // slices are checked against the directory's sizes instead
-      ws->async_handshake(upgradeAnswer, endpoint.host + ":" + endpoint.port, endpoint.target,
-                          [this, gen](beast::error_code ec3) {
-                            if (gen != generation) return;
-                            if (ec3 == websocket::error::upgrade_declined) {
-                              // Not a svo serve (a static server answers 404): range requests only.
-                              beast::get_lowest_layer(*ws).close();
-                              std::lock_guard lock(mutex);
-                              declined = stats.declined = true;
-                              changed.notify_all();
-                              return;
-                            }
-                            if (ec3) return lost("upgrading to the view stream: " + ec3.message());
-                            onConnected();
-                          });
-    });
-  });
+  resolver.async_resolve(
+      endpoint.host, endpoint.port, [this, gen](beast::error_code ec, tcp::resolver::results_type r) {
+        if (gen != generation) return;
+        if (ec) return lost("resolving " + endpoint.host + ": " + ec.message());
+        beast::get_lowest_layer(*ws).expires_after(
+            std::chrono::milliseconds(std::int64_t(options.connectTimeoutSeconds * 1000)));
+        beast::get_lowest_layer(*ws).async_connect(
+            r, [this, gen](beast::error_code ec2, const tcp::endpoint&) {
+              if (gen != generation) return;
+              if (ec2) return lost("connecting: " + ec2.message());
+              beast::get_lowest_layer(*ws).expires_never();
+              ws->set_option(websocket::stream_base::timeout{kHandshakeTimeout, kIdleTimeout, true});
+              ws->set_option(
+                  websocket::stream_base::decorator([token = options.token](websocket::request_type& req) {
+                    if (!token.empty()) req.set(beast::http::field::authorization, "Bearer " + token);
+                  }));
+              ws->read_message_max(0);  // slices are checked against the directory's sizes instead
+              ws->async_handshake(upgradeAnswer, endpoint.host + ":" + endpoint.port, endpoint.target,
+                                  [this, gen](beast::error_code ec3) {
+                                    if (gen != generation) return;
+                                    if (ec3 == websocket::error::upgrade_declined) {
+                                      // Not a svo serve (a static server answers 404): range requests only.
+                                      beast::get_lowest_layer(*ws).close();
+                                      std::lock_guard lock(mutex);
+                                      declined = stats.declined = true;
+                                      changed.notify_all();
+                                      return;
+                                    }
+                                    if (ec3) return lost("upgrading to the view stream: " + ec3.message());
+                                    onConnected();
+                                  });
+            });
+      });
 }
 
 void ViewStreamSource::Impl::onConnected() {
@@ -398,7 +401,9 @@ ViewStreamSource::ViewStreamSource(std::shared_ptr<const ByteSource> bytes, cons
 
 ViewStreamSource::~ViewStreamSource() = default;
 
-const StoreIndex& ViewStreamSource::index() const { return impl_->pull.index(); }
+const StoreIndex& ViewStreamSource::index() const {
+  return impl_->pull.index();
+}
 
 void ViewStreamSource::fetch(std::uint32_t slice, SliceBytes& compressed) const {
   std::vector<SliceBytes> one;
@@ -406,7 +411,8 @@ void ViewStreamSource::fetch(std::uint32_t slice, SliceBytes& compressed) const 
   compressed = std::move(one.front());
 }
 
-void ViewStreamSource::fetchAll(std::span<const std::uint32_t> slices, std::vector<SliceBytes>& compressed) const {
+void ViewStreamSource::fetchAll(std::span<const std::uint32_t> slices,
+                                std::vector<SliceBytes>& compressed) const {
   Impl& m = *impl_;
   std::size_t i = 0;
   while (i < slices.size()) {

@@ -160,7 +160,7 @@ bool StreamSession::writeNextSlice() {
     writing_ = true;
     ws_.binary(true);
     const std::array<net::const_buffer, 2> frame{net::buffer(frameHeader_),
-                                                  net::buffer(slice_->data(), slice_->size())};
+                                                 net::buffer(slice_->data(), slice_->size())};
     ws_.async_write(frame, [self = shared_from_this()](beast::error_code ec, std::size_t n) {
       self->written_ += n;
       if (!ec) {

@@ -12,7 +12,9 @@ namespace {
 
 using nlohmann::json;
 
-[[noreturn]] void fail(const std::string& what) { throw ProtocolError(what); }
+[[noreturn]] void fail(const std::string& what) {
+  throw ProtocolError(what);
+}
 
 const json& field(const json& message, const char* name) {
   const auto it = message.find(name);
@@ -113,7 +115,9 @@ std::string encodeView(const View& view) {
   return message.dump();
 }
 
-std::string encodeAck(std::uint64_t receivedBytes) { return json{{"ack", receivedBytes}}.dump(); }
+std::string encodeAck(std::uint64_t receivedBytes) {
+  return json{{"ack", receivedBytes}}.dump();
+}
 
 ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount) {
   if (text.size() > maxClientMessageBytes(sliceCount)) fail("message too large");
@@ -133,7 +137,8 @@ ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount) 
   return m;
 }
 
-std::vector<std::uint32_t> planSlices(const StoreIndex& index, const ViewQuery& query, std::uint64_t budgetBytes) {
+std::vector<std::uint32_t> planSlices(const StoreIndex& index, const ViewQuery& query,
+                                      std::uint64_t budgetBytes) {
   std::vector<std::uint32_t> plan;
   std::uint64_t decoded = 0;
   for (const SliceRequest& r : scheduleSlices(index, query)) {

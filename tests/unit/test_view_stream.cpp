@@ -114,7 +114,8 @@ class ViewStream : public ::testing::Test {
     server_.reset();
     fs::remove_all(root_);
   }
-  void start(std::uint64_t windowBytes = svo::server::kDefaultStreamWindowBytes, const std::string& token = "") {
+  void start(std::uint64_t windowBytes = svo::server::kDefaultStreamWindowBytes,
+             const std::string& token = "") {
     svo::server::ServerOptions options;
     options.root = root_;
     options.threads = 2;
@@ -197,7 +198,7 @@ TEST(ViewStreamProtocol, ViewsRoundTripAndBadFieldsAreNamed) {
   };
   EXPECT_EQ(errorOf("{\"view\":1,"), "not JSON");
   EXPECT_EQ(errorOf("[1,2]"), "not a JSON object");
-  EXPECT_EQ(errorOf(R"({"view":1,"eye":[NaN,0,0]})"), "not JSON");  // JSON has no NaN
+  EXPECT_EQ(errorOf(R"({"view":1,"eye":[NaN,0,0]})"), "not JSON");    // JSON has no NaN
   EXPECT_EQ(errorOf(R"({"view":1,"eye":[1e999,0,0]})"), "not JSON");  // nor infinities
   EXPECT_EQ(errorOf(with("eye", "[1e13,0,0]")), "eye: farther than 1e12 from the scene");
   EXPECT_EQ(errorOf(with("eye", "[1,2]")), "eye: not an array of 3 numbers");
@@ -250,7 +251,8 @@ TEST_F(ViewStream, PagerConvergesToTheLocalFrameFromPushedSlices) {
   svo::Pager local(sphereStore(), options), served(source, options);
   const svo::Camera camera = svotest::cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
   const svo::ViewQuery view = svo::viewOf(local.transform(), camera, 0.0);
-  for (int i = 0; i < 500 && !streamed->streaming(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  for (int i = 0; i < 500 && !streamed->streaming(); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
   ASSERT_TRUE(streamed->streaming());
   svotest::converge(local, view);
   svotest::converge(served, view);
@@ -324,8 +326,10 @@ TEST_F(ViewStream, BadMessagesCloseTheirStreamAndTheServerServesOn) {
       {good.substr(0, good.find("\"budget\":")) + "\"budget\":0" +
            good.substr(good.find(',', good.find("\"budget\":"))),
        false, websocket::close_code::policy_error, "bad message: budget: 0 bytes is not in [1, 2^40]"},
-      {stream::encodeAck(5), false, websocket::close_code::policy_error, "bad message: ack of 5 bytes, 0 sent"},
-      {"\x01\x02", true, websocket::close_code::bad_payload, "a binary message: the view stream takes JSON text"},
+      {stream::encodeAck(5), false, websocket::close_code::policy_error,
+       "bad message: ack of 5 bytes, 0 sent"},
+      {"\x01\x02", true, websocket::close_code::bad_payload,
+       "a binary message: the view stream takes JSON text"},
       {std::string(1 << 20, '['), false, websocket::close_code::too_big, ""},
   };
   for (const Case& c : cases) {
@@ -361,7 +365,8 @@ TEST_F(ViewStream, UpgradeRequestsAreCheckedLikeAnyRequest) {
   EXPECT_EQ(WsClient().open(port(), "/nothing/stream", "secret"), 404u);
   EXPECT_EQ(WsClient().open(port(), "/%2E%2E/scene/stream", "secret"), 400u);
   EXPECT_EQ(WsClient().open(port(), "/scene/stream", "secret"), 101u);
-  const svotest::HttpReply plain = svotest::httpGet(port(), "/scene/stream", {{"Authorization", "Bearer secret"}});
+  const svotest::HttpReply plain =
+      svotest::httpGet(port(), "/scene/stream", {{"Authorization", "Bearer secret"}});
   EXPECT_EQ(plain.status, 426u);
   EXPECT_EQ(plain.header("upgrade"), "websocket");
 }

@@ -4,7 +4,9 @@
 // /NAME/slices/ID for svo serve; GET /NAME.svo with Range: bytes=OFFSET-END for nginx: the same bytes),
 // then fetches the whole store (GET /NAME.svo from both). Runs alternate between the peers and the two
 // loads after one warm-up each; medians of requests/s, MB/s, p50 and p99 latency (wrk's), and each peer's
-// resident set when listening and at its peak (svo serve's process; nginx's master and workers).
+// resident set when listening and at its peak (svo serve's process; nginx's master and workers). Then
+// --viewers clients, each with its own view, fetch what their views plan at once: from svo serve's view
+// stream and from nginx by range requests (bench_serve_streams.hpp).
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <signal.h>
@@ -26,7 +28,9 @@
 #include <fmt/format.h>
 
 #include "bench_common.hpp"
+#include "bench_serve_streams.hpp"
 #include "measure.hpp"
+#include "nginx_peer.hpp"
 #include "process.hpp"
 #include "svo/store/store_reader.hpp"
 
@@ -46,10 +50,9 @@ constexpr int kWarmupSeconds = 1;
 constexpr int kDefaultWrkThreads = 2;
 // Requests in the wrk script: every slice of a store up to this many, else this many spread evenly.
 constexpr std::size_t kMaxTargets = 4096;
-// A peer has this long to start listening (polled every 50 ms).
-constexpr std::chrono::seconds kStartTimeout{10};
-// A peer has this long to exit after SIGTERM before it is killed.
-constexpr std::chrono::seconds kStopTimeout{5};
+// Viewers streaming their own views at once in the many-viewers run, and each one's pool.
+constexpr int kDefaultViewers = 64;
+constexpr std::uint64_t kDefaultViewerBudget = std::uint64_t(64) << 20;
 
 struct ServeArgs {
   std::string store;
@@ -58,97 +61,10 @@ struct ServeArgs {
   int runs = kDefaultRuns;
   int threads = 0;
   int wrkThreads = kDefaultWrkThreads;
+  int viewers = kDefaultViewers;
+  std::uint64_t viewerBudget = kDefaultViewerBudget;
   std::string nginx = "nginx";
 };
-
-// A child process with stdout and stderr in `log`; stopped (SIGTERM, then SIGKILL) and reaped when it goes.
-class Child {
- public:
-  Child(const std::vector<std::string>& argv, const fs::path& log) : log_(log) {
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_adddup2(&actions, 1, 2);
-    std::vector<std::string> arguments = argv;
-    std::vector<char*> argp;
-    for (std::string& a : arguments) argp.push_back(a.data());
-    argp.push_back(nullptr);
-    const int spawned = ::posix_spawnp(&pid_, argp[0], &actions, nullptr, argp.data(), environ);
-    posix_spawn_file_actions_destroy(&actions);
-    if (spawned != 0)
-      throw std::runtime_error(argv[0] + ": cannot start it (" + std::strerror(spawned) + ")");
-  }
-  ~Child() { stop(); }
-  Child(const Child&) = delete;
-  Child& operator=(const Child&) = delete;
-  pid_t pid() const { return pid_; }
-  bool running() {
-    if (pid_ <= 0) return false;
-    int status = 0;
-    if (::waitpid(pid_, &status, WNOHANG) != pid_) return true;
-    pid_ = -1;
-    return false;
-  }
-  // What it wrote, for an error message.
-  std::string log() const {
-    std::ifstream in(log_);
-    std::stringstream s;
-    s << in.rdbuf();
-    return s.str();
-  }
-  void stop() {
-    if (pid_ <= 0) return;
-    ::kill(pid_, SIGTERM);
-    const auto deadline = std::chrono::steady_clock::now() + kStopTimeout;
-    while (running() && std::chrono::steady_clock::now() < deadline)
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    if (pid_ > 0) {
-      ::kill(pid_, SIGKILL);
-      ::waitpid(pid_, nullptr, 0);
-      pid_ = -1;
-    }
-  }
-
- private:
-  pid_t pid_ = -1;
-  fs::path log_;
-};
-
-// A loopback port free now (the kernel's pick for a socket bound to port 0).
-std::uint16_t freePort() {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t length = sizeof addr;
-  if (fd < 0 || ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 ||
-      ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &length) != 0)
-    throw std::runtime_error("cannot find a free loopback port");
-  ::close(fd);
-  return ntohs(addr.sin_port);
-}
-
-bool accepts(std::uint16_t port) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_port = htons(port);
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  const bool ok = fd >= 0 && ::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) == 0;
-  if (fd >= 0) ::close(fd);
-  return ok;
-}
-
-void waitUntilListening(Child& child, std::uint16_t port, const std::string& name) {
-  const auto deadline = std::chrono::steady_clock::now() + kStartTimeout;
-  while (!accepts(port)) {
-    if (!child.running()) throw std::runtime_error(name + " exited at start: " + child.log());
-    if (std::chrono::steady_clock::now() > deadline)
-      throw std::runtime_error(
-          name + fmt::format(" does not listen on port {} after {} s", port, kStartTimeout.count()));
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  }
-}
 
 // A process's resident set field ("VmHWM", "VmRSS") in bytes, 0 when unknown.
 std::uint64_t statusBytes(pid_t pid, const std::string& field) {
@@ -160,17 +76,8 @@ std::uint64_t statusBytes(pid_t pid, const std::string& field) {
 
 // A resident set field of `pid` and of its children (nginx's workers), summed.
 std::uint64_t residentBytes(pid_t pid, const std::string& field) {
-  std::uint64_t total = statusBytes(pid, field);
-  for (const auto& entry : fs::directory_iterator("/proc")) {
-    const std::string name = entry.path().filename().string();
-    if (name.find_first_not_of("0123456789") != std::string::npos) continue;
-    std::ifstream in(entry.path() / "status");
-    for (std::string line; std::getline(in, line);)
-      if (line.rfind("PPid:", 0) == 0) {
-        if (std::stoi(line.substr(5)) == pid) total += statusBytes(std::stoi(name), field);
-        break;
-      }
-  }
+  std::uint64_t total = 0;
+  for (const pid_t p : processAndChildren(pid)) total += statusBytes(p, field);
   return total;
 }
 
@@ -242,50 +149,6 @@ Load runWrk(const ServeArgs& args, std::uint16_t port, const fs::path& script, d
   return {requests / duration, bytes / duration / 1e6, p50 * 1e-6, p99 * 1e-6, std::uint64_t(errors)};
 }
 
-// nginx's config: sendfile without tcp_nopush, its fastest here on loopback (120 KB ranges, 64 connections,
-// 2 workers: sendfile 18-27k requests/s, without sendfile 14-20k, sendfile with tcp_nopush 2.3k).
-std::string nginxConfig(const fs::path& dir, const fs::path& root, std::uint16_t port, int workers) {
-  const std::string d = dir.string();
-  return fmt::format(R"(daemon off;
-master_process on;
-worker_processes {workers};
-pid {d}/nginx.pid;
-error_log {d}/nginx-error.log;
-events {{ worker_connections 1024; }}
-http {{
-  access_log off;
-  client_body_temp_path {d}/body;
-  proxy_temp_path {d}/proxy;
-  fastcgi_temp_path {d}/fastcgi;
-  uwsgi_temp_path {d}/uwsgi;
-  scgi_temp_path {d}/scgi;
-  default_type application/octet-stream;
-  sendfile on;
-  keepalive_requests 1000000;
-  open_file_cache max=64;
-  server {{
-    listen 127.0.0.1:{port};
-    root {root};
-  }}
-}}
-)",
-                     fmt::arg("workers", workers), fmt::arg("d", d), fmt::arg("port", port),
-                     fmt::arg("root", root.string()));
-}
-
-// A scratch folder removed with the object.
-struct ScratchFolder {
-  fs::path path;
-  ScratchFolder() : path(fs::temp_directory_path() / fmt::format("svo-bench-serve-{}", ::getpid())) {
-    fs::remove_all(path);
-    fs::create_directories(path / "root");
-  }
-  ~ScratchFolder() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-
 std::string ratio(double a, double b) {
   return b > 0 ? fmt::format("{:.2f}", a / b) : "-";
 }
@@ -296,15 +159,6 @@ std::string micros(double seconds) {
 }  // namespace
 
 namespace {
-
-// `name` as one URL path segment: unreserved bytes as they are, the others percent-encoded.
-std::string urlSegment(const std::string& name) {
-  std::string out;
-  for (const unsigned char c : name)
-    out += std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~' ? std::string(1, char(c))
-                                                                           : fmt::format("%{:02X}", c);
-  return out;
-}
 
 struct Peer {
   std::unique_ptr<Child> process;
@@ -370,6 +224,32 @@ void printResults(const ServeArgs& args, const StoreReader& reader, int threads,
       "requests/s and MB/s, worse for latency and memory).\n");
 }
 
+void printManyViewers(const ServeArgs& args, const ManyViewers& svo, const ManyViewers& nginx) {
+  printTitle(fmt::format("{} viewers at once, each its own view (512 px, a {} pool): svo serve's view stream vs "
+                         "nginx by range requests",
+                         args.viewers, formatBytes(args.viewerBudget)));
+  Table table({"", "svo serve (stream)", "nginx (ranges)", "svo / nginx"});
+  const auto mbps = [](const ManyViewers& v) { return double(v.bytes) / 1e6 / std::max(1e-9, v.seconds); };
+  const auto cpuPerMb = [](const ManyViewers& v) {
+    return 1e6 * v.serverCpuSeconds / std::max(1e-9, double(v.bytes) / 1e6);
+  };
+  table.addRow({"viewers converged", fmt::format("{} of {}", svo.converged, svo.clients),
+                fmt::format("{} of {}", nginx.converged, nginx.clients), ""});
+  table.addRow({"until the last converged", formatSeconds(svo.seconds), formatSeconds(nginx.seconds),
+                ratio(svo.seconds, nginx.seconds)});
+  table.addRow({"until the median one did", formatSeconds(svo.medianSeconds), formatSeconds(nginx.medianSeconds),
+                ratio(svo.medianSeconds, nginx.medianSeconds)});
+  table.addRow({"aggregate MB/s", fmt::format("{:.0f}", mbps(svo)), fmt::format("{:.0f}", mbps(nginx)),
+                ratio(mbps(svo), mbps(nginx))});
+  table.addRow({"server CPU per MB", fmt::format("{:.0f} us", cpuPerMb(svo)), fmt::format("{:.0f} us", cpuPerMb(nginx)),
+                ratio(cpuPerMb(svo), cpuPerMb(nginx))});
+  table.addRow({"slices read by range (stream fallback)", std::to_string(svo.pulled), "all", ""});
+  table.print();
+  std::printf("the run of median time of %d per peer (alternating); ", args.runs);
+  std::printf("a viewer has converged when every slice its view plans (the scheduler within its pool) arrived and "
+              "passed the store's check; nginx: a slice per request, one connection per viewer\n");
+}
+
 // The peer `which` (0: svo serve, 1: nginx) started over `root`, listening.
 Peer startPeer(int which, const ServeArgs& args, const fs::path& scratch, const fs::path& root, int threads) {
   Peer p;
@@ -381,12 +261,7 @@ Peer startPeer(int which, const ServeArgs& args, const fs::path& scratch, const 
                                  "--no-request-log"},
         scratch / "svo-serve.log");
   } else {
-    const fs::path config = scratch / "nginx.conf";
-    std::ofstream(config) << nginxConfig(scratch, root, p.port, threads);
-    p.process = std::make_unique<Child>(
-        std::vector<std::string>{args.nginx, "-c", config.string(), "-p", scratch.string() + "/", "-e",
-                                 (scratch / "nginx-start.log").string()},
-        scratch / "nginx.log");
+    p.process = startNginx(args.nginx, scratch, root, p.port, threads);
   }
   waitUntilListening(*p.process, p.port, which == 0 ? "svo serve" : "nginx");
   p.startResident = residentBytes(p.process->pid(), "VmRSS");
@@ -400,12 +275,10 @@ void runServeBench(const ServeArgs& args) {
   const StoreReader reader(args.store);  // a bad store fails here, with one line naming it
   const int threads =
       args.threads > 0 ? args.threads : int(std::max(1u, std::thread::hardware_concurrency()));
-  ScratchFolder scratch;
+  ScratchFolder scratch(fs::temp_directory_path() / fmt::format("svo-bench-serve-{}", ::getpid()));
   const std::string name = fs::path(args.store).stem().string();
-  const fs::path root = scratch.path / "root", served = root / (name + ".svo");
-  std::error_code ec;
-  fs::create_hard_link(args.store, served, ec);  // a copy only across file systems
-  if (ec) fs::copy_file(args.store, served);
+  const fs::path root = scratch.path / "root";
+  scratch.serve(args.store);
 
   const std::vector<SliceInfo>& slices = reader.slices();
   const std::size_t count = std::min(slices.size(), kMaxTargets);
@@ -439,6 +312,18 @@ void runServeBench(const ServeArgs& args) {
         w.runs[p].push_back(runWrk(args, peers[p].port, w.scripts[p], args.seconds));
   for (Peer& p : peers) p.peakResident = residentBytes(p.process->pid(), "VmHWM");
   printResults(args, reader, threads, workloads, peers[0], peers[1]);
+  if (args.viewers > 0) {
+    const std::string base = "http://127.0.0.1:";
+    std::vector<ManyViewers> runs[2];
+    for (int run = 0; run < args.runs; ++run) {
+      runs[0].push_back(runManyViewers(base + std::to_string(peers[0].port) + "/" + urlSegment(name), reader,
+                                       peers[0].process->pid(), args.viewers, args.viewerBudget, true));
+      runs[1].push_back(runManyViewers(base + std::to_string(peers[1].port) + file, reader,
+                                       peers[1].process->pid(), args.viewers, args.viewerBudget, false));
+    }
+    const ManyViewers viewers[2] = {medianRun(runs[0]), medianRun(runs[1])};
+    printManyViewers(args, viewers[0], viewers[1]);
+  }
 }
 
 }  // namespace
@@ -464,6 +349,13 @@ void addServeBench(CLI::App& bench) {
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
   cmd->add_option("--nginx", args->nginx, "the nginx binary")->capture_default_str();
+  cmd->add_option("--viewers", args->viewers,
+                  "clients streaming their own views at once after the GET loads (0: none)")
+      ->check(CLI::Range(0, 1000))
+      ->capture_default_str();
+  cmd->add_option("--viewer-budget", args->viewerBudget, "each viewer's pool (bytes; 64M)")
+      ->transform(CLI::AsSizeValue(false))
+      ->capture_default_str();
   cmd->callback([args] { runServeBench(*args); });
 }
 

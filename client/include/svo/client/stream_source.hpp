@@ -21,12 +21,12 @@ inline constexpr double kPushWaitSeconds = 5.0;
 
 struct StreamStats {
   std::uint64_t viewsSent = 0;
-  std::uint64_t pushed = 0;         // slices received on the stream
-  std::uint64_t pushedBytes = 0;    // their frames' bytes
-  std::uint64_t usedPushed = 0;     // fetches answered by a pushed slice
-  std::uint64_t pulled = 0;         // fetches read by range request
-  std::uint64_t connections = 0;    // stream connections made (reconnections included)
-  bool declined = false;            // the server has no view stream (a static server): range requests only
+  std::uint64_t pushed = 0;       // slices received on the stream
+  std::uint64_t pushedBytes = 0;  // their frames' bytes
+  std::uint64_t usedPushed = 0;   // fetches answered by a pushed slice
+  std::uint64_t pulled = 0;       // fetches read by range request
+  std::uint64_t connections = 0;  // stream connections made (reconnections included)
+  bool declined = false;          // the server has no view stream (a static server): range requests only
 };
 
 class ViewStreamSource final : public SliceSource {

@@ -4,7 +4,8 @@
 // newer view supersedes the older one's plan. Shared by the server and the client, so both speak one format;
 // pure functions over bytes, so the fuzz target (tests/fuzz/fuzz_view.cpp) runs them on anything.
 //
-//   client -> server, text:   {"view":N,"eye":[x,y,z],"pixelAngle":a,"lodPixels":p,"frustum":[[nx,ny,nz,d],...],
+//   client -> server, text:
+//   {"view":N,"eye":[x,y,z],"pixelAngle":a,"lodPixels":p,"frustum":[[nx,ny,nz,d],...],
 //                              "outsideWeight":w,"budget":bytes,"held":[ids]}       a view (N grows)
 //                             {"ack":bytes}           slice bytes received so far (the server's send window)
 //   server -> client, text:   {"view":N,"plan":[ids]}  what the server sends for view N, in order
@@ -47,7 +48,7 @@ std::size_t maxClientMessageBytes(std::size_t sliceCount);
 struct View {
   std::uint64_t id = 0;  // the client's sequence number: a larger one supersedes
   ViewQuery query;
-  std::uint64_t budgetBytes = 0;  // the client's pool: the plan's decoded bytes stay within it
+  std::uint64_t budgetBytes = 0;    // the client's pool: the plan's decoded bytes stay within it
   std::vector<std::uint32_t> held;  // slices the client has (sent once, on a new connection)
 };
 
@@ -67,7 +68,8 @@ ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount);
 // The slices the server plans for `query` and a client pool of `budgetBytes`: scheduleSlices' order while
 // the wanted slices' decoded bytes fit the budget (a block is never smaller than its slices' decoded
 // bytes, so the pool cannot hold more).
-std::vector<std::uint32_t> planSlices(const StoreIndex& index, const ViewQuery& query, std::uint64_t budgetBytes);
+std::vector<std::uint32_t> planSlices(const StoreIndex& index, const ViewQuery& query,
+                                      std::uint64_t budgetBytes);
 
 // One message from the server: a plan, or a slice it could not send.
 struct ServerMessage {
