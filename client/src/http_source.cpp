@@ -246,6 +246,7 @@ std::unique_ptr<HttpByteSource::Handle> HttpByteSource::acquire() const {
   curl_easy_setopt(c, CURLOPT_NOSIGNAL, 1L);  // several threads: no SIGALRM for timeouts
   curl_easy_setopt(c, CURLOPT_ERRORBUFFER, h->error);
   curl_easy_setopt(c, CURLOPT_USERAGENT, kUserAgent);
+  if (!options_.caFile.empty()) curl_easy_setopt(c, CURLOPT_CAINFO, options_.caFile.c_str());
   curl_easy_setopt(c, CURLOPT_HTTP_VERSION, long(CURL_HTTP_VERSION_2TLS));
   curl_easy_setopt(c, CURLOPT_PROTOCOLS_STR, "http,https");
   curl_easy_setopt(c, CURLOPT_REDIR_PROTOCOLS_STR, "http,https");

@@ -269,7 +269,8 @@ TEST_F(Http, PagerOverHttpConvergesToTheLocalImage) {
     options.budgetBytes = budget;
     options.fetchThreads = 4;
     svo::Pager local(sphereStore(), options);
-    const std::shared_ptr<svo::SliceSource> source = svo::openSliceSource(server.url("scene.svo"), quickRetries());
+    const std::shared_ptr<svo::SliceSource> source =
+        svo::openSliceSource(server.url("scene.svo"), quickRetries());
     svo::Pager remote(source, options);
     // The view's own frustum, finest detail: what a render command converges.
     const svo::ViewQuery view = svo::viewOf(local.transform(), camera, 0.0);
@@ -431,6 +432,58 @@ TEST_F(Http, ReadmeNginxSnippetServesStores) {
   remote.token = "secret";  // the snippet's example token
   EXPECT_EQ(svo::openSliceSource(server.url("private/scene.svo"), remote)->index().slices().size(),
             open->index().slices().size());
+}
+
+// The README's TLS proxy in front of svo serve, with a certificate made here for 127.0.0.1: the pager
+// converges over https:// to the local frame; a client that does not trust the certificate refuses the
+// server.
+TEST_F(Http, ReadmeTlsProxyServesSvoServeOverHttps) {
+  if (std::system("openssl version > /dev/null 2>&1") != 0)
+    GTEST_SKIP() << "openssl is not installed (Debian: openssl): the TLS test makes its certificate with it";
+  const svotest::TempDir certs;
+  const fs::path cert = certs.path() / "cert.pem", key = certs.path() / "key.pem";
+  const std::string make =
+      "openssl req -x509 -newkey rsa:2048 -nodes -days 1 -subj /CN=127.0.0.1 "
+      "-addext subjectAltName=IP:127.0.0.1 -keyout " +
+      key.string() + " -out " + cert.string() + " > /dev/null 2>&1";
+  ASSERT_EQ(std::system(make.c_str()), 0) << make;
+  svo::server::ServerOptions options;
+  options.root = root_;
+  options.threads = 2;
+  options.logSink = [](std::string_view) {};
+  svo::server::Server backend(options);
+  backend.start();
+
+  const std::string readme = slurp(fs::path(SVO_SOURCE_DIR) / "README.md");
+  const std::size_t tls = readme.find("ssl_certificate ");
+  ASSERT_NE(tls, std::string::npos) << "README.md has no TLS snippet";
+  const std::size_t begin = readme.rfind("```nginx\n", tls), end = readme.find("```", tls);
+  std::string snippet = readme.substr(begin + 9, end - begin - 9);
+  for (const auto& [from, to] :
+       {std::pair<std::string, std::string>{"listen 8443 ssl;", "listen 127.0.0.1:{port} ssl;"},
+        {"/etc/ssl/svo/cert.pem", cert.string()},
+        {"/etc/ssl/svo/key.pem", key.string()},
+        {"127.0.0.1:8080", "127.0.0.1:" + std::to_string(backend.port())}}) {
+    const std::size_t at = snippet.find(from);
+    ASSERT_NE(at, std::string::npos) << "the snippet has no \"" << from << "\":\n" << snippet;
+    snippet.replace(at, from.size(), to);
+  }
+  svotest::NginxServer& server = serve({snippet});
+  const std::string url = "https://127.0.0.1:" + std::to_string(server.port()) + "/scene";
+  svo::RemoteOptions remote = quickRetries();
+  const std::string untrusted = errorOf([&] { svo::openSliceSource(url, remote); });
+  EXPECT_NE(untrusted.find("certificate"), std::string::npos) << untrusted;
+  remote.caFile = cert.string();
+  svo::PagerOptions pagerOptions;
+  pagerOptions.fetchThreads = 4;
+  svo::Pager local(sphereStore(), pagerOptions), served(svo::openSliceSource(url, remote), pagerOptions);
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  const svo::ViewQuery view = svo::viewOf(local.transform(), camera, 0.0);
+  converge(local, view);
+  converge(served, view);
+  EXPECT_TRUE(served.failedSlices().empty());
+  EXPECT_EQ(served.residentSlices(), local.residentSlices());
+  expectSameFrame(renderFinest(served, camera), renderFinest(local, camera));
 }
 
 // The commands take a URL wherever they take a store: the same images, byte for byte, as from the file.

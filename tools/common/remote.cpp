@@ -24,6 +24,8 @@ RemoteOptions remoteOptions(const std::string& token, bool rangeOnly) {
   options.token = token;
   options.viewStream = !rangeOnly;
   if (const char* env = std::getenv("SVO_TOKEN"); options.token.empty() && env) options.token = env;
+  // curl's own variable for the certificates an https:// server is checked against.
+  if (const char* ca = std::getenv("CURL_CA_BUNDLE"); ca && *ca) options.caFile = ca;
   return options;
 }
 

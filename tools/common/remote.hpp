@@ -15,7 +15,8 @@ void addTokenOption(CLI::App* command, std::string& token);
 // Adds --range-only to a command that streams a store URL through the pager.
 void addRangeOnlyFlag(CLI::App* command, bool& rangeOnly);
 // The remote options of a command: its --token, else the SVO_TOKEN environment variable (which keeps the
-// token out of the process list and the shell history); with `rangeOnly`, no view stream.
+// token out of the process list and the shell history); with `rangeOnly`, no view stream. CURL_CA_BUNDLE, as
+// for curl, names the certificates an https:// server is checked against when not the system's.
 RemoteOptions remoteOptions(const std::string& token, bool rangeOnly = false);
 // A store argument: an existing file, or a URL (checked when the store is opened).
 CLI::Validator storeLocator();

@@ -8,7 +8,7 @@ packages=(
   libopenimageio-dev openimageio-tools libglm-dev libzstd-dev libxxhash-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
   libembree-dev
-  libcurl4-openssl-dev prometheus-cpp-dev nginx-light wrk nghttp2-client
+  libcurl4-openssl-dev prometheus-cpp-dev nginx-light wrk nghttp2-client openssl
   gnuplot-nox
   clang libclang-rt-14-dev
 )

@@ -202,7 +202,8 @@ void checkImageOutput(const RenderArgs& args) {
 // a pool of a share of the machine's memory (never more than the whole store takes).
 void renderDefault(const RenderArgs& args) {
   const std::uint64_t share = defaultMemoryShare(machineMemory());
-  const std::shared_ptr<const ByteSource> bytes = openByteSource(args.in, remoteOptions(args.token, args.rangeOnly));
+  const RemoteOptions remote = remoteOptions(args.token, args.rangeOnly);
+  const std::shared_ptr<const ByteSource> bytes = openByteSource(args.in, remote);
   std::size_t storeBudget = 0;
   std::string why;
   {
@@ -225,7 +226,7 @@ void renderDefault(const RenderArgs& args) {
   }
   if (why.empty()) why = "a camera path streams";
   const std::size_t budget = std::size_t(std::min<std::uint64_t>({share, storeBudget, kMaxBudgetBytes}));
-  renderStreaming(args, std::make_shared<StoreSliceSource>(bytes), budget,
+  renderStreaming(args, sliceSourceOver(bytes, args.in, remote), budget,
                   "streamed through a " + formatBytes(budget) + " block pool (default: " + why +
                       "; --budget sets the pool)");
 }

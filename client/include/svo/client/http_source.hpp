@@ -40,6 +40,9 @@ inline constexpr std::uint64_t kHttpPrefixBytes = 4096;
 // How a remote store is reached. Commands fill `token` from --token or the SVO_TOKEN environment variable.
 struct RemoteOptions {
   std::string token;  // sent as `Authorization: Bearer TOKEN` when not empty
+  // For https:// URLs: the certificates (PEM) that vouch for the server, when not the system's (a private
+  // CA, a self-signed certificate); empty: the system's.
+  std::string caFile;
   double connectTimeoutSeconds = kDefaultConnectTimeoutSeconds;
   double requestTimeoutSeconds = kDefaultRequestTimeoutSeconds;
   int retries = kDefaultRetries;
