@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <optional>
 
 #include <boost/asio/connect.hpp>
@@ -398,4 +399,42 @@ TEST_F(ViewStream, ClientsThatVanishMidStreamLeaveTheOthersServed) {
   for (int i = 0; i < 200 && metric("svo_streams_open") != 1.0; ++i)
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   EXPECT_EQ(metric("svo_streams_open"), 1.0) << "the vanished client's stream ended";
+}
+
+// A slice corrupt on disk: the stream says which one it cannot send, in a message of its own, and goes on
+// with the rest of the plan.
+TEST_F(ViewStream, CorruptSliceIsNamedAndTheRestIsSent) {
+  const svo::StoreReader store(sphereStore());
+  const std::uint32_t bad = 5;
+  {
+    std::fstream file(root_ / "scene.svo", std::ios::in | std::ios::out | std::ios::binary);
+    file.seekp(std::streamoff(store.slices()[bad].offset + 3));
+    file.put('\x5a' ^ char(file.peek()));
+  }
+  start();
+  WsClient ws;
+  ASSERT_EQ(ws.open(port(), "/scene/stream"), 101u);
+  ws.send(stream::encodeView(wholeView(1)));
+  const auto planMessage = ws.read();
+  ASSERT_TRUE(planMessage);
+  const stream::ServerMessage plan = stream::parseServerMessage(planMessage->bytes, store.slices().size());
+  ASSERT_NE(std::find(plan.plan.begin(), plan.plan.end(), bad), plan.plan.end());
+  std::size_t slices = 0, errors = 0;
+  for (std::size_t k = 0; k < plan.plan.size(); ++k) {
+    const auto m = ws.read();
+    ASSERT_TRUE(m) << k;
+    if (m->binary) {
+      ++slices;
+      continue;
+    }
+    const stream::ServerMessage error = stream::parseServerMessage(m->bytes, store.slices().size());
+    ASSERT_EQ(error.kind, stream::ServerMessage::Kind::SliceError);
+    EXPECT_EQ(error.slice, bad);
+    EXPECT_NE(error.error.find("scene: "), std::string::npos) << error.error;  // named by scene, not path
+    EXPECT_EQ(error.error.find(root_.string()), std::string::npos) << error.error;
+    ++errors;
+  }
+  EXPECT_EQ(errors, 1u);
+  EXPECT_EQ(slices, plan.plan.size() - 1);
+  EXPECT_EQ(metric("svo_corrupt_slices_total"), 1.0);
 }
