@@ -368,37 +368,53 @@ TEST_F(Cli, BenchQualityWritesReportPlotAndImages) {
                      "--levels", dir_ / "nothing");
 }
 
-TEST_F(Cli, BenchQualityStreamWritesOneCurvePerBudget) {
+TEST_F(Cli, BenchQualityStreamWritesOneCurvePerSourceAndBudget) {
   const fs::path out = dir_ / "stream";
-  const CommandResult r =
-      svo("bench quality " + tetrahedron().string() +
-          " --stream --levels 6 --budgets 128K,4M --size 32 --threads 1 -o " + out.string());
+  // svo serve in process by its view stream and by range requests, behind a relay adding 1 ms each way.
+  const CommandResult r = svo("bench quality " + tetrahedron().string() +
+                              " --stream --levels 6 --budgets 128K,4M --sources local,serve,serve-range "
+                              "--link-delay 1 --size 32 --threads 1 -o " +
+                              out.string());
   ASSERT_EQ(r.exitCode, 0) << r.err;
   std::istringstream csv(slurp(out / "stream.csv"));
   std::string line;
-  std::getline(csv, line);  // header
-  std::map<long, std::vector<double>> timesOf;
+  std::getline(csv, line);
+  EXPECT_EQ(line.rfind("source,budget_bytes,seconds,", 0), 0u) << line;
+  std::map<std::pair<std::string, long>, std::vector<double>> timesOf;
   while (std::getline(csv, line)) {
-    std::vector<double> v;
     std::istringstream fields(line);
+    std::string source;
+    std::getline(fields, source, ',');
+    std::vector<double> v;
     for (std::string f; std::getline(fields, f, ',');) v.push_back(std::stod(f));
     ASSERT_EQ(v.size(), 7u) << line;
     for (const double x : v) EXPECT_TRUE(std::isfinite(x)) << line;
-    timesOf[long(v[0])].push_back(v[1]);
+    timesOf[{source, long(v[0])}].push_back(v[1]);
   }
-  ASSERT_EQ(timesOf.size(), 2u);  // 128K and 4M
-  for (const auto& [budget, times] : timesOf) {
-    EXPECT_GE(times.size(), 2u) << budget;  // the first frame and the converged one at least
-    EXPECT_TRUE(std::is_sorted(times.begin(), times.end())) << budget;
+  ASSERT_EQ(timesOf.size(), 6u);  // local, serve, serve-range x 128K, 4M
+  for (const auto& [run, times] : timesOf) {
+    EXPECT_GE(times.size(), 2u) << run.first << " " << run.second;  // the first frame and the converged one
+    EXPECT_TRUE(std::is_sorted(times.begin(), times.end())) << run.first << " " << run.second;
   }
   EXPECT_GT(fs::file_size(out / "error-vs-time-streaming.png"), 100u);
-  // One curve per budget in each of the three panels, every frame kept a point (errors clamped up to 1e-4).
-  std::size_t frames = 0;
-  for (const auto& [budget, times] : timesOf) frames += times.size();
+  // One curve per source and budget in each of the three panels, every frame kept a point (errors clamped
+  // up to 1e-4); the curves' names hold a comma, so the plot's CSV quotes them.
+  std::size_t frames = 0, named = 0;
+  for (const auto& [run, times] : timesOf) frames += times.size();
   const std::vector<std::string> plotted = plotRows(out / "error-vs-time-streaming.png", 1400, 1000);
   EXPECT_EQ(plotted.size(), 3 * frames);
-  EXPECT_EQ(countSeries(plotted, "128.0 KiB") + countSeries(plotted, "4.0 MiB"), 3 * frames);
+  for (const std::string source : {"local file", "svo serve stream", "svo serve ranges"})
+    for (const std::string budget : {"128.0 KiB", "4.0 MiB"})
+      named += countSeries(plotted, "\"" + source + ", " + budget + "\"");
+  EXPECT_EQ(named, 3 * frames);
+  EXPECT_NE(r.out.find("slices pushed by the view stream"), std::string::npos) << r.out;
   EXPECT_EQ(svo("bench quality " + tetrahedron().string() + " --budgets 4M -o " + out.string()).exitCode, 2);
+  expectCleanFailure(svo("bench quality " + tetrahedron().string() + " --stream --sources local,local -o " +
+                         (dir_ / "twice").string()),
+                     "--sources", dir_ / "twice" / "stream.csv");
+  expectCleanFailure(svo("bench quality " + tetrahedron().string() + " --stream --link-delay 10 -o " +
+                         (dir_ / "nolink").string()),
+                     "--link-delay", dir_ / "nolink" / "stream.csv");
 }
 
 TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {

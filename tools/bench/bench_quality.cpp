@@ -16,6 +16,7 @@
 #include <glm/common.hpp>
 
 #include "bench_quality.hpp"
+#include "link_flags.hpp"
 #include "plot.hpp"
 #include "text_file.hpp"
 
@@ -223,6 +224,7 @@ void runQualityBench(const QualityArgs& args) {
   const std::filesystem::path out = args.out;
   std::filesystem::create_directories(out);
 
+  if (args.stream) checkStreamArgs(args);
   const Mesh mesh = loadBenchMesh(args.mesh);
   if (args.stream)
     return runStreamingQuality(args, mesh, threads, *std::max_element(levelList.begin(), levelList.end()));
@@ -286,7 +288,7 @@ void addQualityBench(CLI::App& bench) {
   CLI::Option* stream = cmd->add_flag(
       "--stream", args->stream,
       "instead of the sweep: error against elapsed time while the deepest --levels store streams "
-      "in from a cold file, one curve per --budgets");
+      "in from a cold start, one curve per --sources and --budgets");
   cmd->add_option("--budgets", args->budgets, "with --stream: pool budgets, e.g. 4M,64M (default 4M,64M)")
       ->delimiter(',')
       ->transform(CLI::AsSizeValue(false))
@@ -295,6 +297,21 @@ void addQualityBench(CLI::App& bench) {
       ->check(CLI::PositiveNumber)
       ->capture_default_str()
       ->needs(stream);
+  std::vector<std::string> sourceWords;
+  for (const auto& [word, name] : kStreamSources) sourceWords.push_back(word);
+  cmd->add_option(
+         "--sources", args->sources,
+         "with --stream: where the store streams from, one curve each: local (the file), serve (svo "
+         "serve's view stream), serve-range (svo serve by range requests), nginx (by range requests); "
+         "comma-separated")
+      ->delimiter(',')
+      ->check(CLI::IsMember(sourceWords))
+      ->capture_default_str()
+      ->needs(stream);
+  const auto [linkDelay, linkRate] =
+      addLinkFlags(*cmd, args->linkDelayMs, args->linkRate, "with --stream, for the sources over HTTP");
+  linkDelay->needs(stream);
+  linkRate->needs(stream);
   cmd->callback([args] { runQualityBench(*args); });
 }
 

@@ -34,7 +34,19 @@ struct QualityArgs {
   bool stream = false;
   std::vector<std::size_t> budgets{std::size_t(4) << 20, std::size_t(64) << 20};
   double timeout = 300.0;
+  std::vector<std::string> sources{"local"};  // words of kStreamSources
+  double linkDelayMs = 0.0;                   // one-way delay a relay adds in front of the HTTP sources
+  double linkRate = 0.0;                      // bits per second of that relay's link (0: unbounded)
 };
+
+// --stream's sources by their --sources word, with their names in curves and tables: the store file read in
+// place; svo serve's view stream (range requests for the rest); svo serve by range requests only; nginx by
+// range requests.
+inline const std::vector<std::pair<std::string, std::string>> kStreamSources = {
+    {"local", "local file"},
+    {"serve", "svo serve stream"},
+    {"serve-range", "svo serve ranges"},
+    {"nginx", "nginx ranges"}};
 
 struct Image {
   int width = 0, height = 0;
@@ -111,7 +123,11 @@ struct LevelScene {
 void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesystem::path& out, bool withRoot,
                 LevelScene& s);
 
-// --stream: error against elapsed time while the store of `levels` levels streams in from a cold file.
+// --stream's flags checked before any work: throws UsageError for a source listed twice, or a link with no
+// source over HTTP.
+void checkStreamArgs(const QualityArgs& args);
+// --stream: error against elapsed time while the store of `levels` levels streams in from a cold start, one
+// curve per source and budget.
 void runStreamingQuality(const QualityArgs& args, const Mesh& mesh, int threads, int levels);
 
 }  // namespace svo::tools::bench

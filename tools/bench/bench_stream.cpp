@@ -30,7 +30,7 @@
 #include <glm/geometric.hpp>
 
 #include "bench_common.hpp"
-#include "link_delay.hpp"
+#include "link_flags.hpp"
 #include "measure.hpp"
 #include "pager_flags.hpp"
 #include "plot.hpp"
@@ -268,29 +268,9 @@ void addCpuRow(Table& table, std::size_t budget, const CloseUp& closeUp) {
                 nanosPerVoxel, bytesPerCpu});
 }
 
-// With --link-delay: a relay in front of the input's http:// server, and the input rewritten to go through
-// it.
-std::unique_ptr<LinkDelay> delayLink(StreamArgs& args) {
-  if (args.linkDelayMs <= 0.0 && args.linkRate <= 0.0) return nullptr;
-  const std::string scheme = "http://";
-  if (args.input.rfind(scheme, 0) != 0)
-    throw UsageError("--link-delay and --link-rate need an http:// store URL");
-  const std::size_t slash = args.input.find('/', scheme.size());
-  const std::string authority = args.input.substr(scheme.size(), slash - scheme.size());
-  const std::size_t colon = authority.rfind(':');
-  const bool hasPort = colon != std::string::npos && authority.find(']', colon) == std::string::npos;
-  const std::string host = authority.substr(0, hasPort ? colon : authority.size());
-  const int port = hasPort ? std::atoi(authority.c_str() + colon + 1) : 80;
-  auto link = std::make_unique<LinkDelay>(host.starts_with('[') ? host.substr(1, host.size() - 2) : host,
-                                          port, args.linkDelayMs * 1e-3, args.linkRate);
-  args.input = scheme + "127.0.0.1:" + std::to_string(link->port()) +
-               (slash == std::string::npos ? "/" : args.input.substr(slash));
-  return link;
-}
-
 void runStreamBench(StreamArgs args) {
   const std::string input = args.input;
-  const std::unique_ptr<LinkDelay> link = delayLink(args);
+  const std::unique_ptr<LinkDelay> link = delayLink(args.input, args.linkDelayMs, args.linkRate);
   keepFreedMemoryForReuse();
   requireRuns(args.runs);
   std::filesystem::create_directories(args.output);
@@ -361,9 +341,7 @@ void runStreamBench(StreamArgs args) {
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
   printTitle(
       "svo bench stream " + input +
-      (link ? fmt::format(" through a relay adding {:g} ms each way{}", args.linkDelayMs,
-                          args.linkRate > 0.0 ? fmt::format(" at {:g} Mbit/s", args.linkRate * 1e-6) : "")
-            : "") +
+      (link ? " through " + linkDescription(args.linkDelayMs, args.linkRate) : "") +
       " (" + std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
       std::to_string(args.runs) + " runs, " +
       fmt::format("{} fetch and {} decode threads at nice {}, {} decoding during frames",
@@ -431,16 +409,7 @@ void addStreamBench(CLI::App& bench) {
                   "on the cores")
       ->check(CLI::Range(0, 256))
       ->capture_default_str();
-  cmd->add_option("--link-delay", args->linkDelayMs,
-                  "for an http:// URL: milliseconds a loopback relay adds to each direction (a link of twice "
-                  "that round trip)")
-      ->check(CLI::Range(0.0, 10000.0));
-  cmd->add_option("--link-rate", args->linkRate,
-                  "for an http:// URL: bits per second the relay's link carries in each direction, shared by "
-                  "every connection (100M: a 100 Mbit/s link; default unbounded)")
-      ->transform(CLI::AsNumberWithUnit(std::map<std::string, double>{{"k", 1e3}, {"M", 1e6}, {"G", 1e9}},
-                                        CLI::AsNumberWithUnit::CASE_SENSITIVE))
-      ->check(CLI::NonNegativeNumber);
+  addLinkFlags(*cmd, args->linkDelayMs, args->linkRate, "for an http:// URL");
   cmd->callback([args] { runStreamBench(*args); });
 }
 
