@@ -382,6 +382,7 @@ bool ViewStreamSource::Impl::takePushed(std::unique_lock<std::mutex>& lock, std:
                                         SliceBytes& compressed) {
   const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(
                                            std::chrono::duration<double>(kPushWaitSeconds));
+  bool asked = false;
   while (true) {
     if (const auto it = received.find(slice); it != received.end()) {
       compressed = std::move(it->second);
@@ -391,7 +392,14 @@ bool ViewStreamSource::Impl::takePushed(std::unique_lock<std::mutex>& lock, std:
       delivered[slice] = true;
       return true;
     }
-    if (!coming(slice) || changed.wait_until(lock, deadline) == std::cv_status::timeout) return false;
+    if (!coming(slice)) return false;
+    if (!asked) {  // the pager wants it now: the server sends it next
+      net::post(io, [this, slice] {
+        if (connected) send(stream::encodeWant(std::span(&slice, 1)));
+      });
+      asked = true;
+    }
+    if (changed.wait_until(lock, deadline) == std::cv_status::timeout) return false;
   }
 }
 

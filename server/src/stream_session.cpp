@@ -103,6 +103,7 @@ void StreamSession::take(std::string_view text) {
     ackedBytes_ = std::max(ackedBytes_, message.ackedBytes);
     return pump();
   }
+  if (message.kind == stream::ClientMessage::Kind::Want) return prefer(message.wanted);
   if (haveView_ && message.view.id <= view_)
     return refuse(websocket::close_code::policy_error,
                   fmt::format("bad message: view {} after view {}", message.view.id, view_));
@@ -121,9 +122,27 @@ void StreamSession::follow(stream::View view) {
   for (const std::uint32_t id : stream::planSlices(*scene_->index, view.query, view.budgetBytes))
     if (!sent_[id]) plan_.push_back(id);
   next_ = 0;
+  // Slices a fetch asked for before this plan existed go first; those it leaves out are not sent.
+  for (auto it = wanted_.rbegin(); it != wanted_.rend(); ++it) moveToFront(*it);
+  wanted_.clear();
   view_ = view.id;
   haveView_ = true;
   texts_.push_back(stream::encodePlan(view_, plan_));
+  pump();
+}
+
+bool StreamSession::moveToFront(std::uint32_t slice) {
+  const auto at = std::find(plan_.begin() + std::ptrdiff_t(next_), plan_.end(), slice);
+  if (at == plan_.end()) return false;
+  std::rotate(plan_.begin() + std::ptrdiff_t(next_), at, at + 1);
+  return true;
+}
+
+void StreamSession::prefer(const std::vector<std::uint32_t>& slices) {
+  // Last first, so that the first asked for ends up in front.
+  for (auto it = slices.rbegin(); it != slices.rend(); ++it)
+    if (!sent_[*it] && !moveToFront(*it) && std::find(wanted_.begin(), wanted_.end(), *it) == wanted_.end())
+      wanted_.push_back(*it);
   pump();
 }
 

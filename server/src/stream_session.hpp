@@ -1,8 +1,9 @@
-// One client's view stream (svo/store/view_stream.hpp for the messages): a WebSocket over the connection an
-// upgrade request came on. Each view the client sends replaces the plan (planSlices: the shared scheduler,
-// within the client's budget, less what this connection already sent or the client holds); the session
-// writes the plan's slices one message at a time, most valuable first, while the bytes the client has not
-// acknowledged stay within the stream window. Everything runs on the connection's one I/O thread.
+// One client's view stream (svo/store/view_stream.hpp for the messages): a WebSocket over the connection an upgrade
+// request came on. Each view the client sends replaces the plan (planSlices: the shared scheduler, within the
+// client's budget, less what this connection already sent or the client holds); the session writes the plan's slices
+// one message at a time, most valuable first, while the bytes the client has not acknowledged stay within the stream
+// window. Slices a client's fetch waits for go before the rest of the plan. Everything runs on the connection's one
+// I/O thread.
 #pragma once
 
 #include <array>
@@ -42,6 +43,10 @@ class StreamSession final : public Connection, public std::enable_shared_from_th
   // A client message, or a close with `code` and one line saying why.
   void take(std::string_view text);
   void follow(stream::View view);
+  // Moves `slices` to the front of what is left of the plan (those in no plan yet wait for the next one).
+  void prefer(const std::vector<std::uint32_t>& slices);
+  // Moves `slice` to the front of what is left of the plan; false when it is not there.
+  bool moveToFront(std::uint32_t slice);
   // Starts the next write (a text message first, then the plan's next slice within the window) unless one
   // is in flight.
   void pump();
@@ -64,6 +69,7 @@ class StreamSession final : public Connection, public std::enable_shared_from_th
   std::vector<std::uint32_t> plan_;
   std::size_t next_ = 0;    // plan_'s next slice to write
   std::vector<bool> sent_;  // by slice: written on this connection, or held by the client
+  std::vector<std::uint32_t> wanted_;  // asked for first but in no plan yet: first in the next one
   std::deque<std::string> texts_;
   std::uint64_t sentBytes_ = 0, ackedBytes_ = 0;  // slice frames' bytes, as the client acknowledges them
 

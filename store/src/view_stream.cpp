@@ -119,6 +119,10 @@ std::string encodeAck(std::uint64_t receivedBytes) {
   return json{{"ack", receivedBytes}}.dump();
 }
 
+std::string encodeWant(std::span<const std::uint32_t> slices) {
+  return json{{"want", std::vector<std::uint32_t>(slices.begin(), slices.end())}}.dump();
+}
+
 ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount) {
   if (text.size() > maxClientMessageBytes(sliceCount)) fail("message too large");
   const json message = parseObject(text);
@@ -126,6 +130,11 @@ ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount) 
   if (message.contains("ack")) {
     m.kind = ClientMessage::Kind::Ack;
     m.ackedBytes = unsignedField(message, "ack");
+    return m;
+  }
+  if (message.contains("want")) {
+    m.kind = ClientMessage::Kind::Want;
+    m.wanted = sliceIds(message["want"], "want", sliceCount);
     return m;
   }
   m.view.id = unsignedField(message, "view");

@@ -1,5 +1,5 @@
 // libFuzzer target over the view stream's message parsers (store/include/svo/store/view_stream.hpp): the
-// client's views and acknowledgements as the server reads them, the server's plans and slice errors and the
+// client's views, acknowledgements and wants as the server reads them, the server's plans and slice errors and the
 // slice frame's head as the client reads them. Any bytes must give a message that keeps the parsers'
 // promises or a ProtocolError, never another exception, a crash, a hang or a sanitizer report.
 #include <algorithm>
@@ -28,6 +28,10 @@ void fuzzClient(std::string_view text) {
   try {
     const ClientMessage m = parseClientMessage(text, kSliceCount);
     if (m.kind == ClientMessage::Kind::Ack) return;
+    if (m.kind == ClientMessage::Kind::Want) {
+      for (const std::uint32_t id : m.wanted) check(id < kSliceCount);
+      return;
+    }
     const svo::ViewQuery& q = m.view.query;
     for (int a = 0; a < 3; ++a) check(std::isfinite(q.eye[a]) && std::abs(q.eye[a]) <= kMaxEyeCoordinate);
     check(q.pixelAngle > 0.0 && q.lodPixels >= 0.0 && q.outsideWeight >= 0.0 && q.outsideWeight <= 1.0);

@@ -110,6 +110,7 @@ TEST(Fuzz, ViewStreamParsersKeepTheirPromises) {
   const std::string seeds[] = {
       svo::stream::encodeView(view),
       svo::stream::encodeAck(4096),
+      svo::stream::encodeWant(std::vector<std::uint32_t>{4, 2}),
       svo::stream::encodePlan(2, std::vector<std::uint32_t>{0, 3, 99}),
       svo::stream::encodeSliceError(2, 4, "slice 4: checksum mismatch"),
       std::string(reinterpret_cast<const char*>(frame.data()), frame.size()),

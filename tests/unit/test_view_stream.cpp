@@ -182,6 +182,8 @@ TEST(ViewStreamProtocol, ViewsRoundTripAndBadFieldsAreNamed) {
   EXPECT_EQ(m.view.budgetBytes, v.budgetBytes);
   EXPECT_EQ(m.view.held, v.held);
   EXPECT_EQ(stream::parseClientMessage(stream::encodeAck(12345), 10).ackedBytes, 12345u);
+  const std::vector<std::uint32_t> wanted = {9, 0};
+  EXPECT_EQ(stream::parseClientMessage(stream::encodeWant(wanted), 10).wanted, wanted);
 
   const std::string good = stream::encodeView(wholeView(1));
   const auto errorOf = [](const std::string& text, std::size_t slices = 10) {
@@ -211,6 +213,7 @@ TEST(ViewStreamProtocol, ViewsRoundTripAndBadFieldsAreNamed) {
   EXPECT_EQ(errorOf(with("budget", "-5")), "budget: not a non-negative integer");
   EXPECT_EQ(errorOf(with("view", "1.5")), "view: not a non-negative integer");
   EXPECT_NE(errorOf(with("held", "[10]")).find("held: 10 is not a slice of this store"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"want":[3,10]})").find("want: 10 is not a slice of this store"), std::string::npos);
   EXPECT_EQ(errorOf(with("frustum", "[[1,0,0]]")), "frustum: a plane is not 4 numbers");
   EXPECT_EQ(errorOf(with("frustum", nlohmann::json(std::vector<std::array<int, 4>>(17)).dump())),
             "frustum: more than 16 planes");
@@ -306,6 +309,37 @@ TEST_F(ViewStream, NewViewSupersedesThePlanAndNothingIsSentTwice) {
   ASSERT_TRUE(next && next->binary);
   const auto* nextBytes = reinterpret_cast<const std::byte*>(next->bytes.data());
   EXPECT_EQ(stream::readSliceFrameHeader(std::span(nextBytes, next->bytes.size())).view, 2u);
+}
+
+// A slice a fetch waits for goes before the rest of the plan: the pager's order, feedback included, wins.
+TEST_F(ViewStream, WantedSlicesAreSentNext) {
+  start(/*windowBytes=*/1);
+  const svo::StoreReader store(sphereStore());
+  WsClient ws;
+  ASSERT_EQ(ws.open(port(), "/scene/stream"), 101u);
+  ws.send(stream::encodeView(wholeView(1)));
+  const auto planMessage = ws.read();
+  ASSERT_TRUE(planMessage);
+  const std::vector<std::uint32_t> plan = stream::parseServerMessage(planMessage->bytes, store.slices().size()).plan;
+  ASSERT_GT(plan.size(), 3u);
+  std::uint64_t received = 0;
+  const auto nextSlice = [&] {
+    const auto frame = ws.read();
+    EXPECT_TRUE(frame && frame->binary);
+    if (!frame) return std::uint32_t(-1);
+    received += frame->bytes.size();
+    const auto* bytes = reinterpret_cast<const std::byte*>(frame->bytes.data());
+    return stream::readSliceFrameHeader(std::span(bytes, frame->bytes.size())).slice;
+  };
+  EXPECT_EQ(nextSlice(), plan[0]);  // the window holds the rest back until the ack
+  const std::vector<std::uint32_t> wanted = {plan.back(), plan[plan.size() - 2]};
+  ws.send(stream::encodeWant(wanted));
+  ws.send(stream::encodeAck(received));
+  EXPECT_EQ(nextSlice(), wanted[0]);
+  ws.send(stream::encodeAck(received));
+  EXPECT_EQ(nextSlice(), wanted[1]);
+  ws.send(stream::encodeAck(received));
+  EXPECT_EQ(nextSlice(), plan[1]) << "then the plan's order again";
 }
 
 // Each bad message closes its own stream with a reason naming what is wrong; the server serves on.

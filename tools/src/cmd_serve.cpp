@@ -30,6 +30,11 @@ void addServeCommand(CLI::App& app) {
   cmd->add_option("--cache", o.cacheBytes, "bytes of compressed slices kept in memory (64M, 1G)")
       ->transform(CLI::AsSizeValue(false))
       ->default_str("256M");
+  cmd->add_option("--stream-window", o.streamWindowBytes,
+                  "bytes a view stream may send ahead of its client's acknowledgements (4M)")
+      ->transform(CLI::AsSizeValue(false))
+      ->check(CLI::Range(std::uint64_t(1), std::uint64_t(1) << 30))
+      ->default_str("4M");
   cmd->add_option("--token", o.token,
                   "require 'Authorization: Bearer TOKEN' on every route but /healthz (prefer the SVO_TOKEN "
                   "variable: a command line is visible to other users); a store's NAME.svo.token file gives "

@@ -8,6 +8,8 @@
 //   {"view":N,"eye":[x,y,z],"pixelAngle":a,"lodPixels":p,"frustum":[[nx,ny,nz,d],...],
 //                              "outsideWeight":w,"budget":bytes,"held":[ids]}       a view (N grows)
 //                             {"ack":bytes}           slice bytes received so far (the server's send window)
+//                             {"want":[ids]}          slices a fetch waits for: sent next (the pager's own order,
+//                                                     ray feedback included, goes before the server's plan)
 //   server -> client, text:   {"view":N,"plan":[ids]}  what the server sends for view N, in order
 //                             {"view":N,"slice":id,"error":"..."}   a planned slice it cannot send
 //   server -> client, binary: a 16-byte SliceFrameHeader, then the slice's compressed bytes as stored
@@ -52,15 +54,17 @@ struct View {
   std::vector<std::uint32_t> held;  // slices the client has (sent once, on a new connection)
 };
 
-// One message from a client: a view or an acknowledgement.
+// One message from a client: a view, an acknowledgement or slices wanted first.
 struct ClientMessage {
-  enum class Kind { View, Ack } kind = Kind::View;
+  enum class Kind { View, Ack, Want } kind = Kind::View;
   View view;
   std::uint64_t ackedBytes = 0;
+  std::vector<std::uint32_t> wanted;
 };
 
 std::string encodeView(const View& view);
 std::string encodeAck(std::uint64_t receivedBytes);
+std::string encodeWant(std::span<const std::uint32_t> slices);
 // Throws ProtocolError: not JSON, an unknown shape, a missing or non-finite number, a budget of 0 or above
 // kMaxBudgetBytes, a slice id not below `sliceCount`, more than kMaxFrustumPlanes planes.
 ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount);
