@@ -186,6 +186,9 @@ void ViewStreamSource::Impl::connect() {
               if (gen != generation) return;
               if (ec2) return lost("connecting: " + ec2.message());
               beast::get_lowest_layer(*ws).expires_never();
+      // Acknowledgements and views are small: out at once, not held back for the server's delayed ACK.
+      beast::error_code ignored;
+      beast::get_lowest_layer(*ws).socket().set_option(tcp::no_delay(true), ignored);
               ws->set_option(websocket::stream_base::timeout{kHandshakeTimeout, kIdleTimeout, true});
               ws->set_option(
                   websocket::stream_base::decorator([token = options.token](websocket::request_type& req) {

@@ -56,6 +56,9 @@ StreamSession::~StreamSession() {
 void StreamSession::start(Request request) {
   sessions_.add(shared_from_this());
   beast::get_lowest_layer(ws_).expires_never();  // the WebSocket's own timeouts take over
+  // Small messages (plans, acknowledgements) go out at once, not held back for the peer's delayed ACK.
+  beast::error_code ignored;
+  beast::get_lowest_layer(ws_).socket().set_option(net::ip::tcp::no_delay(true), ignored);
   ws_.set_option(websocket::stream_base::timeout{kHandshakeTimeout, kIdleTimeout, /*keep_alive_pings=*/true});
   ws_.set_option(websocket::stream_base::decorator(
       [](websocket::response_type& res) { res.set(http::field::server, "svostream"); }));
