@@ -19,6 +19,9 @@ namespace {
 // Feedback samples every kFeedbackStride-th pixel in x and y (1/64 of the rays: plenty to find the visible
 // slices, cheap next to the frame).
 constexpr int kFeedbackStride = 8;
+// The pager's next requests a source that sends ahead is told of with each view: a few times the requests in
+// flight (PagerOptions::maxInFlight, 8 by default), what the next round trip can use.
+constexpr std::size_t kFirstSlicesToSource = 32;
 
 // The options, checked; the pool's budget first (RegionTable's pool takes it).
 PagerOptions checked(PagerOptions options) {
@@ -193,7 +196,6 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
 
 PagerStats Pager::update(const ViewQuery& view) {
   PagerStats stats;
-  source_->follow(view, options_.budgetBytes);
   // 1. What the view wants, with ray feedback.
   stats.wantedRawBytes = scheduler_->rank(scheduleSlices(index(), view), *regions_);
 
@@ -220,6 +222,12 @@ PagerStats Pager::update(const ViewQuery& view) {
   // 3. Requests: the most wanted slices that can load now and fit; queued or fetched ones the view no longer
   // ranks are dropped.
   const paging::Scheduler::Candidates candidates = scheduler_->candidates();
+  // Before any request goes out: a source that sends ahead (the view stream) knows the view and sends the
+  // pager's most wanted slices first, ray feedback included.
+  std::vector<std::uint32_t> first;
+  for (std::size_t k = 0; k < std::min(candidates.requests.size(), kFirstSlicesToSource); ++k)
+    first.push_back(candidates.requests[k].slice);
+  source_->follow(view, options_.budgetBytes, first);
   stats.inFlight =
       std::uint32_t(workers_->edit([&](std::vector<paging::LoadRequest>& queued,
                                        std::vector<paging::LoadRequest>& fetched, std::size_t busy) {

@@ -124,6 +124,7 @@ struct ViewStreamSource::Impl {
   std::vector<std::uint32_t> expectedList;
   std::uint64_t nextViewId = 1, viewSent = 0, planView = 0;
   std::optional<std::pair<ViewQuery, std::size_t>> latestView;
+  std::vector<std::uint32_t> latestFirst;  // the pager's next requests when it gave latestView
   std::string latestKey;
   bool viewDirty = false;
   StreamStats stats;
@@ -339,6 +340,8 @@ void ViewStreamSource::Impl::sendView() {
     view.id = nextViewId++;
     view.query = latestView->first;
     view.budgetBytes = std::max<std::uint64_t>(1, latestView->second);
+    for (const std::uint32_t s : latestFirst)
+      if (!delivered[s] && !received.contains(s)) view.first.push_back(s);
     if (heldPending) {
       for (std::uint32_t s = 0; s < sliceCount; ++s)
         if (delivered[s] || received.contains(s)) view.held.push_back(s);
@@ -446,17 +449,19 @@ void ViewStreamSource::fetchAll(std::span<const std::uint32_t> slices,
   }
 }
 
-void ViewStreamSource::follow(const ViewQuery& view, std::size_t budgetBytes) const {
+void ViewStreamSource::follow(const ViewQuery& view, std::size_t budgetBytes,
+                              std::span<const std::uint32_t> first) const {
   Impl& m = *impl_;
   stream::View v;
   v.query = view;
   v.budgetBytes = budgetBytes;
-  std::string key = stream::encodeView(v);
+  std::string key = stream::encodeView(v);  // the view without `first`: a new order alone is no new view
   {
     std::lock_guard lock(m.mutex);
     if (m.declined || key == m.latestKey) return;
     m.latestKey = std::move(key);
     m.latestView.emplace(view, budgetBytes);
+    m.latestFirst.assign(first.begin(), first.end());
     m.viewDirty = true;
   }
   net::post(m.io, [&m] { m.sendView(); });

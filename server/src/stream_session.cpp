@@ -125,7 +125,9 @@ void StreamSession::follow(stream::View view) {
   for (const std::uint32_t id : stream::planSlices(*scene_->index, view.query, view.budgetBytes))
     if (!sent_[id]) plan_.push_back(id);
   next_ = 0;
-  // Slices a fetch asked for before this plan existed go first; those it leaves out are not sent.
+  // The client's next requests go first, and before them the slices a fetch asked for before this plan
+  // existed; those it leaves out are not sent.
+  for (auto it = view.first.rbegin(); it != view.first.rend(); ++it) moveToFront(*it);
   for (auto it = wanted_.rbegin(); it != wanted_.rend(); ++it) moveToFront(*it);
   wanted_.clear();
   view_ = view.id;

@@ -98,7 +98,7 @@ std::uint32_t readLe32(const std::byte* p) {
 }  // namespace
 
 std::size_t maxClientMessageBytes(std::size_t sliceCount) {
-  return kViewFixedBytes + kViewBytesPerHeldSlice * sliceCount;
+  return kViewFixedBytes + 2 * kViewBytesPerHeldSlice * sliceCount;
 }
 
 std::string encodeView(const View& view) {
@@ -111,7 +111,8 @@ std::string encodeView(const View& view) {
                         {"frustum", frustum},
                         {"outsideWeight", view.query.outsideWeight},
                         {"budget", view.budgetBytes},
-                        {"held", view.held}};
+                        {"held", view.held},
+                        {"first", view.first}};
   return message.dump();
 }
 
@@ -143,6 +144,7 @@ ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount) 
   if (m.view.budgetBytes == 0 || m.view.budgetBytes > kMaxBudgetBytes)
     fail("budget: " + std::to_string(m.view.budgetBytes) + " bytes is not in [1, 2^40]");
   if (message.contains("held")) m.view.held = sliceIds(message["held"], "held", sliceCount);
+  if (message.contains("first")) m.view.first = sliceIds(message["first"], "first", sliceCount);
   return m;
 }
 

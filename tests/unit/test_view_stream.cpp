@@ -173,6 +173,7 @@ TEST(ViewStreamProtocol, ViewsRoundTripAndBadFieldsAreNamed) {
   v.query.frustum = {{1, 0, 0, 1.5}, {0, -1, 0, -2}};
   v.query.outsideWeight = 0.25;
   v.held = {3, 1, 4};
+  v.first = {9, 2};
   const stream::ClientMessage m = stream::parseClientMessage(stream::encodeView(v), 10);
   ASSERT_EQ(m.kind, stream::ClientMessage::Kind::View);
   EXPECT_EQ(m.view.id, 7u);
@@ -181,6 +182,7 @@ TEST(ViewStreamProtocol, ViewsRoundTripAndBadFieldsAreNamed) {
   EXPECT_EQ(m.view.query.outsideWeight, 0.25);
   EXPECT_EQ(m.view.budgetBytes, v.budgetBytes);
   EXPECT_EQ(m.view.held, v.held);
+  EXPECT_EQ(m.view.first, v.first);
   EXPECT_EQ(stream::parseClientMessage(stream::encodeAck(12345), 10).ackedBytes, 12345u);
   const std::vector<std::uint32_t> wanted = {9, 0};
   EXPECT_EQ(stream::parseClientMessage(stream::encodeWant(wanted), 10).wanted, wanted);
@@ -340,6 +342,23 @@ TEST_F(ViewStream, WantedSlicesAreSentNext) {
   EXPECT_EQ(nextSlice(), wanted[1]);
   ws.send(stream::encodeAck(received));
   EXPECT_EQ(nextSlice(), plan[1]) << "then the plan's order again";
+
+  // A view's own `first` leads its plan.
+  stream::View view = wholeView(2, {1.5, 4.0, 1.5});
+  std::vector<std::uint32_t> unsent;  // view 2's plan less the four slices sent
+  for (const std::uint32_t s : stream::planSlices(store.index(), view.query, view.budgetBytes))
+    if (s != plan[0] && s != plan[1] && s != wanted[0] && s != wanted[1]) unsent.push_back(s);
+  ASSERT_GE(unsent.size(), 3u);
+  view.first = {unsent.back(), unsent[unsent.size() - 2]};
+  ws.send(stream::encodeView(view));
+  const auto second = ws.read();
+  ASSERT_TRUE(second && !second->binary);
+  const std::vector<std::uint32_t> sent = stream::parseServerMessage(second->bytes, store.slices().size()).plan;
+  ASSERT_GE(sent.size(), 2u);
+  EXPECT_EQ(sent[0], view.first[0]);
+  EXPECT_EQ(sent[1], view.first[1]);
+  ws.send(stream::encodeAck(received));
+  EXPECT_EQ(nextSlice(), view.first[0]);
 }
 
 // Each bad message closes its own stream with a reason naming what is wrong; the server serves on.

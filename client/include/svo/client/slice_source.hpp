@@ -27,9 +27,11 @@ class SliceSource {
   // fetch neighbours together. Stops at the first that fails and throws its SliceError; `compressed` then
   // holds the ones before it. By default one fetch() each.
   virtual void fetchAll(std::span<const std::uint32_t> slices, std::vector<SliceBytes>& compressed) const;
-  // The view the pager schedules for, with its pool's budget, at each update: a source that sends slices
-  // ahead of their fetches (the view stream) follows it; the others need not know.
-  virtual void follow(const ViewQuery& /*view*/, std::size_t /*budgetBytes*/) const {}
+  // The view the pager schedules for, with its pool's budget and its next requests, most wanted first, at
+  // each update before the requests go out: a source that sends slices ahead of their fetches (the view
+  // stream) follows it; the others need not know.
+  virtual void follow(const ViewQuery& /*view*/, std::size_t /*budgetBytes*/,
+                      std::span<const std::uint32_t> /*first*/ = {}) const {}
 };
 
 // The slices of a store read through a byte source; its header and directory are read and checked on

@@ -43,8 +43,10 @@ class ViewStreamSource final : public SliceSource {
   void fetch(std::uint32_t slice, SliceBytes& compressed) const override;
   // Pushed slices as they come; the others by range requests, a run of neighbours in one.
   void fetchAll(std::span<const std::uint32_t> slices, std::vector<SliceBytes>& compressed) const override;
-  // Sent to the server when it differs from the last view sent.
-  void follow(const ViewQuery& view, std::size_t budgetBytes) const override;
+  // Sent to the server when it differs from the last view sent, with `first`, which the server sends before
+  // the rest of its plan.
+  void follow(const ViewQuery& view, std::size_t budgetBytes,
+              std::span<const std::uint32_t> first = {}) const override;
   StreamStats stats() const;
   // Whether the stream is connected now.
   bool streaming() const;

@@ -6,7 +6,7 @@
 //
 //   client -> server, text:
 //   {"view":N,"eye":[x,y,z],"pixelAngle":a,"lodPixels":p,"frustum":[[nx,ny,nz,d],...],
-//                              "outsideWeight":w,"budget":bytes,"held":[ids]}       a view (N grows)
+//                              "outsideWeight":w,"budget":bytes,"held":[ids],"first":[ids]}  a view (N grows)
 //                             {"ack":bytes}           slice bytes received so far (the server's send window)
 //                             {"want":[ids]}          slices a fetch waits for: sent next (the pager's own order,
 //                                                     ray feedback included, goes before the server's plan)
@@ -42,7 +42,7 @@ inline constexpr std::size_t kMaxFrustumPlanes = 16;
 // cube is 1 wide): beyond it every slice is finer than a pixel in any view.
 inline constexpr double kMaxEyeCoordinate = 1e12;
 // A view message's size: its fixed fields in this many bytes, plus up to kViewBytesPerHeldSlice per slice
-// of the store in `held`.
+// of the store in each of `held` and `first`.
 inline constexpr std::size_t kViewFixedBytes = 16 * 1024;
 inline constexpr std::size_t kViewBytesPerHeldSlice = 12;  // "4294967295," and slack
 std::size_t maxClientMessageBytes(std::size_t sliceCount);
@@ -52,6 +52,7 @@ struct View {
   ViewQuery query;
   std::uint64_t budgetBytes = 0;    // the client's pool: the plan's decoded bytes stay within it
   std::vector<std::uint32_t> held;  // slices the client has (sent once, on a new connection)
+  std::vector<std::uint32_t> first;  // slices the client wants before the rest of the plan, in order
 };
 
 // One message from a client: a view, an acknowledgement or slices wanted first.
