@@ -97,6 +97,7 @@ struct ViewStreamSource::Impl {
   RemoteOptions options;
   Endpoint endpoint;
   std::size_t sliceCount = 0;
+  std::size_t maxMessageBytes = 0;
 
   net::io_context io{1};
   net::executor_work_guard<net::io_context::executor_type> work{io.get_executor()};
@@ -135,6 +136,10 @@ ViewStreamSource::Impl::Impl(std::shared_ptr<const ByteSource> bytes, const std:
                              const RemoteOptions& o)
     : pull(std::move(bytes)), options(o), endpoint(streamEndpoint(url)) {
   sliceCount = pull.index().slices().size();
+  // The largest message a server of this store sends: a slice frame, or a plan naming every slice.
+  for (const SliceInfo& s : pull.index().slices())
+    maxMessageBytes = std::max<std::size_t>(maxMessageBytes, stream::kSliceFrameHeaderBytes + s.compressedBytes);
+  maxMessageBytes = std::max(maxMessageBytes, stream::maxClientMessageBytes(sliceCount));
   delivered.assign(sliceCount, false);
   expected.assign(sliceCount, false);
   if (!endpoint.usable) {
@@ -195,7 +200,7 @@ void ViewStreamSource::Impl::connect() {
                   websocket::stream_base::decorator([token = options.token](websocket::request_type& req) {
                     if (!token.empty()) req.set(beast::http::field::authorization, "Bearer " + token);
                   }));
-              ws->read_message_max(0);  // slices are checked against the directory's sizes instead
+              ws->read_message_max(maxMessageBytes);
               ws->async_handshake(upgradeAnswer, endpoint.host + ":" + endpoint.port, endpoint.target,
                                   [this, gen](beast::error_code ec3) {
                                     if (gen != generation) return;
@@ -355,9 +360,10 @@ void ViewStreamSource::Impl::sendView() {
   send(stream::encodeView(view));
 }
 
-void ViewStreamSource::Impl::lost(const std::string& /*why*/) {
+void ViewStreamSource::Impl::lost(const std::string& why) {
   {
     std::lock_guard lock(mutex);
+    stats.lastError = why;
     connected = false;
     for (const std::uint32_t s : expectedList) expected[s] = false;
     expectedList.clear();

@@ -268,7 +268,8 @@ void runStress(const StressArgs& args) {
   RenderOptions render;
   render.lodPixels = args.lodPixels;
   // Opened once: a store that cannot be read fails the command; each budget's pager starts cold all the same.
-  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly));
+  const std::shared_ptr<const SliceSource> source =
+      openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly));
   for (const std::size_t budget : args.budgets) {
     const std::string text = formatBytes(budget);
     std::unique_ptr<Pager> pager;
@@ -332,7 +333,8 @@ void runSoak(const StressArgs& args) {
   const double perBudget = args.minutes * 60.0 / double(args.budgets.size());
   std::vector<plot::Series> curves;
   std::vector<std::string> leaks;
-  const std::shared_ptr<const SliceSource> source = openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly));
+  const std::shared_ptr<const SliceSource> source =
+      openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly));
   for (const std::size_t budget : args.budgets) {
     const std::string text = formatBytes(budget);
     Pager pager(source, pagerOptionsFor(budget, args));

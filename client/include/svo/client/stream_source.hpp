@@ -27,6 +27,7 @@ struct StreamStats {
   std::uint64_t pulled = 0;       // fetches read by range request
   std::uint64_t connections = 0;  // stream connections made (reconnections included)
   bool declined = false;          // the server has no view stream (a static server): range requests only
+  std::string lastError;          // why the stream last went down (it reconnects), or empty
 };
 
 class ViewStreamSource final : public SliceSource {
