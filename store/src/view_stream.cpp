@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <numbers>
+#include <optional>
 
 #include <nlohmann/json.hpp>
 
@@ -148,14 +149,34 @@ ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount) 
   return m;
 }
 
-std::vector<std::uint32_t> planSlices(const StoreIndex& index, const ViewQuery& query,
-                                      std::uint64_t budgetBytes) {
-  std::vector<std::uint32_t> plan;
+std::vector<std::uint32_t> planSlices(const StoreIndex& index, const ViewQuery& query, std::uint64_t budgetBytes) {
+  const std::vector<SliceInfo>& slices = index.slices();
+  std::vector<std::uint32_t> wanted;
   std::uint64_t decoded = 0;
   for (const SliceRequest& r : scheduleSlices(index, query)) {
-    decoded += index.slices()[r.slice].rawBytes;
+    decoded += slices[r.slice].rawBytes;
     if (decoded > budgetBytes) break;
-    plan.push_back(r.slice);
+    wanted.push_back(r.slice);
+  }
+  std::vector<bool> inPlan(slices.size(), false), placed(slices.size(), false);
+  for (const std::uint32_t s : wanted) inPlan[s] = true;
+  // The next slice of the same cube (the chain a client loads as one request), when planned.
+  const auto chainNext = [&](std::uint32_t s) -> std::optional<std::uint32_t> {
+    for (const std::uint32_t c : index.childSlices(s)) {
+      const SliceInfo &a = slices[s], &b = slices[c];
+      if (b.cubeLevel == a.cubeLevel && b.cubeCoord == a.cubeCoord && b.firstSlot == a.firstSlot &&
+          b.lastSlot == a.lastSlot)
+        return inPlan[c] ? std::optional<std::uint32_t>(c) : std::nullopt;
+    }
+    return std::nullopt;
+  };
+  std::vector<std::uint32_t> plan;
+  plan.reserve(wanted.size());
+  for (const std::uint32_t head : wanted) {
+    for (std::optional<std::uint32_t> s = head; s && !placed[*s]; s = chainNext(*s)) {
+      placed[*s] = true;
+      plan.push_back(*s);
+    }
   }
   return plan;
 }

@@ -225,7 +225,8 @@ TEST(ViewStreamProtocol, ViewsRoundTripAndBadFieldsAreNamed) {
   EXPECT_EQ(errorOf(std::string(stream::maxClientMessageBytes(10) + 1, ' ')), "message too large");
 }
 
-// The plan is the scheduler's order, cut where the decoded bytes summed here would pass the budget.
+// The plan is the scheduler's slices, cut where the decoded bytes summed here would pass the budget, in its
+// order but for each cube's chain, which comes in one run after its first slice.
 TEST(ViewStreamPlan, PlanIsTheScheduleWithinTheBudget) {
   const svo::StoreReader store(sphereStore());
   const svo::StoreIndex& index = store.index();
@@ -241,7 +242,37 @@ TEST(ViewStreamPlan, PlanIsTheScheduleWithinTheBudget) {
     while (fit < wanted.size() && sum + index.slices()[wanted[fit].slice].rawBytes <= budget)
       sum += index.slices()[wanted[fit++].slice].rawBytes;
     ASSERT_EQ(plan.size(), fit) << budget;
-    for (std::size_t k = 0; k < fit; ++k) EXPECT_EQ(plan[k], wanted[k].slice);
+    std::vector<std::uint32_t> expected, got = plan;
+    for (std::size_t k = 0; k < fit; ++k) expected.push_back(wanted[k].slice);
+    std::sort(expected.begin(), expected.end());
+    std::sort(got.begin(), got.end());
+    EXPECT_EQ(got, expected) << "the schedule's slices within the budget";
+    std::vector<std::size_t> at(index.slices().size(), SIZE_MAX);
+    for (std::size_t k = 0; k < plan.size(); ++k) at[plan[k]] = k;
+    for (std::size_t k = 0; k < plan.size(); ++k) {
+      const svo::SliceInfo& s = index.slices()[plan[k]];
+      if (s.parentSlice == svo::SliceInfo::kNoSlice || at[s.parentSlice] == SIZE_MAX) continue;
+      EXPECT_LT(at[s.parentSlice], k) << "a slice after its parents";
+      const svo::SliceInfo& p = index.slices()[s.parentSlice];
+      if (p.cubeLevel == s.cubeLevel && p.cubeCoord == s.cubeCoord && p.firstSlot == s.firstSlot &&
+          p.lastSlot == s.lastSlot)
+        EXPECT_EQ(at[s.parentSlice] + 1, k) << "a cube's chain in one run";
+    }
+    // Chain heads keep the schedule's order.
+    std::vector<std::uint32_t> heads;
+    for (const std::uint32_t slice : plan) {
+      const svo::SliceInfo& s = index.slices()[slice];
+      const bool continues = s.parentSlice != svo::SliceInfo::kNoSlice && at[s.parentSlice] != SIZE_MAX &&
+                             index.slices()[s.parentSlice].cubeLevel == s.cubeLevel &&
+                             index.slices()[s.parentSlice].cubeCoord == s.cubeCoord &&
+                             index.slices()[s.parentSlice].firstSlot == s.firstSlot &&
+                             index.slices()[s.parentSlice].lastSlot == s.lastSlot;
+      if (!continues) heads.push_back(slice);
+    }
+    std::size_t next = 0;
+    for (std::size_t k = 0; k < fit && next < heads.size(); ++k)
+      if (wanted[k].slice == heads[next]) ++next;
+    EXPECT_EQ(next, heads.size()) << "chain heads in the schedule's order";
   }
 }
 

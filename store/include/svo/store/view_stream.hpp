@@ -72,7 +72,8 @@ ClientMessage parseClientMessage(std::string_view text, std::size_t sliceCount);
 
 // The slices the server plans for `query` and a client pool of `budgetBytes`: scheduleSlices' order while
 // the wanted slices' decoded bytes fit the budget (a block is never smaller than its slices' decoded
-// bytes, so the pool cannot hold more).
+// bytes, so the pool cannot hold more), each followed at once by the planned slices that continue its cube's
+// chain (the pager fetches a region's consecutive slices as one request, and decodes none before all came).
 std::vector<std::uint32_t> planSlices(const StoreIndex& index, const ViewQuery& query,
                                       std::uint64_t budgetBytes);
 
