@@ -1,17 +1,68 @@
-// Helpers of the tests that page stores from servers: quick retries, cameras, convergence bounded in count,
-// bit-for-bit frame comparison.
+// Helpers of the tests that page stores from servers: the sphere store and a folder serving it, svo::server
+// in process, quick retries, cameras, convergence bounded in count, bit-for-bit frame comparison.
 #pragma once
 
 #include <gtest/gtest.h>
 
+#include <stdlib.h>
+
 #include <cstring>
 #include <exception>
+#include <filesystem>
+#include <memory>
 #include <string>
 
+#include "reference.hpp"
 #include "svo/client/http_source.hpp"
 #include "svo/client/pager.hpp"
+#include "svo/server/server.hpp"
 
 namespace svotest {
+
+// The sphere and box store with 4 KiB slices (many slices, so a pager makes many requests), written once.
+inline const std::filesystem::path& sphereStore() {
+  static const TempFile file = [] {
+    TempFile f("svo_paging_store", ".svo");
+    writeSphereAndBoxStore(f.path, 4096);
+    return f;
+  }();
+  return file.path;
+}
+
+// A folder to serve, holding the sphere store as scene.svo; the server stops and the folder goes after the
+// test.
+class ServedFolder : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string pattern = (std::filesystem::temp_directory_path() / "svo_served_XXXXXX").string();
+    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
+    root_ = pattern;
+    std::filesystem::copy_file(sphereStore(), root_ / "scene.svo");
+  }
+  void TearDown() override {
+    stopServer();
+    if (!root_.empty()) std::filesystem::remove_all(root_);
+  }
+  virtual void stopServer() = 0;
+
+  std::filesystem::path root_;
+};
+
+// svo::server over `root` on 127.0.0.1 (`port` 0: a free one), quiet, started.
+inline std::unique_ptr<svo::server::Server> startServer(
+    const std::filesystem::path& root, std::uint16_t port = 0, const std::string& token = "",
+    std::uint64_t streamWindowBytes = svo::server::kDefaultStreamWindowBytes) {
+  svo::server::ServerOptions options;
+  options.root = root;
+  options.port = port;
+  options.threads = 2;
+  options.token = token;
+  options.streamWindowBytes = streamWindowBytes;
+  options.logSink = [](std::string_view) {};
+  auto server = std::make_unique<svo::server::Server>(options);
+  server->start();
+  return server;
+}
 
 // Retries that end within a second: tests see the final error quickly.
 inline svo::RemoteOptions quickRetries() {

@@ -43,15 +43,6 @@ fs::path writeStore(const fs::path& path, std::uint32_t sliceBytes = 4096) {
   return path;
 }
 
-const fs::path& sphereStore() {
-  static const svotest::TempFile file = [] {
-    svotest::TempFile f("svo_http_store", ".svo");
-    writeStore(f.path);
-    return f;
-  }();
-  return file.path;
-}
-
 std::vector<std::byte> fileBytes(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
   std::vector<char> chars((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -74,6 +65,37 @@ using svotest::everything;
 using svotest::expectSameFrame;
 using svotest::quickRetries;
 using svotest::renderFinest;
+using svotest::ServedFolder;
+using svotest::sphereStore;
+
+// A static server whose /private/ folder needs "Authorization: Bearer secret".
+constexpr const char* kPrivateServerBlock =
+    "server {\n listen 127.0.0.1:{port};\n root {root};\n"
+    " location /private/ { if ($http_authorization != \"Bearer secret\") { return 401; } }\n}\n";
+
+// The README's ```nginx block that holds `marker`, each `from` replaced by its `to`; empty, with a test
+// failure saying what is missing, when the block or a `from` is not there.
+std::string readmeNginxSnippet(const std::string& marker,
+                               const std::vector<std::pair<std::string, std::string>>& replacements) {
+  const std::string readme = slurp(fs::path(SVO_SOURCE_DIR) / "README.md");
+  const std::size_t at = readme.find(marker);
+  const std::size_t begin = at == std::string::npos ? at : readme.rfind("```nginx\n", at);
+  if (begin == std::string::npos) {
+    ADD_FAILURE() << "README.md has no nginx snippet holding \"" << marker << "\"";
+    return "";
+  }
+  const std::size_t end = readme.find("```", at);
+  std::string snippet = readme.substr(begin + 9, end - begin - 9);
+  for (const auto& [from, to] : replacements) {
+    const std::size_t found = snippet.find(from);
+    if (found == std::string::npos) {
+      ADD_FAILURE() << "the snippet has no \"" << from << "\":\n" << snippet;
+      return "";
+    }
+    snippet.replace(found, from.size(), to);
+  }
+  return snippet;
+}
 
 // Streams the store at `url` into a pager, takes the server `down` mid-stream and brings it `up` again on
 // the same port: the fetches that failed meanwhile are deferred, not failed, with one message for the outage,
@@ -117,24 +139,6 @@ void expectResumesAcrossAnOutage(const std::string& url, const std::function<voi
   converge(local, all);
   expectSameFrame(renderFinest(pager, camera), renderFinest(local, camera));
 }
-
-// A folder to serve, holding the sphere store as scene.svo; removed after the test.
-class ServedFolder : public ::testing::Test {
- protected:
-  void SetUp() override {
-    std::string pattern = (fs::temp_directory_path() / "svo_http_root_XXXXXX").string();
-    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
-    root_ = pattern;
-    fs::copy_file(sphereStore(), root_ / "scene.svo");
-  }
-  void TearDown() override {
-    stopServer();
-    if (!root_.empty()) fs::remove_all(root_);
-  }
-  virtual void stopServer() = 0;
-
-  fs::path root_;
-};
 
 // The folder served by nginx.
 class Http : public ServedFolder {
@@ -346,11 +350,7 @@ TEST_F(Http, ServerWithoutRangeRequestsIsRefused) {
 TEST_F(Http, BearerTokenIsSentAndItsAbsenceExplained) {
   fs::create_directories(root_ / "private");
   fs::copy_file(sphereStore(), root_ / "private" / "scene.svo");
-  svotest::NginxServer::Options options;
-  options.serverBlock =
-      "server {\n listen 127.0.0.1:{port};\n root {root};\n"
-      " location /private/ { if ($http_authorization != \"Bearer secret\") { return 401; } }\n}\n";
-  svotest::NginxServer& server = serve(options);
+  svotest::NginxServer& server = serve({kPrivateServerBlock});
   const std::string url = server.url("private/scene.svo");
   svo::RemoteOptions remote = quickRetries();
   const std::string none = errorOf([&] { svo::openSliceSource(url, remote); });
@@ -407,19 +407,10 @@ TEST_F(Http, PagerResumesAfterTheServerIsKilledAndRestarted) {
 // The README's nginx snippet, as printed there, serves stores to `svo`: public ones, and private ones with
 // the token.
 TEST_F(Http, ReadmeNginxSnippetServesStores) {
-  const std::string readme = slurp(fs::path(SVO_SOURCE_DIR) / "README.md");
-  const std::size_t begin = readme.find("```nginx\n");
-  ASSERT_NE(begin, std::string::npos) << "README.md has no nginx snippet";
-  const std::size_t end = readme.find("```", begin + 9);
-  std::string snippet = readme.substr(begin + 9, end - begin - 9);
   // The snippet's port and folder, replaced by the test's.
-  for (const auto& [from, to] :
-       {std::pair<std::string, std::string>{"listen 8080;", "listen 127.0.0.1:{port};"},
-        {"/srv/scenes", "{root}"}}) {
-    const std::size_t at = snippet.find(from);
-    ASSERT_NE(at, std::string::npos) << "the snippet has no \"" << from << "\":\n" << snippet;
-    snippet.replace(at, from.size(), to);
-  }
+  const std::string snippet = readmeNginxSnippet(
+      "listen 8080;", {{"listen 8080;", "listen 127.0.0.1:{port};"}, {"/srv/scenes", "{root}"}});
+  ASSERT_FALSE(snippet.empty());
   fs::create_directories(root_ / "private");
   fs::copy_file(sphereStore(), root_ / "private" / "scene.svo");
   svotest::NginxServer& server = serve({snippet});
@@ -447,27 +438,13 @@ TEST_F(Http, ReadmeTlsProxyServesSvoServeOverHttps) {
       "-addext subjectAltName=IP:127.0.0.1 -keyout " +
       key.string() + " -out " + cert.string() + " > /dev/null 2>&1";
   ASSERT_EQ(std::system(make.c_str()), 0) << make;
-  svo::server::ServerOptions options;
-  options.root = root_;
-  options.threads = 2;
-  options.logSink = [](std::string_view) {};
-  svo::server::Server backend(options);
-  backend.start();
-
-  const std::string readme = slurp(fs::path(SVO_SOURCE_DIR) / "README.md");
-  const std::size_t tls = readme.find("ssl_certificate ");
-  ASSERT_NE(tls, std::string::npos) << "README.md has no TLS snippet";
-  const std::size_t begin = readme.rfind("```nginx\n", tls), end = readme.find("```", tls);
-  std::string snippet = readme.substr(begin + 9, end - begin - 9);
-  for (const auto& [from, to] :
-       {std::pair<std::string, std::string>{"listen 8443 ssl;", "listen 127.0.0.1:{port} ssl;"},
-        {"/etc/ssl/svo/cert.pem", cert.string()},
-        {"/etc/ssl/svo/key.pem", key.string()},
-        {"127.0.0.1:8080", "127.0.0.1:" + std::to_string(backend.port())}}) {
-    const std::size_t at = snippet.find(from);
-    ASSERT_NE(at, std::string::npos) << "the snippet has no \"" << from << "\":\n" << snippet;
-    snippet.replace(at, from.size(), to);
-  }
+  const std::unique_ptr<svo::server::Server> backend = svotest::startServer(root_);
+  const std::string snippet = readmeNginxSnippet(
+      "listen 8443 ssl;", {{"listen 8443 ssl;", "listen 127.0.0.1:{port} ssl;"},
+                           {"/etc/ssl/svo/cert.pem", cert.string()},
+                           {"/etc/ssl/svo/key.pem", key.string()},
+                           {"127.0.0.1:8080", "127.0.0.1:" + std::to_string(backend->port())}});
+  ASSERT_FALSE(snippet.empty());
   svotest::NginxServer& server = serve({snippet});
   const std::string url = "https://127.0.0.1:" + std::to_string(server.port()) + "/scene";
   svo::RemoteOptions remote = quickRetries();
@@ -490,11 +467,7 @@ TEST_F(Http, ReadmeTlsProxyServesSvoServeOverHttps) {
 TEST_F(Http, CommandsReadUrlsAsTheyReadFiles) {
   fs::create_directories(root_ / "private");
   fs::copy_file(sphereStore(), root_ / "private" / "scene.svo");
-  svotest::NginxServer::Options options;
-  options.serverBlock =
-      "server {\n listen 127.0.0.1:{port};\n root {root};\n"
-      " location /private/ { if ($http_authorization != \"Bearer secret\") { return 401; } }\n}\n";
-  svotest::NginxServer& server = serve(options);
+  svotest::NginxServer& server = serve({kPrivateServerBlock});
   const fs::path out = root_ / "out";
   fs::create_directories(out);
   const auto svo = [&](const std::string& args, const std::string& env = "") {
@@ -579,14 +552,7 @@ class ServeHttp : public ServedFolder {
  protected:
   void stopServer() override { server_.reset(); }
   void start(const std::string& token = "") {
-    svo::server::ServerOptions options;
-    options.root = root_;
-    options.port = port_;
-    options.threads = 2;
-    options.token = token;
-    options.logSink = [](std::string_view) {};
-    server_ = std::make_unique<svo::server::Server>(options);
-    server_->start();
+    server_ = svotest::startServer(root_, port_, token);
     port_ = server_->port();
   }
   std::string url() const { return "http://127.0.0.1:" + std::to_string(port_) + "/scene"; }

@@ -34,6 +34,7 @@ namespace beast = boost::beast;
 namespace net = boost::asio;
 namespace websocket = beast::websocket;
 namespace stream = svo::stream;
+using svotest::sphereStore;
 
 namespace {
 
@@ -94,37 +95,12 @@ class WsClient {
   std::optional<websocket::stream<beast::tcp_stream>> ws_;
 };
 
-const fs::path& sphereStore() {
-  static const svotest::TempFile file = [] {
-    svotest::TempFile f("svo_stream_store", ".svo");
-    svotest::writeSphereAndBoxStore(f.path, 4096);
-    return f;
-  }();
-  return file.path;
-}
-
-class ViewStream : public ::testing::Test {
+class ViewStream : public svotest::ServedFolder {
  protected:
-  void SetUp() override {
-    std::string pattern = (fs::temp_directory_path() / "svo_stream_root_XXXXXX").string();
-    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
-    root_ = pattern;
-    fs::copy_file(sphereStore(), root_ / "scene.svo");
-  }
-  void TearDown() override {
-    server_.reset();
-    fs::remove_all(root_);
-  }
+  void stopServer() override { server_.reset(); }
   void start(std::uint64_t windowBytes = svo::server::kDefaultStreamWindowBytes,
              const std::string& token = "") {
-    svo::server::ServerOptions options;
-    options.root = root_;
-    options.threads = 2;
-    options.token = token;
-    options.streamWindowBytes = windowBytes;
-    options.logSink = [](std::string_view) {};
-    server_ = std::make_unique<svo::server::Server>(options);
-    server_->start();
+    server_ = svotest::startServer(root_, 0, token, windowBytes);
   }
   std::uint16_t port() const { return server_->port(); }
   std::string url() const { return server_->url() + "/scene"; }
@@ -134,7 +110,6 @@ class ViewStream : public ::testing::Test {
     return at == std::string::npos ? -1.0 : std::stod(text.substr(at + name.size() + 2));
   }
 
-  fs::path root_;
   std::unique_ptr<svo::server::Server> server_;
 };
 
@@ -353,7 +328,8 @@ TEST_F(ViewStream, WantedSlicesAreSentNext) {
   ws.send(stream::encodeView(wholeView(1)));
   const auto planMessage = ws.read();
   ASSERT_TRUE(planMessage);
-  const std::vector<std::uint32_t> plan = stream::parseServerMessage(planMessage->bytes, store.slices().size()).plan;
+  const std::vector<std::uint32_t> plan =
+      stream::parseServerMessage(planMessage->bytes, store.slices().size()).plan;
   ASSERT_GT(plan.size(), 3u);
   std::uint64_t received = 0;
   const auto nextSlice = [&] {
@@ -384,7 +360,8 @@ TEST_F(ViewStream, WantedSlicesAreSentNext) {
   ws.send(stream::encodeView(view));
   const auto second = ws.read();
   ASSERT_TRUE(second && !second->binary);
-  const std::vector<std::uint32_t> sent = stream::parseServerMessage(second->bytes, store.slices().size()).plan;
+  const std::vector<std::uint32_t> sent =
+      stream::parseServerMessage(second->bytes, store.slices().size()).plan;
   ASSERT_GE(sent.size(), 2u);
   EXPECT_EQ(sent[0], view.first[0]);
   EXPECT_EQ(sent[1], view.first[1]);
