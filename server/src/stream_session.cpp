@@ -167,7 +167,7 @@ void StreamSession::pump() {
   writeNextSlice();
 }
 
-bool StreamSession::writeNextSlice() {
+void StreamSession::writeNextSlice() {
   while (next_ < plan_.size() && sentBytes_ - ackedBytes_ < context_.options.streamWindowBytes) {
     const std::uint32_t id = plan_[next_++];
     sent_[id] = true;
@@ -176,8 +176,7 @@ bool StreamSession::writeNextSlice() {
     } catch (const SliceError& e) {
       context_.log.error(fmt::format("{} {}: {}", peer_, target_, e.what()));
       texts_.push_back(stream::encodeSliceError(view_, id, publicMessage(e.what(), *scene_)));
-      pump();
-      return true;
+      return pump();
     }
     stream::writeSliceFrameHeader({id, view_}, frameHeader_);
     sentBytes_ += frameHeader_.size() + slice_->size();
@@ -194,9 +193,8 @@ bool StreamSession::writeNextSlice() {
       self->slice_.reset();
       self->onWrite(ec);
     });
-    return true;
+    return;
   }
-  return false;
 }
 
 void StreamSession::onWrite(beast::error_code ec) {

@@ -50,7 +50,7 @@ class StreamSession final : public Connection, public std::enable_shared_from_th
   // Starts the next write (a text message first, then the plan's next slice within the window) unless one
   // is in flight.
   void pump();
-  bool writeNextSlice();
+  void writeNextSlice();
   void onWrite(boost::beast::error_code ec);
   void refuse(boost::beast::websocket::close_code code, const std::string& why);
   void closeNow(boost::beast::websocket::close_code code, std::string reason);
