@@ -189,6 +189,16 @@ Camera cameraOf(const Json& json, const std::string& where) {
 
 }  // namespace
 
+Camera parseCamera(const std::string& jsonText, const std::string& where) {
+  Json json;
+  try {
+    json = Json::parse(jsonText);
+  } catch (const Json::exception& e) {
+    throw std::runtime_error(where + ": not valid JSON (" + e.what() + ")");
+  }
+  return cameraOf(json, where);
+}
+
 Camera loadCamera(const std::filesystem::path& path) {
   return cameraOf(parseJsonFile(path), path.string());
 }

@@ -243,24 +243,48 @@ PagerStats Pager::update(const ViewQuery& view) {
   return stats;
 }
 
+std::optional<std::uint32_t> Pager::refiningSlice(const Frame& frame, const Camera& camera,
+                                                  const Camera::Basis& basis, int x, int y,
+                                                  double lodPixels) const {
+  const std::size_t i = std::size_t(y) * std::size_t(frame.width) + std::size_t(x);
+  if (!(frame.voxelPixels[i] > lodPixels)) return std::nullopt;
+  const SceneTransform& scene = transform();
+  const std::optional<int> level = hitLevel(frame, i, camera.pixelAngle(), scene.size);
+  if (!level) return std::nullopt;
+  glm::dvec3 direction;
+  Camera::pixelRay(camera, basis, x, y, direction);
+  return regions_->sliceAt(*level + 1, scene.toOctree(camera.eye + direction * double(frame.depth[i])));
+}
+
 void Pager::feedback(const Frame& frame, const Camera& camera, double lodPixels) {
   std::unordered_map<std::uint32_t, std::uint32_t> hits;
-  const SceneTransform& scene = transform();
   const Camera::Basis basis = camera.basis();
-  for (int y = kFeedbackStride / 2; y < frame.height; y += kFeedbackStride) {
-    for (int x = kFeedbackStride / 2; x < frame.width; x += kFeedbackStride) {
+  for (int y = kFeedbackStride / 2; y < frame.height; y += kFeedbackStride)
+    for (int x = kFeedbackStride / 2; x < frame.width; x += kFeedbackStride)
+      if (const std::optional<std::uint32_t> slice = refiningSlice(frame, camera, basis, x, y, lodPixels))
+        ++hits[*slice];
+  scheduler_->setFeedback(std::move(hits));  // the latest frame's feedback replaces the last one's
+}
+
+std::vector<PixelDetail> Pager::detailMap(const Frame& frame, const Camera& camera, double lodPixels) const {
+  std::vector<PixelDetail> out(std::size_t(frame.width) * std::size_t(frame.height), PixelDetail::Miss);
+  const Camera::Basis basis = camera.basis();
+  for (int y = 0; y < frame.height; ++y) {
+    for (int x = 0; x < frame.width; ++x) {
       const std::size_t i = std::size_t(y) * std::size_t(frame.width) + std::size_t(x);
-      const double depth = frame.depth[i];
-      if (!std::isfinite(depth) || !(frame.voxelPixels[i] > lodPixels)) continue;
-      glm::dvec3 direction;
-      Camera::pixelRay(camera, basis, x, y, direction);
-      const glm::dvec3 p = scene.toOctree(camera.eye + direction * depth);
-      const double voxelSize = frame.voxelPixels[i] * depth * camera.pixelAngle() / scene.size;
-      const int level = int(std::lround(-std::log2(voxelSize)));
-      if (const std::optional<std::uint32_t> slice = regions_->sliceAt(level + 1, p)) ++hits[*slice];
+      if (!std::isfinite(frame.depth[i])) continue;
+      if (!(frame.voxelPixels[i] > lodPixels) || (!frame.lodStopped.empty() && frame.lodStopped[i])) {
+        out[i] = PixelDetail::AtTarget;
+      } else if (const std::optional<std::uint32_t> s = refiningSlice(frame, camera, basis, x, y, lodPixels)) {
+        out[i] = scheduler_->inFlight(*s)                                ? PixelDetail::Loading
+                 : scheduler_->denied(*s) || scheduler_->failed(*s) ? PixelDetail::NoRoom
+                                                                         : PixelDetail::Waiting;
+      } else {
+        out[i] = PixelDetail::FinestStored;
+      }
     }
   }
-  scheduler_->setFeedback(std::move(hits));  // the latest frame's feedback replaces the last one's
+  return out;
 }
 
 void Pager::waitForWork(double seconds) {

@@ -1,6 +1,8 @@
 // Frame rendering: world rays mapped into the octree, ESVO castRay per pixel over 8x8 tiles with oneTBB,
 // Phong shading with one directional light, and PNG / EXR output through OpenImageIO.
 #include <algorithm>
+#include <array>
+#include <bit>
 #include <atomic>
 #include <cctype>
 #include <chrono>
@@ -92,6 +94,13 @@ glm::vec3 shadePhong(glm::vec3 albedo, glm::vec3 n, glm::vec3 viewDirection, glm
   return albedo * (kAmbient + kDiffuse * diffuse) + glm::vec3(kSpecular * specular);
 }
 
+std::optional<int> hitLevel(const Frame& frame, std::size_t pixel, double pixelAngle, double sceneSize) {
+  const double depth = frame.depth[pixel];
+  if (!std::isfinite(depth)) return std::nullopt;
+  const double voxelSize = frame.voxelPixels[pixel] * depth * pixelAngle / sceneSize;  // octree units
+  return int(std::lround(-std::log2(voxelSize)));
+}
+
 PixelRays::PixelRays(const SceneTransform& scene, const Camera& camera, float lodPixels)
     : scene_(scene), camera_(camera), basis_(camera.basis()), origin_(scene.toOctree(camera.eye)) {
   // A pinhole's footprint grows from zero at the eye; lodPixels 0 disables the level-of-detail stop.
@@ -169,6 +178,15 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
   frame.color.assign(pixels, glm::vec4(options.background, 0.0f));
   frame.depth.assign(pixels, std::numeric_limits<float>::infinity());
   frame.voxelPixels.assign(pixels, 0.0f);
+  if (options.diagnostics) {
+    frame.iterations.assign(pixels, 0);
+    frame.lodStopped.assign(pixels, 0);
+  }
+  const auto keepIterations = [&](int x, int y, const CastHit& hit) {
+    if (frame.iterations.empty()) return;
+    const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+    frame.iterations[i] = std::uint16_t(std::min(hit.iterations, int(UINT16_MAX)));
+  };
 
   std::atomic<std::uint64_t> iterations{0};
   const auto start = std::chrono::steady_clock::now();
@@ -182,7 +200,10 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
           frame.color[i] = glm::vec4(shade(block, hit, viewDirection, shading), 1.0f);
           frame.depth[i] = hit.t;
           frame.voxelPixels[i] = float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
-        });
+          keepIterations(x, y, hit);
+          if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
+        },
+        keepIterations);
     iterations.fetch_add(tileIterations, std::memory_order_relaxed);
   });
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -197,6 +218,36 @@ std::uint8_t toSrgb8(float linear) {
   const float c = std::isnan(linear) ? 0.0f : std::clamp(linear, 0.0f, 1.0f);
   const float s = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
   return std::uint8_t(std::lround(std::clamp(s, 0.0f, 1.0f) * 255.0f));
+}
+
+// toSrgb8 without a pow per channel: the least linear value of each code 1..255, found once by bisection
+// over toSrgb8 itself (monotone in its argument), so the codes equal toSrgb8's for every float.
+class SrgbThresholds {
+ public:
+  SrgbThresholds() {
+    // Non-negative floats are ordered as their bit patterns: bisect over those.
+    const auto code = [](std::uint32_t bits) { return toSrgb8(std::bit_cast<float>(bits)); };
+    for (int c = 1; c < 256; ++c) {
+      std::uint32_t low = 0, high = std::bit_cast<std::uint32_t>(1.0f);  // code(low) < c <= code(high)
+      while (high - low > 1) {
+        const std::uint32_t mid = low + (high - low) / 2;
+        (code(mid) < c ? low : high) = mid;
+      }
+      least_[std::size_t(c - 1)] = std::bit_cast<float>(high);
+    }
+  }
+  std::uint8_t operator()(float linear) const {
+    if (!(linear > 0.0f)) return 0;  // NaN, zero and negatives, as toSrgb8
+    return std::uint8_t(std::upper_bound(least_.begin(), least_.end(), linear) - least_.begin());
+  }
+
+ private:
+  std::array<float, 255> least_;
+};
+
+const SrgbThresholds& srgbThresholds() {
+  static const SrgbThresholds thresholds;
+  return thresholds;
 }
 
 std::uint8_t toUnorm8(float value) {
@@ -230,6 +281,19 @@ void writeOiio(const std::filesystem::path& file, const char* format, const OIIO
 
 }  // namespace
 
+void encodeSrgb8(const Frame& frame, std::vector<std::uint8_t>& rgba) {
+  const std::size_t pixels = frame.color.size();
+  rgba.resize(pixels * 4);
+  const SrgbThresholds& srgb = srgbThresholds();
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pixels), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      const glm::vec4& c = frame.color[i];
+      std::uint8_t* p = &rgba[i * 4];
+      p[0] = srgb(c.r), p[1] = srgb(c.g), p[2] = srgb(c.b), p[3] = 255;
+    }
+  });
+}
+
 void writeFrame(const std::filesystem::path& path, const Frame& frame, bool withAux) {
   const auto fail = [&](const std::string& reason) {
     return std::runtime_error(path.string() + ": cannot write image (" + reason + ")");
@@ -251,10 +315,11 @@ void writeFrame(const std::filesystem::path& path, const Frame& frame, bool with
       // for.
       const int channels = withAux ? 4 : 3;
       std::vector<std::uint8_t> bytes(pixels * std::size_t(channels));
+      const SrgbThresholds& srgb = srgbThresholds();
       for (std::size_t i = 0; i < pixels; ++i) {
         const glm::vec4& c = frame.color[i];
         std::uint8_t* p = &bytes[i * std::size_t(channels)];
-        p[0] = toSrgb8(c.r), p[1] = toSrgb8(c.g), p[2] = toSrgb8(c.b);
+        p[0] = srgb(c.r), p[1] = srgb(c.g), p[2] = srgb(c.b);
         if (channels == 4) p[3] = toUnorm8(c.a);
       }
       OIIO::ImageSpec spec(frame.width, frame.height, channels, OIIO::TypeDesc::UINT8);

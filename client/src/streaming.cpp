@@ -10,15 +10,6 @@
 namespace svo {
 namespace {
 
-// A still view is rendered at most this often while it converges; between frames the loop only commits
-// finished loads and asks for the next ones (Pager::update), so the workers get the cores that rendering the
-// same view again would take. Chosen by a sweep of 5, 10 and 15 frames/s and back-to-back frames on the
-// 20M terrain close-up (256^2, 2 cores): 10/s converged fastest.
-constexpr double kStillViewFrameSeconds = 0.1;
-// And at least this long after a frame for each second it took, so that where frames slow down (other
-// programs on the cores) the workers still get a share of the time.
-constexpr double kStillViewWaitPerRenderSecond = 1.0;
-
 std::uint64_t frameHash(const Frame& frame) {
   XXH3_state_t* state = XXH3_createState();
   XXH3_64bits_reset(state);

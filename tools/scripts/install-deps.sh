@@ -10,6 +10,7 @@ packages=(
   libembree-dev
   libcurl4-openssl-dev prometheus-cpp-dev nginx-light wrk nghttp2-client openssl
   gnuplot-nox
+  libglfw3-dev libimgui-dev libgl1-mesa-dri xvfb imagemagick
   clang libclang-rt-14-dev
 )
 missing=()

@@ -13,6 +13,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "camera_flags.hpp"
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
@@ -29,17 +30,10 @@
 namespace svo::tools {
 
 namespace {
-glm::dvec3 vec3Of(const std::vector<double>& v) {
-  return {v[0], v[1], v[2]};
-}
-
 struct RenderArgs {
-  std::string in, out, cameraFile, token;
+  std::string in, out, token;
   bool rangeOnly = false;
-  std::vector<double> eye, target, up{0.0, 1.0, 0.0},
-      view{kDefaultViewDirection.x, kDefaultViewDirection.y, kDefaultViewDirection.z};
-  double fov = 40.0;
-  int width = 1024, height = 1024;
+  CameraFlags camera;
   RenderOptions options;
   bool noContours = false, aux = false;
   std::size_t budget = 0, referenceBudget = std::size_t(1) << 30;
@@ -49,22 +43,7 @@ struct RenderArgs {
 };
 
 Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
-  Camera camera;
-  if (!args.cameraFile.empty()) {
-    camera = loadCamera(args.cameraFile);
-  } else if (!args.eye.empty()) {
-    if (args.target.empty()) throw UsageError("--eye needs --target");
-    camera.eye = vec3Of(args.eye);
-    camera.target = vec3Of(args.target);
-    camera.up = vec3Of(args.up);
-    camera.fovYDegrees = args.fov;
-    camera.width = args.width, camera.height = args.height;
-  } else {
-    camera = Camera::framing(scene, vec3Of(args.view), args.width, args.height);
-    camera.up = vec3Of(args.up);
-  }
-  camera.validate();
-  return camera;
+  return cameraOf(args.camera, scene);
 }
 
 PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
@@ -242,21 +221,7 @@ void addRenderCommand(CLI::App& app) {
   addTokenOption(cmd, args->token);
   addRangeOnlyFlag(cmd, args->rangeOnly);
   cmd->add_option("-o,--output", args->out, "output image (.png or .exr)")->required();
-  cmd->add_option("--camera", args->cameraFile, "camera JSON {eye, target, up, fov, width, height}");
-  cmd->add_option("--eye", args->eye, "camera position x,y,z (world)")->expected(3)->delimiter(',');
-  cmd->add_option("--target", args->target, "point looked at x,y,z (world)")->expected(3)->delimiter(',');
-  cmd->add_option("--up", args->up, "up vector x,y,z")->expected(3)->delimiter(',')->capture_default_str();
-  cmd->add_option("--view", args->view, "without --eye: look along this direction at the whole scene")
-      ->expected(3)
-      ->delimiter(',')
-      ->capture_default_str();
-  cmd->add_option("--fov", args->fov, "vertical field of view, degrees")
-      ->check(CLI::Range(1.0, 179.0))
-      ->capture_default_str();
-  cmd->add_option("--width", args->width, "image width")->check(CLI::Range(1, 16384))->capture_default_str();
-  cmd->add_option("--height", args->height, "image height")
-      ->check(CLI::Range(1, 16384))
-      ->capture_default_str();
+  addCameraFlags(*cmd, args->camera);
   cmd->add_option("--lod-pixels", args->options.lodPixels,
                   "stop at voxels this many pixels across (0 = finest)")
       ->check(CLI::Range(0.0, 64.0))

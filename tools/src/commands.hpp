@@ -13,5 +13,6 @@ void addStoreCommands(CLI::App& app);  // cmd_store.cpp: `svo verify`, `svo insp
 void addGenCommand(CLI::App& app);     // cmd_gen.cpp: `svo gen`
 void addStressCommand(CLI::App& app);  // cmd_stress.cpp: `svo stress`
 void addServeCommand(CLI::App& app);   // cmd_serve.cpp: `svo serve`
+void addViewCommand(CLI::App& app);    // cmd_view.cpp: `svo view`
 
 }  // namespace svo::tools

@@ -59,6 +59,7 @@ class Scheduler {
   // until that much room is free (marked on its last slice, so a shorter chain can still load).
   void markDenied(std::uint32_t slice, std::size_t bytes) { denied_[slice] = bytes; }
   void clearDenied(std::uint32_t slice) { denied_[slice] = 0; }
+  bool denied(std::uint32_t slice) const { return denied_[slice] != 0; }
   // A committed block's growth per decoded byte: the least measured bounds what later requests need.
   void learnBlockGrowth(double rawBytes, double grownBytes);
 

@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <shared_mutex>
 #include <string>
 #include <utility>
@@ -85,6 +86,16 @@ struct WorkerCpu {
   double seconds() const { return readSeconds + assembleSeconds + decodeSeconds + layoutSeconds; }
 };
 
+// What a pixel shows against what the store holds, for the viewer's false colors.
+enum class PixelDetail : std::uint8_t {
+  Miss,          // the ray hit nothing
+  AtTarget,      // the ray stopped at its level-of-detail target, or at a voxel no wider
+  FinestStored,  // wider, but the store has no finer level there
+  Loading,       // wider; the slice that refines it is being fetched or decoded
+  Waiting,       // wider; that slice is not asked for yet (or the view does not want it)
+  NoRoom,        // wider; that slice does not fit the budget at its priority, or failed
+};
+
 // The view query of a camera: eye, pixel angle, LOD target and the frustum, in octree space.
 ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPixels);
 
@@ -120,6 +131,9 @@ class Pager {
   // grid of every kFeedbackStride-th pixel, raise the priority of the slice that refines that voxel (in every
   // update until the next frame's feedback).
   void feedback(const Frame& frame, const Camera& camera, double lodPixels);
+  // Every pixel of a frame rendered from the pool classified as PixelDetail, row by row (the frame rendered
+  // with RenderOptions::diagnostics tells which rays stopped at their target).
+  std::vector<PixelDetail> detailMap(const Frame& frame, const Camera& camera, double lodPixels) const;
   // Marks a frame rendering from the pool, from construction to destruction: decode threads beyond
   // PagerOptions::decodersDuringFrames pause at their next stage meanwhile.
   class FrameScope {
@@ -163,6 +177,10 @@ class Pager {
 
  private:
   bool commit(paging::BuiltBlock& built, PagerStats& stats);
+  // The slice that refines the voxel pixel (x, y) of `frame` stopped at, when wider than `lodPixels` and the
+  // store has one.
+  std::optional<std::uint32_t> refiningSlice(const Frame& frame, const Camera& camera,
+                                             const Camera::Basis& basis, int x, int y, double lodPixels) const;
 
   std::shared_ptr<const SliceSource> source_;
   PagerOptions options_;

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <functional>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -47,6 +48,8 @@ inline const glm::dvec3 kDefaultViewDirection{-0.35, -0.25, -1.0};
 
 // Camera from a JSON file: {"eye":[x,y,z], "target":[..], "up":[..], "fov":deg, "width":w, "height":h}.
 Camera loadCamera(const std::filesystem::path& path);
+// The same from JSON text; `where` names it in messages.
+Camera parseCamera(const std::string& jsonText, const std::string& where);
 // A camera path: a JSON array of such objects, one per frame.
 std::vector<Camera> loadCameraPath(const std::filesystem::path& path);
 
@@ -59,6 +62,7 @@ struct RenderOptions {
   glm::vec3 lightDirection{-0.4f, -0.8f, -0.45f};  // towards the scene
   glm::vec3 background{0.08f, 0.09f, 0.11f};
   int threads = 0;  // 0 = all cores
+  bool diagnostics = false;  // fill Frame::iterations and Frame::lodStopped (the viewer's false colors)
 };
 
 // One frame. Depth is the world distance along the ray (infinity for a miss); voxelPixels is the hit voxel's
@@ -68,6 +72,11 @@ struct Frame {
   std::vector<glm::vec4> color;  // linear RGB + alpha (1 = hit)
   std::vector<float> depth;
   std::vector<float> voxelPixels;
+  // Only with RenderOptions::diagnostics, else empty: ray-loop iterations per pixel, saturating (0 where the
+  // beam pass skipped the tile), and 1 where the ray stopped at its level-of-detail target rather than at
+  // the deepest voxel it found.
+  std::vector<std::uint16_t> iterations;
+  std::vector<std::uint8_t> lodStopped;
   double seconds = 0.0;
   double meanIterations = 0.0;
   double mraysPerSecond() const { return double(width) * height / seconds * 1e-6; }
@@ -77,6 +86,10 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
 // The same over any block (a block pool's trunk: the octree as far as it is resident).
 Frame render(const BlockView& block, const SceneTransform& scene, const Camera& camera,
              const RenderOptions& options = {});
+
+// The octree level of the voxel a pixel hit (0 = the root cube), from its depth and size in pixels;
+// nullopt for a miss.
+std::optional<int> hitLevel(const Frame& frame, std::size_t pixel, double pixelAngle, double sceneSize);
 
 // Albedo of a scene without colors.
 inline constexpr float kNeutralGreyAlbedo = 0.8f;
@@ -113,11 +126,15 @@ class PixelRays {
 void forEachTile(int width, int height, int tileSize, int threads,
                  const std::function<void(const PixelTile&)>& trace);
 
+struct IgnoreMiss {
+  void operator()(int, int, const CastHit&) const {}
+};
 // Casts the rays of one tile, starting each at the tile's beam bound when `beam` (tiles whose beam meets
-// nothing cast no ray), and calls onHit(x, y, ray, hit) for each hit. Returns the ray-loop iterations.
-template <class OnHit>
+// nothing cast no ray), and calls onHit(x, y, ray, hit) for each hit and onMiss(x, y, hit) for each ray cast
+// that missed. Returns the ray-loop iterations.
+template <class OnHit, class OnMiss = IgnoreMiss>
 std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const PixelTile& tile, bool beam,
-                       const CastOptions& options, OnHit&& onHit) {
+                       const CastOptions& options, OnHit&& onHit, OnMiss&& onMiss = OnMiss{}) {
   float tStart = 0.0f;
   if (beam) {
     tStart = castBeam(block, rays, tile).tStart;
@@ -130,11 +147,19 @@ std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const Pixe
       ray.tMin = tStart;
       const CastHit hit = castRay(block, ray, options);
       iterations += std::uint64_t(hit.iterations);
-      if (hit.hit) onHit(x, y, ray, hit);
+      if (hit.hit) {
+        onHit(x, y, ray, hit);
+      } else {
+        onMiss(x, y, hit);
+      }
     }
   }
   return iterations;
 }
+
+// The frame's colors as 8-bit sRGB, 4 bytes a pixel with alpha 255 (what a PNG of the frame holds, for
+// display), row by row from the top.
+void encodeSrgb8(const Frame& frame, std::vector<std::uint8_t>& rgba);
 
 // Writes PNG (8-bit sRGB) or EXR (float, with Z and voxelPixels channels when `withAux`) by extension.
 // Writes to a temporary name and renames; throws std::runtime_error naming the path on failure.

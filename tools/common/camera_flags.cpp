@@ -1,0 +1,60 @@
+#include "camera_flags.hpp"
+
+#include "usage.hpp"
+
+namespace svo::tools {
+namespace {
+
+glm::dvec3 vec3Of(const std::vector<double>& v) {
+  return {v[0], v[1], v[2]};
+}
+
+}  // namespace
+
+void addCameraFlags(CLI::App& cmd, CameraFlags& flags) {
+  cmd.add_option("--camera", flags.cameraFile, "camera JSON {eye, target, up, fov, width, height}");
+  cmd.add_option("--eye", flags.eye, "camera position x,y,z (world)")->expected(3)->delimiter(',');
+  cmd.add_option("--target", flags.target, "point looked at x,y,z (world)")->expected(3)->delimiter(',');
+  cmd.add_option("--up", flags.up, "up vector x,y,z")->expected(3)->delimiter(',')->capture_default_str();
+  cmd.add_option("--view", flags.view, "without --eye: look along this direction at the whole scene")
+      ->expected(3)
+      ->delimiter(',')
+      ->capture_default_str();
+  cmd.add_option("--fov", flags.fov, "vertical field of view, degrees")
+      ->check(CLI::Range(1.0, 179.0))
+      ->capture_default_str();
+  cmd.add_option("--width", flags.width, "image width")->check(CLI::Range(1, 16384))->capture_default_str();
+  cmd.add_option("--height", flags.height, "image height")->check(CLI::Range(1, 16384))->capture_default_str();
+}
+
+std::optional<Camera> explicitCamera(const CameraFlags& flags) {
+  Camera camera;
+  if (!flags.cameraFile.empty()) {
+    camera = loadCamera(flags.cameraFile);
+  } else if (!flags.eye.empty()) {
+    if (flags.target.empty()) throw UsageError("--eye needs --target");
+    camera.eye = vec3Of(flags.eye);
+    camera.target = vec3Of(flags.target);
+    camera.up = vec3Of(flags.up);
+    camera.fovYDegrees = flags.fov;
+    camera.width = flags.width, camera.height = flags.height;
+  } else {
+    return std::nullopt;
+  }
+  camera.validate();
+  return camera;
+}
+
+glm::dvec3 viewDirectionOf(const CameraFlags& flags) {
+  return vec3Of(flags.view);
+}
+
+Camera cameraOf(const CameraFlags& flags, const SceneTransform& scene) {
+  if (std::optional<Camera> camera = explicitCamera(flags)) return *camera;
+  Camera camera = Camera::framing(scene, viewDirectionOf(flags), flags.width, flags.height);
+  camera.up = vec3Of(flags.up);
+  camera.validate();
+  return camera;
+}
+
+}  // namespace svo::tools

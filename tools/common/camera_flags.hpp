@@ -1,0 +1,30 @@
+// The camera as command-line flags, for every command that looks at a scene (`svo render`, `svo view`).
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+
+#include "svo/client/render.hpp"
+
+namespace svo::tools {
+
+struct CameraFlags {
+  std::string cameraFile;
+  std::vector<double> eye, target, up{0.0, 1.0, 0.0},
+      view{kDefaultViewDirection.x, kDefaultViewDirection.y, kDefaultViewDirection.z};
+  double fov = 40.0;
+  int width = 1024, height = 1024;
+};
+
+// Adds --camera, --eye, --target, --up, --view, --fov, --width and --height; `flags` holds the defaults shown.
+void addCameraFlags(CLI::App& cmd, CameraFlags& flags);
+// The camera the flags name: --camera's file, else --eye and --target, else nullopt (the scene framed).
+std::optional<Camera> explicitCamera(const CameraFlags& flags);
+// That camera, or the whole scene seen along --view at --width x --height.
+Camera cameraOf(const CameraFlags& flags, const SceneTransform& scene);
+glm::dvec3 viewDirectionOf(const CameraFlags& flags);
+
+}  // namespace svo::tools
