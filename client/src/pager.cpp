@@ -275,10 +275,11 @@ std::vector<PixelDetail> Pager::detailMap(const Frame& frame, const Camera& came
       if (!std::isfinite(frame.depth[i])) continue;
       if (!(frame.voxelPixels[i] > lodPixels) || (!frame.lodStopped.empty() && frame.lodStopped[i])) {
         out[i] = PixelDetail::AtTarget;
-      } else if (const std::optional<std::uint32_t> s = refiningSlice(frame, camera, basis, x, y, lodPixels)) {
-        out[i] = scheduler_->inFlight(*s)                                ? PixelDetail::Loading
+      } else if (const std::optional<std::uint32_t> s =
+                     refiningSlice(frame, camera, basis, x, y, lodPixels)) {
+        out[i] = scheduler_->inFlight(*s)                           ? PixelDetail::Loading
                  : scheduler_->denied(*s) || scheduler_->failed(*s) ? PixelDetail::NoRoom
-                                                                         : PixelDetail::Waiting;
+                                                                    : PixelDetail::Waiting;
       } else {
         out[i] = PixelDetail::FinestStored;
       }

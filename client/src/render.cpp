@@ -2,8 +2,8 @@
 // Phong shading with one directional light, and PNG / EXR output through OpenImageIO.
 #include <algorithm>
 #include <array>
-#include <bit>
 #include <atomic>
+#include <bit>
 #include <cctype>
 #include <chrono>
 #include <cmath>
@@ -285,13 +285,14 @@ void encodeSrgb8(const Frame& frame, std::vector<std::uint8_t>& rgba) {
   const std::size_t pixels = frame.color.size();
   rgba.resize(pixels * 4);
   const SrgbThresholds& srgb = srgbThresholds();
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pixels), [&](const tbb::blocked_range<std::size_t>& r) {
-    for (std::size_t i = r.begin(); i != r.end(); ++i) {
-      const glm::vec4& c = frame.color[i];
-      std::uint8_t* p = &rgba[i * 4];
-      p[0] = srgb(c.r), p[1] = srgb(c.g), p[2] = srgb(c.b), p[3] = 255;
-    }
-  });
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, pixels),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i != r.end(); ++i) {
+                        const glm::vec4& c = frame.color[i];
+                        std::uint8_t* p = &rgba[i * 4];
+                        p[0] = srgb(c.r), p[1] = srgb(c.g), p[2] = srgb(c.b), p[3] = 255;
+                      }
+                    });
 }
 
 void writeFrame(const std::filesystem::path& path, const Frame& frame, bool withAux) {

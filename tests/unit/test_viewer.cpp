@@ -97,9 +97,9 @@ TEST(ViewerScript, ReadsEveryKindOfStep) {
     {"camera": {"eye": [0, 0, 3], "target": [0, 0, 0]}},
     {"hold": "W", "seconds": 0.5}, {"look": [10, -5], "seconds": 0.2}, {"key": "F1"}, {"sleep": 0.1},
     {"wait": "converged"}, {"wait": "file", "path": "x", "timeout": 3}, {"screenshot": "a.png"},
-    {"print": "overlay"}, {"mark": "here"}])");
+    {"print": "overlay"}, {"mark": "here"}, {"set": {"budget": 16777216, "lod": 2, "colors": "octree level"}}])");
   const std::vector<ScriptStep> steps = loadScript(file);
-  ASSERT_EQ(steps.size(), 10u);
+  ASSERT_EQ(steps.size(), 11u);
   using K = ScriptStep::Kind;
   EXPECT_EQ(steps[0].kind, K::Camera);
   EXPECT_EQ(steps[0].camera.eye, glm::dvec3(0, 0, 3));
@@ -114,6 +114,10 @@ TEST(ViewerScript, ReadsEveryKindOfStep) {
   EXPECT_EQ(steps[6].seconds, 3.0);
   EXPECT_EQ(steps[7].path, "a.png");
   EXPECT_EQ(steps[9].text, "here");
+  EXPECT_EQ(steps[10].budgetBytes, std::size_t(16) << 20);
+  EXPECT_EQ(steps[10].lodPixels, 2.0f);
+  EXPECT_EQ(steps[10].falseColor, FalseColor::OctreeLevel);
+  EXPECT_FALSE(steps[10].contours);
 }
 
 TEST(ViewerScript, NamesTheStepAndTheFieldOfABadOne) {
@@ -126,21 +130,29 @@ TEST(ViewerScript, NamesTheStepAndTheFieldOfABadOne) {
     }
     return std::string("no error");
   };
-  EXPECT_NE(errorOf(R"([{"sleep": 1}, {"key": "F13"}])").find("step 2: 'F13' is not a key"), std::string::npos);
+  EXPECT_NE(errorOf(R"([{"sleep": 1}, {"key": "F13"}])").find("step 2: 'F13' is not a key"),
+            std::string::npos);
   EXPECT_NE(errorOf(R"([{"hold": "F1", "seconds": 1}])").find("step 1: 'hold' takes a movement key"),
             std::string::npos);
   EXPECT_NE(errorOf(R"([{"sleep": -1}])").find("'sleep' must be a number of seconds"), std::string::npos);
   EXPECT_NE(errorOf(R"([{"sleep": 1e999}])").find("not valid JSON"), std::string::npos);
   EXPECT_NE(errorOf(R"([{"hold": "W"}])").find("'seconds' is missing"), std::string::npos);
-  EXPECT_NE(errorOf(R"([{"key": "W", "seconds": 1}])").find("'seconds' is not known here"), std::string::npos);
-  EXPECT_NE(errorOf(R"([{"camera": {"eye": [0,0,1], "target": [0,0,1]}}])").find("step 1: camera: eye and target"),
+  EXPECT_NE(errorOf(R"([{"key": "W", "seconds": 1}])").find("'seconds' is not known here"),
             std::string::npos);
+  EXPECT_NE(
+      errorOf(R"([{"camera": {"eye": [0,0,1], "target": [0,0,1]}}])").find("step 1: camera: eye and target"),
+      std::string::npos);
   EXPECT_NE(errorOf(R"([{"camera": {"eye": [0,0,1], "target": [0,0,0], "width": 9}}])").find("window's size"),
             std::string::npos);
   EXPECT_NE(errorOf(R"([{"screenshot": "a.jpg"}])").find(".png"), std::string::npos);
   EXPECT_NE(errorOf(R"([{"wait": "forever"}])").find("'wait' must be"), std::string::npos);
   EXPECT_NE(errorOf(R"({"sleep": 1})").find("JSON array"), std::string::npos);
   EXPECT_NE(errorOf(R"([{}])").find("step 1: an empty step"), std::string::npos);
+  EXPECT_NE(errorOf(R"([{"set": {"budget": 1000}}])").find("'budget' must be a whole number"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"([{"set": {"lod": -1}}])").find("'lod' must be"), std::string::npos);
+  EXPECT_NE(errorOf(R"([{"set": {"colors": "pink"}}])").find("'colors' must be one of"), std::string::npos);
+  EXPECT_NE(errorOf(R"([{"set": {"speed": 2}}])").find("'speed' is not a setting"), std::string::npos);
 }
 
 // The display's 8-bit codes against the sRGB curve written out in double precision (IEC 61966-2-1): equal
@@ -210,7 +222,7 @@ TEST(FalseColors, DetailMapShowsWhatIsMissingUntilTheViewConverges) {
   const std::vector<PixelDetail> before = pager.detailMap(coarse, camera, options.lodPixels);
   EXPECT_GT(count(before, PixelDetail::Waiting), 100);
   EXPECT_EQ(count(before, PixelDetail::Miss), std::count_if(coarse.depth.begin(), coarse.depth.end(),
-                                                             [](float d) { return !std::isfinite(d); }));
+                                                            [](float d) { return !std::isfinite(d); }));
   StreamedFrame last;
   ASSERT_TRUE(convergeView(pager, camera, options, 60.0, &last).converged());
   const std::vector<PixelDetail> after = pager.detailMap(last.frame, camera, options.lodPixels);

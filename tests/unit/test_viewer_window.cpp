@@ -146,7 +146,8 @@ void expectSameImage(const fs::path& grab, const fs::path& reference) {
     worst = std::max(worst, d);
     off += d > 1;
   }
-  EXPECT_LE(double(off), 0.001 * double(a.width) * a.height) << grab << " vs " << reference << ": worst " << worst;
+  EXPECT_LE(double(off), 0.001 * double(a.width) * a.height)
+      << grab << " vs " << reference << ": worst " << worst;
 }
 
 // Waits until `file` holds `text`; false after the patience.
@@ -208,15 +209,27 @@ TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
   const std::string grabbed = (dir.path() / "grabbed").string();
   // From the far camera: fly, turn, jump to the close-up, converge, hide the overlay, hold still for the
   // grab; then back to the far camera for a screenshot and a grab with the overlay hidden.
-  const fs::path script = dir.file("script.json", "[{\"hold\": \"W\", \"seconds\": 0.4}, {\"look\": [30, 10], "
-      "\"seconds\": 0.3}, {\"camera\": " + cameraJson(closeEye, closeTarget, false) + "}, {\"wait\": \"converged\"}, "
-      "{\"key\": \"F1\"}, {\"sleep\": 0.2}, {\"print\": \"overlay\"}, {\"mark\": \"grab-close\"}, {\"wait\": \"file\", "
-      "\"path\": \"" + grabbed + "-close\"}, {\"camera\": " + cameraJson(farEye, farTarget, false) + "}, "
-      "{\"wait\": \"converged\"}, {\"screenshot\": \"" + screenshot.string() + "\"}, {\"mark\": \"grab-far\"}, "
-      "{\"wait\": \"file\", \"path\": \"" + grabbed + "-far\"}]");
+  const fs::path script =
+      dir.file("script.json",
+               "[{\"hold\": \"W\", \"seconds\": 0.4}, {\"look\": [30, 10], "
+               "\"seconds\": 0.3}, {\"camera\": " +
+                   cameraJson(closeEye, closeTarget, false) +
+                   "}, {\"wait\": \"converged\"}, "
+                   "{\"key\": \"F1\"}, {\"sleep\": 0.2}, {\"print\": \"overlay\"}, {\"mark\": "
+                   "\"grab-close\"}, {\"wait\": \"file\", "
+                   "\"path\": \"" +
+                   grabbed + "-close\"}, {\"camera\": " + cameraJson(farEye, farTarget, false) +
+                   "}, "
+                   "{\"wait\": \"converged\"}, {\"screenshot\": \"" +
+                   screenshot.string() +
+                   "\"}, {\"mark\": \"grab-far\"}, "
+                   "{\"wait\": \"file\", \"path\": \"" +
+                   grabbed +
+                   "-far\"}, {\"set\": {\"budget\": 2097152}}, "
+                   "{\"wait\": \"converged\"}, {\"print\": \"overlay\"}]");
   const fs::path output = dir.path() / "view.out";
-  Child viewer({SVO_BINARY, "view", store.string(), "--camera", farCamera.string(), "--budget", "64M", "--script",
-                script.string()},
+  Child viewer({SVO_BINARY, "view", store.string(), "--camera", farCamera.string(), "--budget", "64M",
+                "--script", script.string()},
                output, x.display());
   for (const std::string name : {"close", "far"}) {
     ASSERT_TRUE(waitForText(output, "mark grab-" + name)) << slurp(output);
@@ -227,6 +240,12 @@ TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
   }
   ASSERT_EQ(viewer.wait(), 0) << slurp(output);
   const std::string viewed = slurp(output);
+  // A budget set as the overlay sets it opens a new pool of that size, which the view then fills within it.
+  std::smatch m;
+  const std::string afterBudget = viewed.substr(viewed.rfind("overlay: source"));
+  ASSERT_TRUE(std::regex_search(afterBudget, m, std::regex(R"(resident ([\d.]+) MB of 2.0 MB)"))) << viewed;
+  EXPECT_LE(std::stod(m[1]), 2.0);
+  EXPECT_NE(afterBudget.find("converged"), std::string::npos) << afterBudget;
 
   // `svo render` of the same cameras and budget, each in a fresh process.
   for (const std::string name : {"close", "far"}) {
@@ -239,10 +258,10 @@ TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
     if (name == "far") expectSameImage(screenshot, dir.path() / "far.png");
     if (name != "close") continue;
     // The overlay's numbers at the converged close-up against the render's pager for the same view.
-    std::smatch m;
     ASSERT_TRUE(std::regex_search(rendered, m, std::regex(R"((\d+) slices resident)"))) << rendered;
     const std::string slices = m[1];
-    ASSERT_TRUE(std::regex_search(viewed, m, std::regex(R"(overlay: resident [\d.]+ MB of 64.0 MB, (\d+) slices)")))
+    ASSERT_TRUE(
+        std::regex_search(viewed, m, std::regex(R"(overlay: resident [\d.]+ MB of 64.0 MB, (\d+) slices)")))
         << viewed;
     EXPECT_EQ(m[1], slices) << viewed << rendered;
     EXPECT_NE(viewed.find("overlay: slices in flight 0, wanted 0, converged"), std::string::npos) << viewed;
@@ -250,7 +269,8 @@ TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
     ASSERT_NE(exr.find("wrote"), std::string::npos) << exr;
     const svo::StoreReader reader(store);
     const int deepest = deepestLevelOfExr(dir.path() / "close.exr", 45.0, reader.header().transform.size);
-    ASSERT_TRUE(std::regex_search(viewed, m, std::regex(R"(overlay: deepest level on screen (\d+) of (\d+))")))
+    ASSERT_TRUE(
+        std::regex_search(viewed, m, std::regex(R"(overlay: deepest level on screen (\d+) of (\d+))")))
         << viewed;
     EXPECT_EQ(std::stoi(m[1]), deepest);
     EXPECT_EQ(std::stoi(m[2]), reader.header().parameters.levels);
@@ -272,7 +292,8 @@ TEST(ViewerWindow, ABadScriptIsNamedBeforeAnyWindowOpens) {
   svotest::TempDir dir;
   const fs::path script = dir.file("bad.json", R"([{"sleep": 0.1}, {"hold": "W", "seconds": "long"}])");
   const fs::path output = dir.path() / "out.txt";
-  Child viewer({SVO_BINARY, "view", svotest::sphereStore().string(), "--script", script.string()}, output, "");
+  Child viewer({SVO_BINARY, "view", svotest::sphereStore().string(), "--script", script.string()}, output,
+               "");
   EXPECT_EQ(viewer.wait(), 1);
   const std::string said = slurp(output);
   EXPECT_NE(said.find("bad.json: step 2: 'seconds' must be a number"), std::string::npos) << said;

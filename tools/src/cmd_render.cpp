@@ -13,7 +13,6 @@
 
 #include <spdlog/spdlog.h>
 
-#include "camera_flags.hpp"
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
@@ -26,6 +25,7 @@
 #include "svo/client/render.hpp"
 #include "svo/client/streaming.hpp"
 #include "svo/client/whole_scene.hpp"
+#include "view_flags.hpp"
 
 namespace svo::tools {
 
@@ -222,18 +222,8 @@ void addRenderCommand(CLI::App& app) {
   addRangeOnlyFlag(cmd, args->rangeOnly);
   cmd->add_option("-o,--output", args->out, "output image (.png or .exr)")->required();
   addCameraFlags(*cmd, args->camera);
-  cmd->add_option("--lod-pixels", args->options.lodPixels,
-                  "stop at voxels this many pixels across (0 = finest)")
-      ->check(CLI::Range(0.0, 64.0))
-      ->capture_default_str();
-  cmd->add_option("--beam-tile", args->options.beamTile,
-                  "beam optimization (sec. 6.2): pixels per tile edge of one coarse pass (0 = off)")
-      ->check(CLI::Range(0, 64))
-      ->capture_default_str();
-  cmd->add_flag("--no-contours", args->noContours, "ignore contours: cube voxels");
+  addRenderFlags(*cmd, args->options, args->noContours);
   cmd->add_flag("--aux", args->aux, "EXR only: add depth (Z) and voxel-size-in-pixels channels");
-  cmd->add_option("--threads", args->options.threads, "threads (0 = all cores)")
-      ->check(CLI::NonNegativeNumber);
   cmd->add_option(
          "--budget", args->budget,
          "stream the store through a block pool of this many bytes (64M, 1G): frames render from what "
@@ -254,8 +244,8 @@ void addRenderCommand(CLI::App& app) {
   cmd->callback([args] {
     if (args->pathFile.empty()) checkImageOutput(*args);
     if (args->budget == 0) return renderDefault(*args);
-    renderStreaming(*args, openSliceSource(args->in, remoteOptions(args->token, args->rangeOnly)), args->budget,
-                    "streamed through a " + formatBytes(args->budget) + " block pool");
+    renderStreaming(*args, openSliceSource(args->in, remoteOptions(args->token, args->rangeOnly)),
+                    args->budget, "streamed through a " + formatBytes(args->budget) + " block pool");
   });
 }
 

@@ -6,7 +6,6 @@
 
 #include <spdlog/spdlog.h>
 
-#include "camera_flags.hpp"
 #include "commands.hpp"
 #include "machine.hpp"
 #include "pager_flags.hpp"
@@ -16,6 +15,7 @@
 #include "svo/client/streaming.hpp"
 #include "svo/viewer/controls.hpp"
 #include "svo/viewer/viewer.hpp"
+#include "view_flags.hpp"
 
 namespace svo::tools {
 namespace {
@@ -40,7 +40,8 @@ struct ViewArgs {
 viewer::FalseColor falseColorOf(const std::string& name) {
   for (viewer::FalseColor mode : viewer::kFalseColors)
     if (name == viewer::nameOf(mode)) return mode;
-  throw UsageError("--colors: '" + name + "' is not one of: shaded, octree level, iterations per pixel, "
+  throw UsageError("--colors: '" + name +
+                   "' is not one of: shaded, octree level, iterations per pixel, "
                    "resident vs wanted");
 }
 
@@ -51,9 +52,11 @@ void printSummary(const viewer::ViewerSummary& s) {
     std::printf("moving: %zu frames, %.1f frames/s, median %.1f ms at %.0f%% of the window's resolution\n",
                 s.movingFrames, s.movingFramesPerSecond, s.movingFrameMsMedian, s.movingScaleMedian * 100.0);
   if (s.stillFrames > 0)
-    std::printf("still: %zu frames, median %.1f ms at full resolution\n", s.stillFrames, s.stillFrameMsMedian);
+    std::printf("still: %zu frames, median %.1f ms at full resolution\n", s.stillFrames,
+                s.stillFrameMsMedian);
   for (const auto& [lastChange, converged] : s.sharpAfterStop)
-    std::printf("sharp after the camera stopped: last change %.3f s, converged %.3f s\n", lastChange, converged);
+    std::printf("sharp after the camera stopped: last change %.3f s, converged %.3f s\n", lastChange,
+                converged);
 }
 
 void runView(const ViewArgs& args, bool sizeGiven, std::chrono::steady_clock::time_point launched) {
@@ -66,8 +69,9 @@ void runView(const ViewArgs& args, bool sizeGiven, std::chrono::steady_clock::ti
   options.pager = args.pager;
   options.pager.fetchThreads = resolvedFetchThreads(args.pager.fetchThreads, args.in);
   options.pager.budgetBytes =
-      args.budget ? args.budget
-                  : std::size_t(std::min<std::uint64_t>(defaultMemoryShare(machineMemory()), kMaxBudgetBytes));
+      args.budget
+          ? args.budget
+          : std::size_t(std::min<std::uint64_t>(defaultMemoryShare(machineMemory()), kMaxBudgetBytes));
   options.render = args.render;
   options.settings.lodPixels = args.render.lodPixels;
   options.settings.contours = !args.noContours;
@@ -101,16 +105,7 @@ void addViewCommand(CLI::App& app) {
   addTokenOption(cmd, args->token);
   addRangeOnlyFlag(cmd, args->rangeOnly);
   addCameraFlags(*cmd, args->camera);
-  cmd->add_option("--lod-pixels", args->render.lodPixels, "stop at voxels this many pixels across (0 = finest)")
-      ->check(CLI::Range(0.0, 64.0))
-      ->capture_default_str();
-  cmd->add_option("--beam-tile", args->render.beamTile,
-                  "beam optimization (sec. 6.2): pixels per tile edge of one coarse pass (0 = off)")
-      ->check(CLI::Range(0, 64))
-      ->capture_default_str();
-  cmd->add_flag("--no-contours", args->noContours, "ignore contours: cube voxels");
-  cmd->add_option("--threads", args->render.threads, "render threads (0 = all cores)")
-      ->check(CLI::NonNegativeNumber);
+  addRenderFlags(*cmd, args->render, args->noContours);
   cmd->add_option("--budget", args->budget,
                   "the block pool in bytes (64M, 1G; default: half the available memory)")
       ->transform(CLI::AsSizeValue(false));

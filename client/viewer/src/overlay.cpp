@@ -30,8 +30,9 @@ std::vector<std::string> overlayLines(const OverlayStats& s) {
   lines.push_back(format("slices in flight %u, wanted %u, %s", s.inFlight, s.wanted,
                          s.converged ? "converged" : "streaming"));
   lines.push_back(format("read %.1f MB", double(s.bytesRead) / kMiB));
-  lines.push_back(s.deepestLevel < 0 ? format("deepest level on screen: none of %d", s.storeLevels)
-                                     : format("deepest level on screen %d of %d", s.deepestLevel, s.storeLevels));
+  lines.push_back(s.deepestLevel < 0
+                      ? format("deepest level on screen: none of %d", s.storeLevels)
+                      : format("deepest level on screen %d of %d", s.deepestLevel, s.storeLevels));
   lines.push_back(format("eye %.4g %.4g %.4g, speed %.3g/s", s.eye.x, s.eye.y, s.eye.z, s.speed));
   return lines;
 }

@@ -16,7 +16,9 @@ constexpr int kMaxBudgetMiB = 16384;
 constexpr float kMaxLodPixels = 16.0f;
 
 ImVec4 swatch(glm::vec3 linear) {
-  const auto srgb = [](float c) { return c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f; };
+  const auto srgb = [](float c) {
+    return c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
+  };
   return ImVec4(srgb(linear.r), srgb(linear.g), srgb(linear.b), 1.0f);
 }
 
@@ -24,7 +26,8 @@ bool drawSettings(const OverlayStats& stats, ViewSettings& settings, int& budget
   bool changed = false;
   const int current = int(settings.budgetBytes >> 20);
   if (budgetMiB == 0) budgetMiB = current;
-  ImGui::SliderInt("budget MiB", &budgetMiB, kMinBudgetMiB, kMaxBudgetMiB, "%d", ImGuiSliderFlags_Logarithmic);
+  ImGui::SliderInt("budget MiB", &budgetMiB, kMinBudgetMiB, kMaxBudgetMiB, "%d",
+                   ImGuiSliderFlags_Logarithmic);
   if (budgetMiB != current) {
     ImGui::SameLine();
     if (ImGui::Button("apply")) {

@@ -7,6 +7,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "svo/client/pager.hpp"
+
 namespace svo::viewer {
 namespace {
 
@@ -22,8 +24,9 @@ constexpr double kLongestStepSeconds = 86400.0;
 void onlyKeys(const Json& step, const std::string& where, const std::set<std::string>& allowed) {
   for (const auto& item : step.items())
     if (!allowed.contains(item.key()))
-      fail(where, "'" + item.key() + "' is not known here (a step is one of camera, hold, look, key, sleep, "
-                  "wait, screenshot, print, mark)");
+      fail(where, "'" + item.key() +
+                      "' is not known here (a step is one of camera, hold, look, key, sleep, "
+                      "wait, screenshot, set, print, mark)");
 }
 
 double seconds(const Json& step, const std::string& where, const char* key, std::optional<double> fallback) {
@@ -52,6 +55,41 @@ Action keyAction(const Json& step, const std::string& where, const char* key) {
   return *action;
 }
 
+// The smallest budget a script may set: one slice of the default size (a smaller pool holds no trunk).
+constexpr double kMinScriptBudgetBytes = 1 << 20;
+// The coarsest level of detail a script may set, as `svo render --lod-pixels` allows.
+constexpr double kMaxLodPixels = 64.0;
+
+void parseSettings(const Json& set, const std::string& where, ScriptStep& out) {
+  if (!set.is_object() || set.empty()) fail(where, "must be an object of budget, lod, contours and colors");
+  for (const auto& item : set.items()) {
+    const std::string& key = item.key();
+    const Json& value = item.value();
+    if (key == "budget") {
+      const double bytes = value.is_number() ? value.get<double>() : std::nan("");
+      if (!(bytes >= kMinScriptBudgetBytes && bytes <= double(kMaxBudgetBytes)) || bytes != std::floor(bytes))
+        fail(where, "'budget' must be a whole number of bytes from 1 MiB to 16 GiB");
+      out.budgetBytes = std::size_t(bytes);
+    } else if (key == "lod") {
+      const double lod = value.is_number() ? value.get<double>() : std::nan("");
+      if (!(lod >= 0.0 && lod <= kMaxLodPixels)) fail(where, "'lod' must be a number of pixels in [0, 64]");
+      out.lodPixels = float(lod);
+    } else if (key == "contours") {
+      if (!value.is_boolean()) fail(where, "'contours' must be true or false");
+      out.contours = value.get<bool>();
+    } else if (key == "colors") {
+      const std::string name = value.is_string() ? value.get<std::string>() : "";
+      for (FalseColor mode : kFalseColors)
+        if (name == nameOf(mode)) out.falseColor = mode;
+      if (!out.falseColor)
+        fail(where,
+             "'colors' must be one of: shaded, octree level, iterations per pixel, resident vs wanted");
+    } else {
+      fail(where, "'" + key + "' is not a setting (budget, lod, contours, colors)");
+    }
+  }
+}
+
 ScriptStep parseStep(const Json& step, const std::string& where) {
   if (!step.is_object()) fail(where, "a step must be a JSON object");
   ScriptStep out;
@@ -72,7 +110,8 @@ ScriptStep parseStep(const Json& step, const std::string& where) {
     onlyKeys(step, where, {"hold", "seconds"});
     out.kind = K::Hold;
     out.action = keyAction(step, where, "hold");
-    if (!isHeld(out.action)) fail(where, "'hold' takes a movement key (W, A, S, D, Q, E); use 'key' for the others");
+    if (!isHeld(out.action))
+      fail(where, "'hold' takes a movement key (W, A, S, D, Q, E); use 'key' for the others");
     out.seconds = seconds(step, where, "seconds", std::nullopt);
   } else if (step.contains("look")) {
     onlyKeys(step, where, {"look", "seconds"});
@@ -109,6 +148,10 @@ ScriptStep parseStep(const Json& step, const std::string& where) {
     out.kind = K::Screenshot;
     out.path = text(step, where, "screenshot");
     if (out.path.extension() != ".png") fail(where, "'screenshot' must name a .png file");
+  } else if (step.contains("set")) {
+    onlyKeys(step, where, {"set"});
+    out.kind = K::Set;
+    parseSettings(step["set"], where + ": set", out);
   } else if (step.contains("print")) {
     onlyKeys(step, where, {"print"});
     if (text(step, where, "print") != "overlay") fail(where, "'print' must be \"overlay\"");
@@ -150,16 +193,28 @@ std::string describe(const ScriptStep& s) {
     return std::string(b);
   };
   switch (s.kind) {
-    case K::Camera: return "camera jump";
-    case K::Hold: return "hold a movement key for " + secs(s.seconds);
-    case K::Look: return "look (" + std::to_string(int(s.dx)) + ", " + std::to_string(int(s.dy)) + ") px";
-    case K::Key: return "key press";
-    case K::Sleep: return "sleep " + secs(s.seconds);
-    case K::WaitConverged: return "wait until converged";
-    case K::WaitFile: return "wait for " + s.path.string();
-    case K::Screenshot: return "screenshot " + s.path.string();
-    case K::PrintOverlay: return "print the overlay";
-    case K::Mark: return "mark " + s.text;
+    case K::Camera:
+      return "camera jump";
+    case K::Hold:
+      return "hold a movement key for " + secs(s.seconds);
+    case K::Look:
+      return "look (" + std::to_string(int(s.dx)) + ", " + std::to_string(int(s.dy)) + ") px";
+    case K::Key:
+      return "key press";
+    case K::Sleep:
+      return "sleep " + secs(s.seconds);
+    case K::WaitConverged:
+      return "wait until converged";
+    case K::WaitFile:
+      return "wait for " + s.path.string();
+    case K::Screenshot:
+      return "screenshot " + s.path.string();
+    case K::Set:
+      return "change settings";
+    case K::PrintOverlay:
+      return "print the overlay";
+    case K::Mark:
+      return "mark " + s.text;
   }
   return "step";
 }

@@ -34,12 +34,17 @@ ScriptPlayer::Outcome ScriptPlayer::advance(Clock::time_point now, const Context
     if (!runStep(step, now, context, out)) break;
     ++next_;
     started_ = false;
+    // The steps after one that changed the view see its effect from the next frame on.
+    if (step.kind == ScriptStep::Kind::Camera || step.kind == ScriptStep::Kind::Key ||
+        step.kind == ScriptStep::Kind::Set)
+      break;
   }
   return out;
 }
 
 // Returns whether the step is done.
-bool ScriptPlayer::runStep(const ScriptStep& step, Clock::time_point now, const Context& context, Outcome& out) {
+bool ScriptPlayer::runStep(const ScriptStep& step, Clock::time_point now, const Context& context,
+                           Outcome& out) {
   using K = ScriptStep::Kind;
   const double inStep = secondsBetween(stepStart_, now);
   const auto timedOut = [&](const std::string& what) {
@@ -67,13 +72,16 @@ bool ScriptPlayer::runStep(const ScriptStep& step, Clock::time_point now, const 
       out.turned = true;
       return share >= 1.0;
     }
-    case K::Key: out.pressed.push_back(step.action); return true;
-    case K::Sleep: return inStep >= step.seconds;
+    case K::Key:
+      out.pressed.push_back(step.action);
+      return true;
+    case K::Sleep:
+      return inStep >= step.seconds;
     case K::WaitConverged:
       if (context.converged && context.frameCurrent) {
         sharp_.emplace_back(std::max(0.0, secondsBetween(stepStart_, context.lastFrameAt)), inStep);
-        spdlog::info("{}: converged {:.3f} s after the camera stopped (last change {:.3f} s)", step.where, inStep,
-                     sharp_.back().first);
+        spdlog::info("{}: converged {:.3f} s after the camera stopped (last change {:.3f} s)", step.where,
+                     inStep, sharp_.back().first);
         return true;
       }
       return timedOut("the view did not converge");
@@ -91,6 +99,15 @@ bool ScriptPlayer::runStep(const ScriptStep& step, Clock::time_point now, const 
       for (const std::string& line : overlayLines(context.stats)) std::printf("overlay: %s\n", line.c_str());
       std::fflush(stdout);
       return true;
+    case K::Set: {
+      ViewSettings settings = out.settings.value_or(context.settings);
+      if (step.budgetBytes) settings.budgetBytes = *step.budgetBytes;
+      if (step.lodPixels) settings.lodPixels = *step.lodPixels;
+      if (step.contours) settings.contours = *step.contours;
+      if (step.falseColor) settings.falseColor = *step.falseColor;
+      out.settings = settings;
+      return true;
+    }
     case K::Mark:
       std::printf("mark %s\n", step.text.c_str());
       std::fflush(stdout);

@@ -23,6 +23,7 @@ class ScriptPlayer {
   struct Context {
     FlyCamera& fly;
     const OverlayStats& stats;
+    const ViewSettings& settings;
     bool frameCurrent;       // the frame shown is the current camera's at full resolution
     bool converged;          // the pager has nothing left to load and the frame shows all of it
     bool screenshotPending;  // a screenshot waits for its frame
@@ -34,6 +35,7 @@ class ScriptPlayer {
     bool turned = false;  // the camera turned (look): a moving camera
     bool jumped = false;  // the camera jumped: a still camera somewhere else
     std::optional<std::filesystem::path> screenshot;
+    std::optional<ViewSettings> settings;  // changed as the overlay would
   };
   // Runs the steps due at `now`.
   Outcome advance(Clock::time_point now, const Context& context);
@@ -44,7 +46,8 @@ class ScriptPlayer {
   bool finished() const { return next_ >= steps_.size(); }
   // Why the script stopped early (a wait that timed out), naming the step.
   const std::optional<std::string>& failed() const { return failed_; }
-  // Per wait on convergence: seconds from the step's start to the last frame that changed, and to convergence.
+  // Per wait on convergence: seconds from the step's start to the last frame that changed, and to
+  // convergence.
   const std::vector<std::pair<double, double>>& sharpAfterStop() const { return sharp_; }
 
  private:

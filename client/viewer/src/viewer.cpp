@@ -27,7 +27,8 @@ constexpr double kMovingHoldSeconds = 0.15;
 constexpr double kMovingFrameSeconds = 1.0 / 30.0;
 // The lowest moving resolution against the window's (an eighth of each side); below it the image is blocks.
 constexpr double kMinMovingScale = 0.125;
-// How far one frame may change the resolution scale (a factor per frame), so one slow frame does not halve it.
+// How far one frame may change the resolution scale (a factor per frame), so one slow frame does not halve
+// it.
 constexpr double kMaxScaleStep = 1.5;
 // While nothing needs a frame: how long to wait for input, between the pager's updates (20 a second commit
 // loads while they come).
@@ -45,12 +46,12 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-std::string screenshotName() {
+// svo-view-DATE-TIME-N.png: N counts the screenshots of the run, so two in one second do not collide.
+std::string screenshotName(int n) {
   const std::time_t now = std::time(nullptr);
   char name[64];
   std::strftime(name, sizeof name, "svo-view-%Y%m%d-%H%M%S", std::localtime(&now));
-  static int count = 0;
-  return std::string(name) + "-" + std::to_string(++count) + ".png";
+  return std::string(name) + "-" + std::to_string(n) + ".png";
 }
 
 }  // namespace
@@ -72,9 +73,11 @@ class Viewer {
   bool moveCamera(double seconds);
   bool wantsFrame(Clock::time_point now, bool moving) const;
   void renderFrame(Clock::time_point now, bool moving);
+  void frameShown(Clock::time_point start, bool moving);
   void updateOnly(Clock::time_point now);
   void saveScreenshotIfDue();
   void fillStats();
+  void changeSettings(const ViewSettings& settings);
   void draw();
   ViewerSummary summary() const;
 
@@ -90,20 +93,21 @@ class Viewer {
   };
   std::future<Opened> opening_;
   std::shared_ptr<const SliceSource> source_;  // kept to reopen the pool at another budget
+  std::optional<std::size_t> budgetBefore_;    // while reopening: the budget of the pool that worked
   std::unique_ptr<Pager> pager_;
   std::optional<FlyCamera> fly_;
 
   // The frame on screen and what it showed.
   Frame frame_;
   std::vector<std::uint8_t> rgba_;
-  Camera shownCamera_;
   bool frameCurrent_ = false;  // rendered at full resolution from the current camera and settings
   bool poolChanged_ = true;    // loads or evictions since the frame was rendered
   PagerStats lastUpdate_;
-  Clock::time_point lastRender_{}, lastRenderEnd_{}, lastUpdateAt_{}, lastMove_{};
+  Clock::time_point lastRender_{}, lastRenderEnd_{}, lastMove_{};
   double lastRenderSeconds_ = 0.0;
-  double movingScale_ = 0.5;
+  double movingScale_ = 0.5;  // the first moving frames at half the window's size; frame times steer it after
   std::optional<std::filesystem::path> screenshotDue_;
+  int screenshots_ = 0;
   std::vector<Clock::time_point> recentFrames_;
 
   std::vector<FrameRecord> records_;
@@ -144,7 +148,19 @@ void Viewer::open() {
 bool Viewer::opened() {
   if (pager_) return true;
   if (opening_.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return false;
-  Opened o = opening_.get();  // rethrows why the store could not be opened
+  Opened o;
+  try {
+    o = opening_.get();
+  } catch (const std::exception& e) {
+    if (!budgetBefore_) throw;  // the store cannot be opened at all
+    // A budget the overlay chose that holds no trunk: say why and go back to the last one that worked.
+    spdlog::error("a {:.1f} MiB pool: {}; back to {:.1f} MiB", double(settings_.budgetBytes) / (1 << 20),
+                  e.what(), double(*budgetBefore_) / (1 << 20));
+    settings_.budgetBytes = *std::exchange(budgetBefore_, std::nullopt);
+    open();
+    return false;
+  }
+  budgetBefore_.reset();
   source_ = std::move(o.source);
   pager_ = std::move(o.pager);
   stats_.storeLevels = pager_->index().header().parameters.levels;
@@ -152,8 +168,9 @@ bool Viewer::opened() {
   if (!fly_) {
     const glm::ivec2 size = window_.framebufferSize();
     fly_.emplace(pager_->transform(),
-                 options_.camera ? *options_.camera
-                                 : Camera::framing(pager_->transform(), options_.viewDirection, size.x, size.y));
+                 options_.camera
+                     ? *options_.camera
+                     : Camera::framing(pager_->transform(), options_.viewDirection, size.x, size.y));
   }
   frameCurrent_ = false;
   poolChanged_ = true;
@@ -165,15 +182,32 @@ void Viewer::press(Action action) {
     case Action::FrameScene:
       if (fly_) fly_->frameScene(), lastMove_ = Clock::now();
       break;
-    case Action::Screenshot: screenshotDue_ = options_.screenshotFolder / screenshotName(); break;
-    case Action::ToggleOverlay: settings_.overlay = !settings_.overlay; break;
-    case Action::ToggleContours: settings_.contours = !settings_.contours, frameCurrent_ = false; break;
-    case Action::Shaded: settings_.falseColor = FalseColor::Shaded, frameCurrent_ = false; break;
-    case Action::FalseColorLevel: settings_.falseColor = FalseColor::OctreeLevel, frameCurrent_ = false; break;
-    case Action::FalseColorIterations: settings_.falseColor = FalseColor::Iterations, frameCurrent_ = false; break;
-    case Action::FalseColorDetail: settings_.falseColor = FalseColor::Detail, frameCurrent_ = false; break;
-    case Action::Quit: window_.close(); break;
-    default: break;  // held keys move the camera in moveCamera
+    case Action::Screenshot:
+      screenshotDue_ = options_.screenshotFolder / screenshotName(++screenshots_);
+      break;
+    case Action::ToggleOverlay:
+      settings_.overlay = !settings_.overlay;
+      break;
+    case Action::ToggleContours:
+      settings_.contours = !settings_.contours, frameCurrent_ = false;
+      break;
+    case Action::Shaded:
+      settings_.falseColor = FalseColor::Shaded, frameCurrent_ = false;
+      break;
+    case Action::FalseColorLevel:
+      settings_.falseColor = FalseColor::OctreeLevel, frameCurrent_ = false;
+      break;
+    case Action::FalseColorIterations:
+      settings_.falseColor = FalseColor::Iterations, frameCurrent_ = false;
+      break;
+    case Action::FalseColorDetail:
+      settings_.falseColor = FalseColor::Detail, frameCurrent_ = false;
+      break;
+    case Action::Quit:
+      window_.close();
+      break;
+    default:
+      break;  // held keys move the camera in moveCamera
   }
 }
 
@@ -186,7 +220,8 @@ bool Viewer::moveCamera(double seconds) {
 }
 
 bool Viewer::wantsFrame(Clock::time_point now, bool moving) const {
-  if (moving || !frameCurrent_) return true;
+  if (moving || !frameCurrent_ || glm::ivec2(frame_.width, frame_.height) != window_.framebufferSize())
+    return true;
   if (!poolChanged_) return false;
   // A still view that streams: at most kStillViewFrameSeconds apart, and as long after a frame as it took,
   // so the workers get the cores between frames.
@@ -203,39 +238,51 @@ void Viewer::renderFrame(Clock::time_point now, bool moving) {
   RenderOptions options = options_.render;
   options.lodPixels = settings_.lodPixels;
   options.cast.contours = settings_.contours && pager_->index().header().parameters.contours;
-  options.diagnostics = settings_.falseColor == FalseColor::Iterations || settings_.falseColor == FalseColor::Detail;
+  options.diagnostics =
+      settings_.falseColor == FalseColor::Iterations || settings_.falseColor == FalseColor::Detail;
 
   StreamedFrame streamed = streamFrame(*pager_, camera, options);
   Frame& frame = streamed.frame;
   stats_.deepestLevel = deepestLevel(frame, camera, pager_->transform().size);
   switch (settings_.falseColor) {
-    case FalseColor::Shaded: break;
-    case FalseColor::OctreeLevel: paintLevels(frame, camera, pager_->transform().size); break;
-    case FalseColor::Iterations: paintIterations(frame); break;
-    case FalseColor::Detail: paintDetail(frame, pager_->detailMap(frame, camera, options.lodPixels)); break;
+    case FalseColor::Shaded:
+      break;
+    case FalseColor::OctreeLevel:
+      paintLevels(frame, camera, pager_->transform().size);
+      break;
+    case FalseColor::Iterations:
+      paintIterations(frame);
+      break;
+    case FalseColor::Detail:
+      paintDetail(frame, pager_->detailMap(frame, camera, options.lodPixels));
+      break;
   }
   encodeSrgb8(frame, rgba_);
   window_.upload(rgba_, width, height);
   const Clock::time_point end = Clock::now();
-  const double seconds = secondsBetween(now, end);
-
-  if (moving) {
-    const double step = std::sqrt(kMovingFrameSeconds / std::max(seconds, 1e-4));
-    movingScale_ = std::clamp(movingScale_ * std::clamp(step, 1.0 / kMaxScaleStep, kMaxScaleStep),
-                              kMinMovingScale, 1.0);
-  }
   lastUpdate_ = streamed.stats;
   poolChanged_ = false;
   frameCurrent_ = !moving;
   frame_ = std::move(frame);
-  shownCamera_ = camera;
-  lastRender_ = now, lastRenderEnd_ = end, lastUpdateAt_ = end;
-  lastRenderSeconds_ = seconds;
-  stats_.frameMs = seconds * 1e3;
+  lastRender_ = now, lastRenderEnd_ = end;
+  lastRenderSeconds_ = secondsBetween(now, end);
   stats_.renderMs = frame_.seconds * 1e3;
   stats_.updateMs = streamed.updateSeconds * 1e3;
   stats_.width = width, stats_.height = height, stats_.scale = scale;
-  records_.push_back({seconds * 1e3, scale, moving});
+}
+
+// After a rendered frame is on screen: its time from the pager's update to the buffer swap steers the moving
+// resolution and goes into the run's numbers.
+void Viewer::frameShown(Clock::time_point start, bool moving) {
+  const Clock::time_point end = Clock::now();
+  const double seconds = secondsBetween(start, end);
+  if (moving) {
+    const double step = std::sqrt(kMovingFrameSeconds / std::max(seconds, 1e-4));
+    movingScale_ =
+        std::clamp(movingScale_ * std::clamp(step, 1.0 / kMaxScaleStep, kMaxScaleStep), kMinMovingScale, 1.0);
+  }
+  stats_.frameMs = seconds * 1e3;
+  records_.push_back({seconds * 1e3, stats_.scale, moving});
   recentFrames_.push_back(end);
   if (summary_.firstFrameSeconds < 0.0) summary_.firstFrameSeconds = secondsBetween(options_.launched, end);
 }
@@ -246,7 +293,6 @@ void Viewer::updateOnly(Clock::time_point now) {
   const Camera camera = fly_->camera(window.x, window.y);
   lastUpdate_ = pager_->update(viewOf(pager_->transform(), camera, settings_.lodPixels));
   if (lastUpdate_.loaded > 0 || lastUpdate_.evicted > 0) poolChanged_ = true;
-  lastUpdateAt_ = now;
 }
 
 void Viewer::saveScreenshotIfDue() {
@@ -277,18 +323,27 @@ void Viewer::fillStats() {
   stats_.speed = fly_->speed();
 }
 
+// From the overlay or a script: the frame shows the new settings next; a new budget is a new pool.
+void Viewer::changeSettings(const ViewSettings& settings) {
+  const bool reopen = settings.budgetBytes != settings_.budgetBytes;
+  settings_ = settings;
+  frameCurrent_ = false;
+  if (reopen && pager_) {
+    // A pool's arena is its budget: a new budget is a new pool, streamed afresh over the same source.
+    budgetBefore_ = pager_->budgetBytes();
+    pager_.reset();
+    open();
+  }
+}
+
 void Viewer::draw() {
   window_.draw();
   if (settings_.overlay) {
     window_.beginOverlay();
-    const std::size_t budget = settings_.budgetBytes;
-    if (drawOverlay(stats_, settings_, widgets_)) frameCurrent_ = false;
+    ViewSettings edited = settings_;
+    const bool changed = drawOverlay(stats_, edited, widgets_);
     window_.endOverlay();
-    if (settings_.budgetBytes != budget && pager_) {
-      // A pool's arena is its budget: a new budget is a new pool, streamed afresh over the same source.
-      pager_.reset();
-      open();
-    }
+    if (changed) changeSettings(edited);
   }
   window_.present();
 }
@@ -297,7 +352,8 @@ ViewerSummary Viewer::run() {
   Clock::time_point previous = Clock::now();
   bool busy = true;
   while (!window_.closing()) {
-    window_.handleEvents(busy ? 0.0 : (pager_ && !pager_->converged() ? kStreamingWaitSeconds : kIdleWaitSeconds));
+    window_.handleEvents(busy ? 0.0
+                              : (pager_ && !pager_->converged() ? kStreamingWaitSeconds : kIdleWaitSeconds));
     const Clock::time_point now = Clock::now();
     const double elapsed = secondsBetween(previous, now);
     previous = now;
@@ -306,20 +362,23 @@ ViewerSummary Viewer::run() {
       busy = false;
       continue;
     }
-    const ScriptPlayer::Outcome scripted = script_.advance(
-        now, {*fly_, stats_, frameCurrent_, pager_->converged() && !poolChanged_, screenshotDue_.has_value(),
-              lastRenderEnd_});
+    const ScriptPlayer::Outcome scripted =
+        script_.advance(now, {*fly_, stats_, settings_, frameCurrent_, pager_->converged() && !poolChanged_,
+                              screenshotDue_.has_value(), lastRenderEnd_});
     for (Action a : scripted.pressed) press(a);
     if (scripted.screenshot) screenshotDue_ = scripted.screenshot;
     if (scripted.turned) lastMove_ = now;
     if (scripted.jumped) frameCurrent_ = false;
+    if (scripted.settings) changeSettings(*scripted.settings);
+    if (!pager_) continue;  // a new budget: the new pool is opening
     if (script_.failed() || (!options_.script.empty() && script_.finished())) window_.close();
 
     if (moveCamera(elapsed)) lastMove_ = now;
     const bool moving = secondsBetween(lastMove_, now) < kMovingHoldSeconds;
     if (moving) movingSeconds_ += elapsed;
     if (moving) frameCurrent_ = false;
-    if (wantsFrame(now, moving)) {
+    const bool rendering = wantsFrame(now, moving);
+    if (rendering) {
       renderFrame(now, moving);
       busy = moving || !frameCurrent_;
     } else {
@@ -329,6 +388,7 @@ ViewerSummary Viewer::run() {
     saveScreenshotIfDue();
     fillStats();
     draw();
+    if (rendering) frameShown(now, moving);
   }
   if (script_.failed()) throw std::runtime_error(*script_.failed());
   return summary();

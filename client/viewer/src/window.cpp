@@ -6,9 +6,9 @@
 #include <GLFW/glfw3.h>
 #define GL_GLEXT_PROTOTYPES
 #include <GL/glcorearb.h>
-#include <imgui.h>
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl3.h>
+#include <imgui.h>
 
 #include "svo/viewer/viewer.hpp"
 
@@ -129,7 +129,8 @@ void Window::draw() {
   if (width == 0) return;
   // Image rows run from the top, GL's from the bottom: the blit flips them.
   const bool exact = width == size.x && height == size.y;
-  glBlitFramebuffer(0, 0, width, height, 0, size.y, size.x, 0, GL_COLOR_BUFFER_BIT, exact ? GL_NEAREST : GL_LINEAR);
+  glBlitFramebuffer(0, 0, width, height, 0, size.y, size.x, 0, GL_COLOR_BUFFER_BIT,
+                    exact ? GL_NEAREST : GL_LINEAR);
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
 }
 

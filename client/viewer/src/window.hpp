@@ -19,9 +19,9 @@ namespace svo::viewer {
 class Window {
  public:
   struct Input {
-    std::function<void(Action)> pressed;              // a key's action, once per press
-    std::function<void(double, double)> dragged;      // mouse motion with the left button down, pixels
-    std::function<void(double)> scrolled;             // scroll steps
+    std::function<void(Action)> pressed;          // a key's action, once per press
+    std::function<void(double, double)> dragged;  // mouse motion with the left button down, pixels
+    std::function<void(double)> scrolled;         // scroll steps
   };
   // Throws NoDisplay when there is no display to open a window on.
   Window(int width, int height, const std::string& title, Input input);

@@ -61,7 +61,7 @@ struct RenderOptions {
   CastOptions cast;
   glm::vec3 lightDirection{-0.4f, -0.8f, -0.45f};  // towards the scene
   glm::vec3 background{0.08f, 0.09f, 0.11f};
-  int threads = 0;  // 0 = all cores
+  int threads = 0;           // 0 = all cores
   bool diagnostics = false;  // fill Frame::iterations and Frame::lodStopped (the viewer's false colors)
 };
 

@@ -13,8 +13,8 @@
 namespace svo::viewer {
 
 enum class FalseColor { Shaded, OctreeLevel, Iterations, Detail };
-inline constexpr FalseColor kFalseColors[] = {FalseColor::Shaded, FalseColor::OctreeLevel, FalseColor::Iterations,
-                                              FalseColor::Detail};
+inline constexpr FalseColor kFalseColors[] = {FalseColor::Shaded, FalseColor::OctreeLevel,
+                                              FalseColor::Iterations, FalseColor::Detail};
 const char* nameOf(FalseColor mode);
 
 // Iterations per pixel at the hot end of the ramp; rays of a few dozen iterations are typical of the paper's

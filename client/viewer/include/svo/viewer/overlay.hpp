@@ -23,7 +23,7 @@ struct ViewSettings {
 };
 
 struct OverlayStats {
-  std::string source;  // the store's file or URL
+  std::string source;   // the store's file or URL
   bool opening = true;  // the pool is still being opened (the first slices loading)
   double frameMs = 0.0, renderMs = 0.0, updateMs = 0.0;
   double framesPerSecond = 0.0;  // frames rendered in the last second

@@ -1,6 +1,6 @@
-// `svo view`: a window that flies through a scene streaming in (GLFW, OpenGL, Dear ImGui). Frames are ray cast
-// on the CPU from the pager's pool; moving frames render at a lower resolution to stay interactive, a still
-// view refines to the full resolution, and the window never waits for a slice.
+// `svo view`: a window that flies through a scene streaming in (GLFW, OpenGL, Dear ImGui). Frames are ray
+// cast on the CPU from the pager's pool; moving frames render at a lower resolution to stay interactive, a
+// still view refines to the full resolution, and the window never waits for a slice.
 #pragma once
 
 #include <chrono>
@@ -31,11 +31,11 @@ struct ViewerOptions {
   std::function<std::shared_ptr<const SliceSource>()> openSource;
   PagerOptions pager;  // its budget is the pool's
   RenderOptions render;
-  ViewSettings settings;                 // LOD, contours and false colors as the viewer starts
-  std::optional<Camera> camera;          // else the whole scene seen along viewDirection
+  ViewSettings settings;         // LOD, contours and false colors as the viewer starts
+  std::optional<Camera> camera;  // else the whole scene seen along viewDirection
   glm::dvec3 viewDirection = kDefaultViewDirection;
-  int width = 1280, height = 720;        // the window
-  std::vector<ScriptStep> script;        // loadScript's; empty: a person drives the viewer
+  int width = 1280, height = 720;  // the window
+  std::vector<ScriptStep> script;  // loadScript's; empty: a person drives the viewer
   std::filesystem::path screenshotFolder = ".";
   std::chrono::steady_clock::time_point launched = std::chrono::steady_clock::now();
 };

@@ -1,4 +1,4 @@
-#include "camera_flags.hpp"
+#include "view_flags.hpp"
 
 #include "usage.hpp"
 
@@ -24,7 +24,9 @@ void addCameraFlags(CLI::App& cmd, CameraFlags& flags) {
       ->check(CLI::Range(1.0, 179.0))
       ->capture_default_str();
   cmd.add_option("--width", flags.width, "image width")->check(CLI::Range(1, 16384))->capture_default_str();
-  cmd.add_option("--height", flags.height, "image height")->check(CLI::Range(1, 16384))->capture_default_str();
+  cmd.add_option("--height", flags.height, "image height")
+      ->check(CLI::Range(1, 16384))
+      ->capture_default_str();
 }
 
 std::optional<Camera> explicitCamera(const CameraFlags& flags) {
@@ -55,6 +57,19 @@ Camera cameraOf(const CameraFlags& flags, const SceneTransform& scene) {
   camera.up = vec3Of(flags.up);
   camera.validate();
   return camera;
+}
+
+void addRenderFlags(CLI::App& cmd, RenderOptions& options, bool& noContours) {
+  cmd.add_option("--lod-pixels", options.lodPixels, "stop at voxels this many pixels across (0 = finest)")
+      ->check(CLI::Range(0.0, 64.0))
+      ->capture_default_str();
+  cmd.add_option("--beam-tile", options.beamTile,
+                 "beam optimization (sec. 6.2): pixels per tile edge of one coarse pass (0 = off)")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
+  cmd.add_flag("--no-contours", noContours, "ignore contours: cube voxels");
+  cmd.add_option("--threads", options.threads, "render threads (0 = all cores)")
+      ->check(CLI::NonNegativeNumber);
 }
 
 }  // namespace svo::tools

@@ -1,4 +1,5 @@
-// The camera as command-line flags, for every command that looks at a scene (`svo render`, `svo view`).
+// The camera and the renderer's options as command-line flags, for every command that looks at a scene
+// (`svo render`, `svo view`).
 #pragma once
 
 #include <optional>
@@ -19,12 +20,16 @@ struct CameraFlags {
   int width = 1024, height = 1024;
 };
 
-// Adds --camera, --eye, --target, --up, --view, --fov, --width and --height; `flags` holds the defaults shown.
+// Adds --camera, --eye, --target, --up, --view, --fov, --width and --height; `flags` holds the defaults
+// shown.
 void addCameraFlags(CLI::App& cmd, CameraFlags& flags);
 // The camera the flags name: --camera's file, else --eye and --target, else nullopt (the scene framed).
 std::optional<Camera> explicitCamera(const CameraFlags& flags);
 // That camera, or the whole scene seen along --view at --width x --height.
 Camera cameraOf(const CameraFlags& flags, const SceneTransform& scene);
 glm::dvec3 viewDirectionOf(const CameraFlags& flags);
+
+// Adds --lod-pixels, --beam-tile, --threads (bound to `options`) and --no-contours.
+void addRenderFlags(CLI::App& cmd, RenderOptions& options, bool& noContours);
 
 }  // namespace svo::tools
