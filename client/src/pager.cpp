@@ -288,6 +288,17 @@ std::vector<PixelDetail> Pager::detailMap(const Frame& frame, const Camera& came
   return out;
 }
 
+Pager::PoolChanges Pager::takePoolChanges() {
+  BlockPool& pool = regions_->pool();
+  if (!mirrored_) pool.trackWrittenPages(), mirrored_ = true;
+  PoolChanges changes;
+  changes.arena = pool.arena();
+  changes.rootSlot =
+      std::uint32_t(trunk().root() - reinterpret_cast<const ChildDescriptor*>(changes.arena.data()));
+  changes.written = pool.takeWrittenPages();
+  return changes;
+}
+
 void Pager::waitForWork(double seconds) {
   workers_->waitForWork(seconds);
 }

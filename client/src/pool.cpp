@@ -1,6 +1,7 @@
 #include "svo/client/pool.hpp"
 
 #include <algorithm>
+#include <cassert>
 #include <cstring>
 #include <stdexcept>
 #include <string>
@@ -63,6 +64,7 @@ void BlockPool::compact(std::uint32_t pages, const std::function<void(BlockId)>&
       std::memmove(arena_.data() + std::size_t(next) * kPageBytes,
                    arena_.data() + std::size_t(e.firstPage) * kPageBytes, std::size_t(e.pages) * kPageBytes);
       movedBytes_ += std::uint64_t(e.pages) * kPageBytes;
+      markPages(next, e.pages);
       e.firstPage = next;
       relocated.push_back(order[k]);
     }
@@ -109,6 +111,7 @@ std::optional<BlockPool::BlockId> BlockPool::insert(std::span<const std::byte> b
   std::byte* at = arena_.data() + std::size_t(*first) * kPageBytes;
   std::memcpy(at, bytes.data(), bytes.size());
   std::memset(at + bytes.size(), 0, std::size_t(pages) * kPageBytes - bytes.size());
+  markPages(*first, pages);
   return id;
 }
 
@@ -159,6 +162,39 @@ void BlockPool::check() const {
   if (used != usedPages_)
     fail("used page count " + std::to_string(usedPages_) + " but blocks hold " + std::to_string(used));
   if (std::count(owner.begin(), owner.end(), 0) != 0) fail("pages neither used nor free");
+}
+
+void BlockPool::markPages(std::uint32_t first, std::uint32_t count) {
+  if (written_.empty()) return;
+  std::fill(written_.begin() + first, written_.begin() + first + count, std::uint8_t(1));
+}
+
+void BlockPool::trackWrittenPages() {
+  written_.assign(pageCount_, 0);
+  for (const Entry& e : blocks_)
+    if (e.pages) markPages(e.firstPage, e.pages);
+}
+
+void BlockPool::markWritten(const void* at, std::size_t bytes) {
+  if (written_.empty() || bytes == 0) return;
+  const std::size_t offset = std::size_t(static_cast<const std::byte*>(at) - arena_.data());
+  assert(offset + bytes <= arena_.size());
+  const auto first = std::uint32_t(offset / kPageBytes);
+  markPages(first, std::uint32_t((offset + bytes - 1) / kPageBytes) - first + 1);
+}
+
+std::vector<BlockPool::PageRun> BlockPool::takeWrittenPages() {
+  std::vector<PageRun> runs;
+  for (std::uint32_t p = 0; p < written_.size(); ++p) {
+    if (!written_[p]) continue;
+    if (!runs.empty() && runs.back().first + runs.back().count == p) {
+      ++runs.back().count;
+    } else {
+      runs.push_back({p, 1});
+    }
+    written_[p] = 0;
+  }
+  return runs;
 }
 
 }  // namespace svo

@@ -39,14 +39,16 @@ void keepFreedMemoryForReuse() {
 #endif
 }
 
-StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options) {
+StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options,
+                          const PoolRenderer& renderer) {
   StreamedFrame out;
   const auto start = std::chrono::steady_clock::now();
   out.stats = pager.update(viewOf(pager.transform(), camera, options.lodPixels));
   out.updateSeconds = secondsSince(start);
   {
     const Pager::FrameScope rendering(pager);
-    out.frame = render(pager.trunk(), pager.transform(), camera, options);
+    out.frame = renderer ? renderer(pager, camera, options)
+                         : render(pager.trunk(), pager.transform(), camera, options);
   }
   pager.feedback(out.frame, camera, options.lodPixels);
   return out;
@@ -54,14 +56,15 @@ StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOption
 
 Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions& options,
                          double timeoutSeconds, StreamedFrame* last,
-                         const std::function<void(double, StreamedFrame&)>& each) {
+                         const std::function<void(double, StreamedFrame&)>& each,
+                         const PoolRenderer& renderer) {
   const auto start = std::chrono::steady_clock::now();
   const ViewQuery view = viewOf(pager.transform(), camera, options.lodPixels);
   // Each frame's hash and time; the run of frames equal to the last one tells when the image became final.
   std::uint64_t lastHash = 0;
   Convergence out;
   while (true) {
-    StreamedFrame step = streamFrame(pager, camera, options);
+    StreamedFrame step = streamFrame(pager, camera, options, renderer);
     const bool done = pager.converged();
     const double t = secondsSince(start);
     if (out.viewSeconds < 0.0 && (done || pager.viewConverged())) {

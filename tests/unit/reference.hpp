@@ -20,6 +20,10 @@
 #include "svo/store/format.hpp"
 #include "svo/store/store_types.hpp"
 
+namespace svo {
+class StoreReader;
+}
+
 namespace svotest {
 
 // Voxels (records by index) that differ between two trees in children, contour or attributes; the trees
@@ -56,6 +60,10 @@ class TempDir {
 inline double srgbToLinearRef(double c) {
   return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
 }
+
+// The whole store's tree cut down to the voxels whose slice is in `resident`: what a pager holding those
+// slices renders (the pager and GPU pool tests).
+svo::VoxelTree truncatedTree(const svo::StoreReader& reader, const std::vector<std::uint32_t>& resident);
 
 // A colored sphere and box at 8 levels with `sliceBytes` slices (4 KB: many regions, cubes that split at
 // once, regions whose cube voxel is the parent's deepest level, attributes inherited across blocks), written

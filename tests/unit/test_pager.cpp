@@ -39,69 +39,6 @@ const TempStore& sphereStore() {
   return f;
 }
 
-// The whole store's tree cut down to the voxels whose slice is in `resident`.
-svo::VoxelTree truncatedTree(const svo::StoreReader& reader, const std::vector<std::uint32_t>& resident) {
-  const svo::VoxelTree full = reader.loadTree();
-  // (voxel level, cube level, cube) -> slice; a run of sub-cubes is keyed by each sub-cube.
-  std::map<std::tuple<int, int, int, int, int>, std::uint32_t> sliceAt;
-  const auto& slices = reader.slices();
-  for (std::uint32_t s = 0; s < slices.size(); ++s) {
-    const svo::SliceInfo& i = slices[s];
-    if (i.firstSlot == 0 && i.lastSlot == 7) {
-      sliceAt[{i.voxelLevel, i.cubeLevel, i.cubeCoord.x, i.cubeCoord.y, i.cubeCoord.z}] = s;
-      continue;
-    }
-    for (int slot = i.firstSlot; slot <= i.lastSlot; ++slot) {
-      const glm::ivec3 sub = svo::childCoord(i.cubeCoord, slot);
-      sliceAt[{i.voxelLevel, i.cubeLevel + 1, sub.x, sub.y, sub.z}] = s;
-    }
-  }
-  const std::set<std::uint32_t> have(resident.begin(), resident.end());
-  const auto kept = [&](int level, glm::ivec3 c) {
-    for (int cubeLevel = 0; cubeLevel < level; ++cubeLevel) {
-      const glm::ivec3 cube = c >> (level - cubeLevel);
-      const auto it = sliceAt.find({level, cubeLevel, cube.x, cube.y, cube.z});
-      if (it != sliceAt.end()) return have.count(it->second) != 0;
-    }
-    ADD_FAILURE() << "no slice holds a voxel of level " << level;
-    return false;
-  };
-  svo::VoxelTree out;
-  out.hasColors = full.hasColors, out.hasNormals = full.hasNormals;
-  out.voxels.push_back(full.voxels[0]);
-  struct Item {
-    std::uint32_t from, to;
-    int level;
-    glm::ivec3 coord;
-  };
-  std::vector<Item> queue{{0, 0, 0, glm::ivec3(0)}};
-  for (std::size_t q = 0; q < queue.size(); ++q) {
-    const Item item = queue[q];
-    const svo::VoxelRecord& r = full.voxels[item.from];
-    std::uint8_t mask = 0;
-    std::vector<Item> children;
-    for (std::uint32_t c = r.firstChild, slot = 0; slot < 8; ++slot) {
-      if (!(r.childMask >> slot & 1u)) continue;
-      const glm::ivec3 coord = svo::childCoord(item.coord, int(slot));
-      if (kept(item.level + 1, coord)) {
-        mask |= std::uint8_t(1u << slot);
-        children.push_back({c, 0, item.level + 1, coord});
-      }
-      ++c;
-    }
-    out.voxels[item.to].childMask = mask;
-    out.voxels[item.to].firstChild = mask ? std::uint32_t(out.voxels.size()) : 0;
-    for (Item& child : children) {
-      child.to = std::uint32_t(out.voxels.size());
-      svo::VoxelRecord record = full.voxels[child.from];
-      record.childMask = 0, record.firstChild = 0;
-      out.voxels.push_back(record);
-      queue.push_back(child);
-    }
-  }
-  return out;
-}
-
 svo::Camera cameraAt(glm::dvec3 eye, glm::dvec3 target, int size) {
   svo::Camera c;
   c.eye = eye, c.target = target, c.fovYDegrees = 50.0, c.width = c.height = size;
@@ -116,8 +53,8 @@ void expectSameAsReference(svo::Pager& pager, const svo::Camera& camera, float l
   options.lodPixels = lodPixels;
   options.threads = 1;
   const svo::Frame paged = svo::render(pager.trunk(), pager.transform(), camera, options);
-  const svo::Block block = svo::layoutBlock(
-      truncatedTree(reference ? *reference : svo::StoreReader(pager.index().name()), pager.residentSlices()));
+  const svo::Block block = svo::layoutBlock(svotest::truncatedTree(
+      reference ? *reference : svo::StoreReader(pager.index().name()), pager.residentSlices()));
   const svo::Frame whole = svo::render(block.view(), pager.transform(), camera, options);
   std::size_t differing = 0, hits = 0;
   for (std::size_t i = 0; i < paged.color.size(); ++i) {

@@ -4,13 +4,15 @@
 // `svo render`'s pager reports for that view and with the deepest level in its EXR's depth and voxel sizes.
 #include <fcntl.h>
 #include <gtest/gtest.h>
-#include <poll.h>
 #include <signal.h>
+#include <sys/socket.h>
+#include <sys/un.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <regex>
 #include <sstream>
@@ -57,8 +59,18 @@ class Child {
   }
   Child(const Child&) = delete;
   Child& operator=(const Child&) = delete;
+  // Whether it has not exited yet.
+  bool running() {
+    int status = 0;
+    if (pid_ <= 0) return false;
+    if (::waitpid(pid_, &status, WNOHANG) != pid_) return true;
+    pid_ = -1;
+    exitCode_ = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    return false;
+  }
   // The exit code, or -1 when it did not exit within the patience (then it is killed).
   int wait() {
+    if (pid_ <= 0) return exitCode_;
     for (int i = 0; i < kPatienceSeconds * 10; ++i) {
       int status = 0;
       if (::waitpid(pid_, &status, WNOHANG) == pid_) {
@@ -72,6 +84,7 @@ class Child {
 
  private:
   pid_t pid_ = -1;
+  int exitCode_ = -1;
 };
 
 std::string slurp(const fs::path& p) {
@@ -81,35 +94,61 @@ std::string slurp(const fs::path& p) {
   return s.str();
 }
 
-// An X server of the test's own on a free display, which it names through -displayfd.
+// An X server of the test's own. Its display number is drawn from the process id far above :0: X clients try
+// the display's abstract socket first, and that namespace may be shared with other machines' sandboxes whose
+// servers sit on the low numbers.
 class Xvfb {
  public:
   Xvfb() {
-    int fds[2];
-    if (::pipe(fds) != 0) return;
-    pid_ = ::fork();
-    if (pid_ == 0) {
-      ::close(fds[0]);
-      const int null = ::open("/dev/null", O_WRONLY);
-      ::dup2(null, 1), ::dup2(null, 2);
-      const std::string fd = std::to_string(fds[1]);
-      ::execlp("Xvfb", "Xvfb", "-displayfd", fd.c_str(), "-nolisten", "tcp", "-screen", "0", "640x480x24",
-               static_cast<char*>(nullptr));
-      ::_exit(127);
+    constexpr int kFirstDisplay = 100, kDisplays = 800, kTries = 20;
+    for (int t = 0; t < kTries && display_.empty(); ++t) {
+      const int n = kFirstDisplay + int((::getpid() + t * 37) % kDisplays);
+      if (fs::exists("/tmp/.X" + std::to_string(n) + "-lock")) continue;
+      const std::string name = ":" + std::to_string(n);
+      pid_ = ::fork();
+      if (pid_ == 0) {
+        const int null = ::open("/dev/null", O_WRONLY);
+        ::dup2(null, 1), ::dup2(null, 2);
+        // -noreset: an X server resets when its last client leaves, and one connecting meanwhile is refused.
+        ::execlp("Xvfb", "Xvfb", name.c_str(), "-nolisten", "tcp", "-noreset", "-screen", "0", "640x480x24",
+                 static_cast<char*>(nullptr));
+        ::_exit(127);
+      }
+      if (accepts(n)) {
+        display_ = name;
+      } else {
+        stop();
+      }
     }
-    ::close(fds[1]);
-    pollfd p{fds[0], POLLIN, 0};
-    char buffer[32] = {};
-    if (::poll(&p, 1, kPatienceSeconds * 1000) == 1 && ::read(fds[0], buffer, sizeof buffer - 1) > 0)
-      display_ = ":" + std::to_string(std::atoi(buffer));
-    ::close(fds[0]);
   }
-  ~Xvfb() {
-    if (pid_ > 0) ::kill(pid_, SIGTERM), ::waitpid(pid_, nullptr, 0);
-  }
-  const std::string& display() const { return display_; }  // empty when it did not start
+  ~Xvfb() { stop(); }
+  const std::string& display() const { return display_; }  // empty when none started
 
  private:
+  void stop() {
+    if (pid_ > 0) ::kill(pid_, SIGTERM), ::waitpid(pid_, nullptr, 0);
+    pid_ = -1;
+  }
+  // Whether the server on `display` takes connections on its socket before it exits or the patience ends.
+  bool accepts(int display) {
+    const std::string path = "/tmp/.X11-unix/X" + std::to_string(display);
+    for (int i = 0; i < kPatienceSeconds * 10; ++i) {
+      if (::waitpid(pid_, nullptr, WNOHANG) == pid_) {  // it exited: the display was taken
+        pid_ = -1;
+        return false;
+      }
+      const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
+      sockaddr_un address{};
+      address.sun_family = AF_UNIX;
+      std::strncpy(address.sun_path, path.c_str(), sizeof address.sun_path - 1);
+      const bool ok = ::connect(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) == 0;
+      ::close(fd);
+      if (ok) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    return false;
+  }
+
   pid_t pid_ = -1;
   std::string display_;
 };
@@ -150,10 +189,11 @@ void expectSameImage(const fs::path& grab, const fs::path& reference) {
       << grab << " vs " << reference << ": worst " << worst;
 }
 
-// Waits until `file` holds `text`; false after the patience.
-bool waitForText(const fs::path& file, const std::string& text) {
+// Waits until `file` holds `text`; false after the patience or when `writer` exits without writing it.
+bool waitForText(const fs::path& file, const std::string& text, Child& writer) {
   for (int i = 0; i < kPatienceSeconds * 10; ++i) {
     if (slurp(file).find(text) != std::string::npos) return true;
+    if (!writer.running()) return slurp(file).find(text) != std::string::npos;
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
   return false;
@@ -196,7 +236,8 @@ std::string run(const std::string& command) {
   return out;
 }
 
-TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
+// The viewer on `device` (cpu or gpu) against `svo render` on the CPU.
+void expectScreenshotsMatchRender(const std::string& device) {
   Xvfb x;
   ASSERT_FALSE(x.display().empty()) << "Xvfb did not start (tools/scripts/install-deps.sh installs it)";
   svotest::TempDir dir;
@@ -229,10 +270,10 @@ TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
                    "{\"wait\": \"converged\"}, {\"print\": \"overlay\"}]");
   const fs::path output = dir.path() / "view.out";
   Child viewer({SVO_BINARY, "view", store.string(), "--camera", farCamera.string(), "--budget", "64M",
-                "--script", script.string()},
+                "--script", script.string(), "--device", device},
                output, x.display());
   for (const std::string name : {"close", "far"}) {
-    ASSERT_TRUE(waitForText(output, "mark grab-" + name)) << slurp(output);
+    ASSERT_TRUE(waitForText(output, "mark grab-" + name, viewer)) << slurp(output);
     const fs::path grab = dir.path() / ("grab_" + name + ".png");
     run("import -display " + x.display() + " -window root -crop " + std::to_string(kWidth) + "x" +
         std::to_string(kHeight) + "+0+0 +repage " + grab.string());
@@ -240,6 +281,7 @@ TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
   }
   ASSERT_EQ(viewer.wait(), 0) << slurp(output);
   const std::string viewed = slurp(output);
+  EXPECT_EQ(viewed.find("overlay: ray casting on the CPU") != std::string::npos, device == "cpu") << viewed;
   // A budget set as the overlay sets it opens a new pool of that size, which the view then fills within it.
   std::smatch m;
   const std::string afterBudget = viewed.substr(viewed.rfind("overlay: source"));
@@ -275,6 +317,15 @@ TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
     EXPECT_EQ(std::stoi(m[1]), deepest);
     EXPECT_EQ(std::stoi(m[2]), reader.header().parameters.levels);
   }
+}
+
+TEST(ViewerWindow, ScreenshotsThroughXMatchRenderAndTheOverlayMatchesThePager) {
+  expectScreenshotsMatchRender("cpu");
+}
+
+// The same on the GPU caster (llvmpipe's OpenGL 4.5 under Xvfb): the pool mirrored in one buffer.
+TEST(ViewerWindow, OnTheGpuScreenshotsMatchTheCpuRenderAndTheOverlayMatchesThePager) {
+  expectScreenshotsMatchRender("gpu");
 }
 
 TEST(ViewerWindow, WithoutADisplayItSaysSoInOneLineAndSuggestsRender) {

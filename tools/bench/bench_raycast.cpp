@@ -23,6 +23,7 @@
 #include "svo/builder/build.hpp"
 #include "svo/client/raycast.hpp"
 #include "svo/client/render.hpp"
+#include "svo/gpu/headless_gpu.hpp"
 
 namespace svo::tools::bench {
 
@@ -44,6 +45,8 @@ struct RaycastArgs {
   float lodPixels = 1.0f;
   std::string view = defaultViewText();
   int threads = 0;
+  int width = 0, height = 0;  // 0: --size
+  std::string device = "cpu";
 };
 
 // ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles, depth written like the
@@ -188,6 +191,42 @@ void printAgreement([[maybe_unused]] const std::vector<float>& esvo, [[maybe_unu
       finestVoxel, median, tail, difference.back());
 }
 
+// The GPU caster's shaded frames of the same camera (--device gpu): the octree uploaded once (a paged one
+// through the pool's mirror), then timed like the CPU methods. `name` receives the device's name.
+Timed timeGpu(const WholeScene& scene, const Camera& camera, const RenderOptions& options, int runs,
+              std::string& name) {
+  std::unique_ptr<gpu::HeadlessGpu> device;
+  try {
+    device = std::make_unique<gpu::HeadlessGpu>();
+  } catch (const gpu::GpuUnavailable& e) {
+    throw std::runtime_error(std::string("--device gpu: ") + e.what());
+  }
+  name = device->renderer();
+  gpu::GpuCaster& caster = device->caster();
+  std::unique_ptr<gpu::GpuPool> pool;
+  const BlockView root = scene.root();
+  std::uint32_t rootSlot = root.info().rootSlot;
+  if (scene.isPaged()) {
+    pool = std::make_unique<gpu::GpuPool>(caster, *scene.pager());
+    pool->sync();
+    rootSlot = scene.pager()->takePoolChanges().rootSlot;
+  } else {
+    caster.reserve(root.size());
+    caster.upload(0, std::span<const std::byte>(root.base(), root.size()));
+  }
+  const bool colors = root.attachment(AttachmentType::Color) != nullptr;
+  const bool normals = root.attachment(AttachmentType::Normal) != nullptr;
+  spdlog::info("ESVO on the GPU ({}): 1 warm-up + {} runs ...", name, runs);
+  Timed timed;
+  Frame frame;
+  timed.seconds = timeRuns(
+      runs, [&] { frame = caster.render(rootSlot, colors, normals, scene.transform(), camera, options); });
+  timed.last.depth = std::move(frame.depth);
+  timed.last.hits = countHits(timed.last.depth);
+  timed.last.meanIterations = frame.meanIterations;
+  return timed;
+}
+
 void runRaycastBench(const RaycastArgs& args) {
   if (args.levels < 1 || args.levels > kMaxLevels)
     throw UsageError(fmt::format("--levels must be in [1, {}] (got {})", kMaxLevels, args.levels));
@@ -213,7 +252,8 @@ void runRaycastBench(const RaycastArgs& args) {
     const VoxelTree tree = voxelize(mesh, transform, buildOptions, &stats);
     scene.emplace(wholeSceneOf(tree, transform, parameters, scratch.path(), &stats.layout));
   });
-  const Camera camera = Camera::framing(transform, view, args.size, args.size);
+  const Camera camera = Camera::framing(transform, view, args.width ? args.width : args.size,
+                                        args.height ? args.height : args.size);
   camera.validate();
   const double rays = double(camera.width) * camera.height;
   const double finestVoxel = transform.size / double(std::int64_t(1) << args.levels);
@@ -241,6 +281,10 @@ void runRaycastBench(const RaycastArgs& args) {
   beamed.seconds =
       timeRuns(args.runs, [&] { beamed.last = traceEsvo(*scene, camera, renderOptions, threads, true); });
 
+  std::optional<Timed> onGpu;
+  std::string gpuName;
+  if (args.device == "gpu") onGpu = timeGpu(*scene, camera, renderOptions, args.runs, gpuName);
+
   std::optional<double> peerSeconds;
   std::optional<Timed> peer;
   [[maybe_unused]] double peerBuildSeconds = 0.0;
@@ -262,6 +306,7 @@ void runRaycastBench(const RaycastArgs& args) {
   addMethodRow(table, "ESVO svo::render (shaded)", shaded, rays, true, peerSeconds);
   addMethodRow(table, "ESVO castRay (depth only)", cast, rays, true, peerSeconds);
   addMethodRow(table, "ESVO castRay + beam (depth only)", beamed, rays, true, peerSeconds);
+  if (onGpu) addMethodRow(table, "ESVO OpenGL compute (shaded, GPU)", *onGpu, rays, true, peerSeconds);
   if (peer) {
     addMethodRow(table, "Embree 3 rtcIntersect1", *peer, rays, false, peerSeconds);
   } else {
@@ -285,6 +330,18 @@ void runRaycastBench(const RaycastArgs& args) {
   fmt::print("beam pass vs none: {} of {} pixels differ in depth.\n", formatCount(beamChanged),
              formatCount(cast.last.depth.size()));
 
+  if (onGpu) {
+    // The GPU casts without the beam pass: its depths should equal castRay's bit for bit.
+    std::uint64_t same = 0;
+    for (std::size_t i = 0; i < cast.last.depth.size(); ++i)
+      same += cast.last.depth[i] == onGpu->last.depth[i] ||
+              (std::isinf(cast.last.depth[i]) && std::isinf(onGpu->last.depth[i]));
+    fmt::print(
+        "GPU: {}; {:.2f}x the CPU svo::render on this machine ({} threads); depth equal to castRay's on "
+        "{} of {} pixels. Its time includes reading the frame back.\n",
+        gpuName, shaded.seconds.median / onGpu->seconds.median, threads, formatCount(same),
+        formatCount(cast.last.depth.size()));
+  }
   printMemory(stats, *scene);
   printAgreement(shaded.last.depth, peer ? &peer->last : nullptr, finestVoxel);
 }
@@ -305,6 +362,14 @@ void addRaycastBench(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--view", args->view, "view direction x,y,z for Camera::framing")->capture_default_str();
   cmd->add_option("--threads", args->threads, "threads for every method (0 = all cores)")
+      ->capture_default_str();
+  cmd->add_option("--width", args->width, "image width (default: --size)")
+      ->check(CLI::Range(1, kMaxImageSize));
+  cmd->add_option("--height", args->height, "image height (default: --size)")
+      ->check(CLI::Range(1, kMaxImageSize));
+  cmd->add_option("--device", args->device,
+                  "gpu adds the OpenGL 4.5 compute caster (headless EGL; Mesa's llvmpipe without a GPU)")
+      ->check(CLI::IsMember({"cpu", "gpu"}))
       ->capture_default_str();
   cmd->callback([args] { runRaycastBench(*args); });
 }

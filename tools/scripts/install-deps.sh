@@ -11,6 +11,7 @@ packages=(
   libcurl4-openssl-dev prometheus-cpp-dev nginx-light wrk nghttp2-client openssl
   gnuplot-nox
   libglfw3-dev libimgui-dev libgl1-mesa-dri xvfb imagemagick
+  libegl-dev libopengl-dev libegl-mesa0
   clang libclang-rt-14-dev
 )
 missing=()

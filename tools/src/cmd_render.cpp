@@ -25,6 +25,7 @@
 #include "svo/client/render.hpp"
 #include "svo/client/streaming.hpp"
 #include "svo/client/whole_scene.hpp"
+#include "svo/gpu/headless_gpu.hpp"
 #include "view_flags.hpp"
 
 namespace svo::tools {
@@ -40,7 +41,14 @@ struct RenderArgs {
   std::string pathFile;
   PagerOptions pager;  // threads; the budget is chosen per run
   double timeout = 300.0;
+  std::string device = "cpu";
+  std::shared_ptr<gpu::HeadlessGpu> gpu;  // with --device gpu, made before the store is read
 };
+
+// The frames of `pager` on the device --device names (nullptr: svo::render on the CPU).
+PoolRenderer poolRendererOf(const RenderArgs& args, Pager& pager) {
+  return args.gpu ? args.gpu->poolRenderer(pager) : nullptr;
+}
 
 Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
   return cameraOf(args.camera, scene);
@@ -61,10 +69,12 @@ void renderConverged(const RenderArgs& args, std::shared_ptr<const SliceSource> 
   Pager pager(std::move(source), pagerOptions(budget, args));
   const Camera camera = cameraOf(args, pager.transform());
   options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
-  const Frame first = render(pager.trunk(), pager.transform(), camera, options);
+  const PoolRenderer renderer = poolRendererOf(args, pager);
+  const Frame first =
+      renderer ? renderer(pager, camera, options) : render(pager.trunk(), pager.transform(), camera, options);
   const double firstSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   StreamedFrame last;
-  const Convergence c = convergeView(pager, camera, options, args.timeout, &last);
+  const Convergence c = convergeView(pager, camera, options, args.timeout, &last, nullptr, renderer);
   if (!c.converged())
     throw std::runtime_error(args.in + ": the view did not converge within " + std::to_string(args.timeout) +
                              " s (budget " + formatBytes(pager.budgetBytes()) + ")");
@@ -92,13 +102,14 @@ void renderPath(const RenderArgs& args, const std::shared_ptr<const SliceSource>
   checkWritableOutput(folder / "frames.csv");
   Pager pager(source, pagerOptions(budget, args));
   options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
+  const PoolRenderer renderer = poolRendererOf(args, pager);
 
   std::vector<StreamedFrame> frames;
   std::vector<double> elapsed;
   const auto start = std::chrono::steady_clock::now();
   spdlog::info("streaming {} frames through a {} pool ...", cameras.size(), formatBytes(pager.budgetBytes()));
   for (std::size_t i = 0; i < cameras.size(); ++i) {
-    frames.push_back(streamFrame(pager, cameras[i], options));
+    frames.push_back(streamFrame(pager, cameras[i], options, renderer));
     if (frames.back().stats.residentBytes > pager.budgetBytes())
       throw std::logic_error("resident bytes exceed the budget at frame " + std::to_string(i));
     elapsed.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
@@ -107,7 +118,8 @@ void renderPath(const RenderArgs& args, const std::shared_ptr<const SliceSource>
     writeFrame(folder / name, frames.back().frame, false);
     for (const std::string& e : pager.takeErrors()) spdlog::warn("{}", e);
   }
-  // The converged frame of each camera, from a pool large enough to hold everything the view wants.
+  // The converged frame of each camera, from a pool large enough to hold everything the view wants (on the
+  // CPU: such a pool is larger than one GPU buffer may be, and both devices give the same frame).
   spdlog::info("converging the reference frames ({} pool) ...", formatBytes(args.referenceBudget));
   Pager reference(source, pagerOptions(args.referenceBudget, args));
   std::ofstream csv(folder / "frames.csv");
@@ -162,11 +174,15 @@ void renderWhole(const RenderArgs& args, const Octree& octree) {
   const Camera camera = cameraOf(args, octree.transform);
   RenderOptions options = args.options;
   options.cast.contours = !args.noContours && octree.parameters.contours;
-  const Frame frame = render(octree, camera, options);
+  const Frame frame =
+      args.gpu ? gpu::renderBlock(args.gpu->caster(), octree.block.view(), octree.transform, camera, options)
+               : render(octree, camera, options);
   writeFrame(args.out, frame, args.aux);
-  std::printf("wrote %s (%dx%d), read whole as one block of %s: %.3f s, %.2f Mrays/s, %.1f iterations/ray\n",
-              args.out.c_str(), frame.width, frame.height, formatBytes(octree.block.bytes().size()).c_str(),
-              frame.seconds, frame.mraysPerSecond(), frame.meanIterations);
+  std::printf(
+      "wrote %s (%dx%d), read whole as one block of %s: %.3f s, %.2f Mrays/s, %.1f iterations/ray%s\n",
+      args.out.c_str(), frame.width, frame.height, formatBytes(octree.block.bytes().size()).c_str(),
+      frame.seconds, frame.mraysPerSecond(), frame.meanIterations,
+      args.gpu ? (" on " + args.gpu->renderer()).c_str() : "");
 }
 
 void checkImageOutput(const RenderArgs& args) {
@@ -204,7 +220,8 @@ void renderDefault(const RenderArgs& args) {
     }
   }
   if (why.empty()) why = "a camera path streams";
-  const std::size_t budget = std::size_t(std::min<std::uint64_t>({share, storeBudget, kMaxBudgetBytes}));
+  std::size_t budget = std::size_t(std::min<std::uint64_t>({share, storeBudget, kMaxBudgetBytes}));
+  if (args.gpu) budget = std::min(budget, args.gpu->caster().maxBufferBytes());  // the pool is one buffer
   renderStreaming(args, sliceSourceOver(bytes, args.in, remote), budget,
                   "streamed through a " + formatBytes(budget) + " block pool (default: " + why +
                       "; --budget sets the pool)");
@@ -241,8 +258,20 @@ void addRenderCommand(CLI::App& app) {
   cmd->add_option("--timeout", args->timeout, "when streaming: seconds a view may take to converge")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
+  cmd->add_option("--device", args->device,
+                  "cpu: the ray caster on all cores; gpu: the OpenGL 4.5 compute caster (headless EGL; the "
+                  "pool in one storage buffer, so --budget at most its size)")
+      ->check(CLI::IsMember({"cpu", "gpu"}))
+      ->capture_default_str();
   cmd->callback([args] {
     if (args->pathFile.empty()) checkImageOutput(*args);
+    if (args->device == "gpu") {
+      try {
+        args->gpu = std::make_shared<gpu::HeadlessGpu>();
+      } catch (const gpu::GpuUnavailable& e) {
+        throw std::runtime_error(std::string("--device gpu: ") + e.what());
+      }
+    }
     if (args->budget == 0) return renderDefault(*args);
     renderStreaming(*args, openSliceSource(args->in, remoteOptions(args->token, args->rangeOnly)),
                     args->budget, "streamed through a " + formatBytes(args->budget) + " block pool");

@@ -13,6 +13,7 @@
 #include "report.hpp"
 #include "svo/client/locator.hpp"
 #include "svo/client/streaming.hpp"
+#include "svo/gpu/gl_context.hpp"
 #include "svo/viewer/controls.hpp"
 #include "svo/viewer/viewer.hpp"
 #include "view_flags.hpp"
@@ -25,7 +26,7 @@ constexpr int kDefaultWindowWidth = 1280;
 constexpr int kDefaultWindowHeight = 720;
 
 struct ViewArgs {
-  std::string in, token, script, screenshots = ".", colors = "shaded";
+  std::string in, token, script, screenshots = ".", colors = "shaded", device = "cpu";
   bool rangeOnly = false, noContours = false, noOverlay = false;
   CameraFlags camera = [] {
     CameraFlags flags;
@@ -68,6 +69,7 @@ void runView(const ViewArgs& args, bool sizeGiven, std::chrono::steady_clock::ti
   options.openSource = [in = args.in, remote] { return openSliceSource(in, remote); };
   options.pager = args.pager;
   options.pager.fetchThreads = resolvedFetchThreads(args.pager.fetchThreads, args.in);
+  options.defaultBudget = args.budget == 0;
   options.pager.budgetBytes =
       args.budget
           ? args.budget
@@ -85,11 +87,14 @@ void runView(const ViewArgs& args, bool sizeGiven, std::chrono::steady_clock::ti
   options.height = fromCamera ? options.camera->height : args.camera.height;
   if (!args.script.empty()) options.script = viewer::loadScript(args.script);
   options.screenshotFolder = args.screenshots;
+  options.gpu = args.device == "gpu";
   try {
     printSummary(viewer::runViewer(options));
   } catch (const viewer::NoDisplay& e) {
     throw std::runtime_error(std::string("no display: ") + e.what() +
                              "; `svo render` writes the same images without a window");
+  } catch (const gpu::GpuUnavailable& e) {
+    throw std::runtime_error(std::string("--device gpu: ") + e.what());
   }
 }
 
@@ -112,6 +117,12 @@ void addViewCommand(CLI::App& app) {
   addPagerThreadFlags(*cmd, args->pager);
   cmd->add_option("--colors", args->colors,
                   "shaded, 'octree level', 'iterations per pixel' or 'resident vs wanted'")
+      ->capture_default_str();
+  cmd->add_option(
+         "--device", args->device,
+         "cpu: ray cast on all cores; gpu: the OpenGL 4.5 compute caster in the window's context (the "
+         "pool in one storage buffer, so --budget at most its size)")
+      ->check(CLI::IsMember({"cpu", "gpu"}))
       ->capture_default_str();
   cmd->add_flag("--no-overlay", args->noOverlay, "start with the overlay hidden (F1 shows it)");
   cmd->add_option("--script", args->script, "JSON steps that drive the viewer (timed moves, keys, waits)")

@@ -116,6 +116,7 @@ void RegionTable::link(std::uint32_t index) {
     parent.unlinked.try_emplace(parentSlot, *at);
     const ChildDescriptor* target = descriptorAt(region, slot);
     *at = ChildDescriptor::link(std::int32_t(target - at));
+    pool_.markWritten(at, sizeof *at);
   }
 }
 
@@ -129,7 +130,9 @@ std::uint32_t RegionTable::evict(std::uint32_t index) {
   Region& parent = regions_[std::size_t(region.parent)];
   for (const auto& [coord, slot] : region.entries) {
     const std::uint32_t parentSlot = parentSlotOf(parent, index, coord);
-    *descriptorAt(parent, parentSlot) = parent.unlinked.at(parentSlot);
+    ChildDescriptor* at = descriptorAt(parent, parentSlot);
+    *at = parent.unlinked.at(parentSlot);
+    pool_.markWritten(at, sizeof *at);
     parent.unlinked.erase(parentSlot);
   }
   pool_.erase(region.block);

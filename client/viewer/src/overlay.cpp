@@ -30,6 +30,10 @@ std::vector<std::string> overlayLines(const OverlayStats& s) {
   lines.push_back(format("slices in flight %u, wanted %u, %s", s.inFlight, s.wanted,
                          s.converged ? "converged" : "streaming"));
   lines.push_back(format("read %.1f MB", double(s.bytesRead) / kMiB));
+  lines.push_back("ray casting on " + s.device);
+  if (s.uploadedBytes > 0)
+    lines.push_back(format("uploaded %.1f MB to the GPU (%.2f MB last frame)", double(s.uploadedBytes) / kMiB,
+                           double(s.uploadedLastFrame) / kMiB));
   lines.push_back(s.deepestLevel < 0
                       ? format("deepest level on screen: none of %d", s.storeLevels)
                       : format("deepest level on screen %d of %d", s.deepestLevel, s.storeLevels));

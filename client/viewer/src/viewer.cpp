@@ -11,6 +11,8 @@
 #include "overlay_ui.hpp"
 #include "script_player.hpp"
 #include "svo/client/streaming.hpp"
+#include "svo/gpu/gpu_caster.hpp"
+#include "svo/gpu/gpu_pool.hpp"
 #include "svo/viewer/fly_camera.hpp"
 #include "window.hpp"
 
@@ -95,6 +97,8 @@ class Viewer {
   std::shared_ptr<const SliceSource> source_;  // kept to reopen the pool at another budget
   std::optional<std::size_t> budgetBefore_;    // while reopening: the budget of the pool that worked
   std::unique_ptr<Pager> pager_;
+  std::unique_ptr<gpu::GpuCaster> caster_;  // with --device gpu, in the window's context
+  std::unique_ptr<gpu::GpuPool> gpuPool_;   // the pager's pool mirrored in the caster's buffer
   std::optional<FlyCamera> fly_;
 
   // The frame on screen and what it showed.
@@ -117,7 +121,7 @@ class Viewer {
 
 Viewer::Viewer(const ViewerOptions& options)
     : options_(options),
-      window_(options.width, options.height, "svo view - " + options.sourceName,
+      window_(options.width, options.height, "svo view - " + options.sourceName, options.gpu,
               Window::Input{[this](Action a) { press(a); },
                             [this](double dx, double dy) {
                               if (fly_) fly_->look(dx, dy), lastMove_ = Clock::now();
@@ -129,7 +133,14 @@ Viewer::Viewer(const ViewerOptions& options)
       settings_(options.settings) {
   summary_.windowSeconds = secondsBetween(options.launched, Clock::now());
   stats_.source = options.sourceName;
+  stats_.device = "the CPU";
   settings_.budgetBytes = options.pager.budgetBytes;
+  if (options.gpu) {
+    caster_ = std::make_unique<gpu::GpuCaster>();  // throws GpuUnavailable where 4.5 lacks compute
+    stats_.device = window_.renderer();
+    if (options.defaultBudget)
+      settings_.budgetBytes = std::min(settings_.budgetBytes, caster_->maxBufferBytes());
+  }
   open();
 }
 
@@ -149,11 +160,14 @@ bool Viewer::opened() {
   if (pager_) return true;
   if (opening_.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return false;
   Opened o;
+  std::unique_ptr<gpu::GpuPool> gpuPool;
   try {
     o = opening_.get();
+    if (caster_) gpuPool = std::make_unique<gpu::GpuPool>(*caster_, *o.pager);  // throws above one buffer
   } catch (const std::exception& e) {
     if (!budgetBefore_) throw;  // the store cannot be opened at all
-    // A budget the overlay chose that holds no trunk: say why and go back to the last one that worked.
+    // A budget the overlay chose that holds no trunk (or, on the GPU, exceeds one buffer): say why and go
+    // back to the last one that worked.
     spdlog::error("a {:.1f} MiB pool: {}; back to {:.1f} MiB", double(settings_.budgetBytes) / (1 << 20),
                   e.what(), double(*budgetBefore_) / (1 << 20));
     settings_.budgetBytes = *std::exchange(budgetBefore_, std::nullopt);
@@ -163,6 +177,7 @@ bool Viewer::opened() {
   budgetBefore_.reset();
   source_ = std::move(o.source);
   pager_ = std::move(o.pager);
+  gpuPool_ = std::move(gpuPool);
   stats_.storeLevels = pager_->index().header().parameters.levels;
   stats_.opening = false;
   if (!fly_) {
@@ -241,7 +256,17 @@ void Viewer::renderFrame(Clock::time_point now, bool moving) {
   options.diagnostics =
       settings_.falseColor == FalseColor::Iterations || settings_.falseColor == FalseColor::Detail;
 
-  StreamedFrame streamed = streamFrame(*pager_, camera, options);
+  const std::uint64_t uploadedBefore = gpuPool_ ? gpuPool_->uploadedBytes() : 0;
+  const PoolRenderer renderer = gpuPool_
+                                    ? PoolRenderer([this](Pager&, const Camera& c, const RenderOptions& o) {
+                                        return gpuPool_->render(c, o);
+                                      })
+                                    : PoolRenderer();
+  StreamedFrame streamed = streamFrame(*pager_, camera, options, renderer);
+  if (gpuPool_) {
+    stats_.uploadedLastFrame = gpuPool_->uploadedBytes() - uploadedBefore;
+    stats_.uploadedBytes = summary_.uploadedBytes + gpuPool_->uploadedBytes();
+  }
   Frame& frame = streamed.frame;
   stats_.deepestLevel = deepestLevel(frame, camera, pager_->transform().size);
   switch (settings_.falseColor) {
@@ -331,6 +356,9 @@ void Viewer::changeSettings(const ViewSettings& settings) {
   if (reopen && pager_) {
     // A pool's arena is its budget: a new budget is a new pool, streamed afresh over the same source.
     budgetBefore_ = pager_->budgetBytes();
+    if (gpuPool_) summary_.uploadedBytes += gpuPool_->uploadedBytes();
+    summary_.bytesRead += pager_->bytesRead();
+    gpuPool_.reset();
     pager_.reset();
     open();
   }
@@ -406,6 +434,9 @@ ViewerSummary Viewer::summary() const {
   s.movingScaleMedian = scales.empty() ? 1.0 : median(scales);
   s.movingFramesPerSecond = movingSeconds_ > 0.0 ? double(moving.size()) / movingSeconds_ : 0.0;
   s.sharpAfterStop = script_.sharpAfterStop();
+  s.device = stats_.device;
+  if (gpuPool_) s.uploadedBytes += gpuPool_->uploadedBytes();
+  if (pager_) s.bytesRead += pager_->bytesRead();
   return s;
 }
 

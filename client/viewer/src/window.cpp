@@ -24,17 +24,20 @@ Window& owner(GLFWwindow* window) {
 
 }  // namespace
 
-Window::Window(int width, int height, const std::string& title, Input input) : input_(std::move(input)) {
+Window::Window(int width, int height, const std::string& title, bool compute, Input input)
+    : input_(std::move(input)) {
   glfwSetErrorCallback([](int, const char* description) { lastGlfwError = description; });
   if (!glfwInit()) throw NoDisplay("cannot open a window (" + lastGlfwError + ")");
-  glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
-  glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
+  // 3.3 core shows the frame; the GPU caster's compute shaders need 4.5.
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, compute ? 4 : 3);
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, compute ? 5 : 3);
   glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
   glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
   window_ = glfwCreateWindow(width, height, title.c_str(), nullptr, nullptr);
   if (!window_) {
     glfwTerminate();
-    throw NoDisplay("cannot open an OpenGL 3.3 window (" + lastGlfwError + ")");
+    throw NoDisplay(std::string("cannot open an OpenGL ") + (compute ? "4.5" : "3.3") + " window (" +
+                    lastGlfwError + ")");
   }
   glfwMakeContextCurrent(window_);
   glfwSwapInterval(0);  // the viewer paces itself; frame times are the renderer's, not the display's
@@ -104,6 +107,11 @@ glm::ivec2 Window::framebufferSize() const {
   glm::ivec2 size;
   glfwGetFramebufferSize(window_, &size.x, &size.y);
   return size;
+}
+
+std::string Window::renderer() const {
+  const auto* name = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+  return name ? name : "an unnamed OpenGL device";
 }
 
 void Window::upload(const std::vector<std::uint8_t>& rgba, int width, int height) {

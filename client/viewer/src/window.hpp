@@ -1,5 +1,6 @@
-// The viewer's window: GLFW with an OpenGL 3.3 core context, the frame shown as a texture blitted over the
-// whole window, and Dear ImGui for the overlay. GLFW, GL and ImGui stay inside window.cpp and overlay_ui.cpp.
+// The viewer's window: GLFW with an OpenGL 3.3 core context (4.5 for the GPU caster), the frame shown as a
+// texture blitted over the whole window, and Dear ImGui for the overlay. GLFW, GL and ImGui stay inside
+// window.cpp and overlay_ui.cpp.
 #pragma once
 
 #include <cstdint>
@@ -23,8 +24,9 @@ class Window {
     std::function<void(double, double)> dragged;  // mouse motion with the left button down, pixels
     std::function<void(double)> scrolled;         // scroll steps
   };
-  // Throws NoDisplay when there is no display to open a window on.
-  Window(int width, int height, const std::string& title, Input input);
+  // Throws NoDisplay when there is no display to open a window on. `compute`: an OpenGL 4.5 context, for
+  // the GPU caster.
+  Window(int width, int height, const std::string& title, bool compute, Input input);
   ~Window();
   Window(const Window&) = delete;
   Window& operator=(const Window&) = delete;
@@ -36,6 +38,7 @@ class Window {
   // The movement keys down now (none while the overlay has the keyboard).
   MoveKeys heldKeys() const;
   glm::ivec2 framebufferSize() const;
+  std::string renderer() const;  // GL_RENDERER
 
   // The image to show: RGBA8, rows from the top.
   void upload(const std::vector<std::uint8_t>& rgba, int width, int height);

@@ -22,6 +22,7 @@
 #include <memory>
 #include <optional>
 #include <shared_mutex>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -171,6 +172,15 @@ class Pager {
   // requested again. A source that stops answering (failures that may pass) gives one message until a slice
   // loads again.
   std::vector<std::string> takeErrors() { return std::exchange(errors_, {}); }
+  // For a mirror of the pool (the GPU caster's buffer), on the render thread between updates: the arena, the
+  // trunk's root descriptor in it (64-bit slots from its start), and the pages written since the last call
+  // (on the first, every page that holds a block).
+  struct PoolChanges {
+    std::span<const std::byte> arena;
+    std::uint32_t rootSlot = 0;
+    std::vector<BlockPool::PageRun> written;
+  };
+  PoolChanges takePoolChanges();
   // Pool invariants, every link leads to its region's root descriptor, every resident non-root region is
   // linked from its parent, page headers lead to each block's info section. Throws std::logic_error.
   void checkInvariants() const;
@@ -192,7 +202,8 @@ class Pager {
   std::unique_ptr<paging::RegionLoader> loader_;
   std::unique_ptr<paging::LoadWorkers> workers_;  // last: its threads stop first
   std::vector<std::string> errors_;
-  bool sourceFailing_ = false;  // a fetch failed for a reason that may pass, and nothing has loaded since
+  bool sourceFailing_ = false;
+  bool mirrored_ = false;  // takePoolChanges was called: the pool tracks written pages  // a fetch failed for a reason that may pass, and nothing has loaded since
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0, lastDeferred_ = 0;
 };
 

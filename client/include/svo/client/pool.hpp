@@ -1,7 +1,8 @@
-// The block pool (paper sec. 7; docs/architecture.md): one arena of exactly the budget, in 8 KB pages, holding blocks
-// as contiguous page runs. Blocks are relocatable by memcpy (all their pointers are relative), so when the
-// free pages suffice but are scattered the pool compacts: it slides blocks together and tells the owner which
-// ones moved, so the owner can patch the pointers that cross blocks. The pool never allocates past the arena.
+// The block pool (paper sec. 7; docs/architecture.md): one arena of exactly the budget, in 8 KB pages,
+// holding blocks as contiguous page runs. Blocks are relocatable by memcpy (all their pointers are relative),
+// so when the free pages suffice but are scattered the pool compacts: it slides blocks together and tells the
+// owner which ones moved, so the owner can patch the pointers that cross blocks. The pool never allocates
+// past the arena.
 #pragma once
 
 #include <cstddef>
@@ -50,6 +51,17 @@ class BlockPool {
   std::size_t size(BlockId id) const { return std::size_t(blocks_.at(id).pages) * kPageBytes; }
   bool contains(BlockId id) const { return id < blocks_.size() && blocks_[id].pages != 0; }
 
+  // A mirror of the arena (the GPU caster's buffer) needs to know what changed: with tracking on, every page
+  // that insert or compaction writes, and every page given to markWritten, is reported once by
+  // takeWrittenPages. Turning tracking on reports every page that holds a block. Off by default.
+  struct PageRun {
+    std::uint32_t first = 0, count = 0;
+  };
+  void trackWrittenPages();
+  void markWritten(const void* at, std::size_t bytes);
+  std::vector<PageRun> takeWrittenPages();
+  std::span<const std::byte> arena() const { return {arena_.data(), arena_.size()}; }
+
   std::uint64_t compactions() const { return compactions_; }
   std::uint64_t movedBytes() const { return movedBytes_; }
 
@@ -65,6 +77,7 @@ class BlockPool {
   std::optional<std::uint32_t> takeRun(std::uint32_t pages);
   void release(std::uint32_t firstPage, std::uint32_t pages);
   void compact(std::uint32_t pages, const std::function<void(BlockId)>& moved);
+  void markPages(std::uint32_t first, std::uint32_t count);
 
   AlignedBytes arena_;
   std::uint32_t pageCount_ = 0, usedPages_ = 0;
@@ -73,6 +86,7 @@ class BlockPool {
   std::vector<BlockId> freeIds_;
   std::map<std::uint32_t, std::uint32_t> freeRuns_;  // first page -> pages
   std::uint64_t compactions_ = 0, movedBytes_ = 0;
+  std::vector<std::uint8_t> written_;  // per page, while tracking; empty otherwise
 };
 
 }  // namespace svo

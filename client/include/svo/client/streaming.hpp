@@ -35,8 +35,13 @@ inline constexpr double kStillViewFrameSeconds = 0.1;
 // programs on the cores) the workers still get a share of the time.
 inline constexpr double kStillViewWaitPerRenderSecond = 1.0;
 
+// How a frame is rendered from the pager's pool: svo::render over the trunk when empty; the GPU caster's
+// mirror of the pool for `--device gpu` (client/gpu).
+using PoolRenderer = std::function<Frame(Pager&, const Camera&, const RenderOptions&)>;
+
 // One frame while streaming: update the pager for the camera's view, render, feed the rays back.
-StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options);
+StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOptions& options,
+                          const PoolRenderer& renderer = nullptr);
 
 // Streams frames of one camera until its view has converged. `last` receives the final frame when given;
 // `each` sees every frame with the seconds since the start.
@@ -55,7 +60,8 @@ struct Convergence {
 };
 Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions& options,
                          double timeoutSeconds, StreamedFrame* last = nullptr,
-                         const std::function<void(double, StreamedFrame&)>& each = nullptr);
+                         const std::function<void(double, StreamedFrame&)>& each = nullptr,
+                         const PoolRenderer& renderer = nullptr);
 
 // Loads every slice of the store that fits the pager's budget, wanted by no camera in particular: for
 // measurements that compare all depths of a store beyond one block. Returns whether all of them are

@@ -44,6 +44,7 @@ class WholeScene {
     return octree_ ? octree_->parameters : pager_->index().header().parameters;
   }
   bool isPaged() const { return pager_ != nullptr; }
+  Pager* pager() const { return pager_.get(); }  // the pool holding it when paged, else nullptr
   const Octree* octree() const { return octree_ ? &*octree_ : nullptr; }
   // Bytes the octree takes: the one block, or the pool's resident blocks.
   std::size_t bytes() const;

@@ -24,6 +24,7 @@ struct ViewSettings {
 
 struct OverlayStats {
   std::string source;   // the store's file or URL
+  std::string device;   // what ray casts: "the CPU", or the GPU's name
   bool opening = true;  // the pool is still being opened (the first slices loading)
   double frameMs = 0.0, renderMs = 0.0, updateMs = 0.0;
   double framesPerSecond = 0.0;  // frames rendered in the last second
@@ -32,7 +33,8 @@ struct OverlayStats {
   std::size_t residentBytes = 0, budgetBytes = 0, residentSlices = 0;
   std::uint32_t inFlight = 0, wanted = 0;  // slices, from the pager's last update
   std::uint64_t bytesRead = 0;
-  int deepestLevel = -1, storeLevels = 0;  // on screen (-1: nothing hit), and in the store
+  std::uint64_t uploadedBytes = 0, uploadedLastFrame = 0;  // the GPU pool's pages (0 on the CPU)
+  int deepestLevel = -1, storeLevels = 0;                  // on screen (-1: nothing hit), and in the store
   bool converged = false;
   glm::dvec3 eye{0.0};
   double speed = 0.0;  // world units per second

@@ -29,13 +29,18 @@ struct ViewerOptions {
   std::string sourceName;  // the file or URL, for the title and the overlay
   // Opens the store (called on a background thread, so that a slow server does not hold the window).
   std::function<std::shared_ptr<const SliceSource>()> openSource;
-  PagerOptions pager;  // its budget is the pool's
+  PagerOptions pager;          // its budget is the pool's
+  bool defaultBudget = false;  // the budget is a default: on the GPU it shrinks to what one buffer holds
   RenderOptions render;
   ViewSettings settings;         // LOD, contours and false colors as the viewer starts
   std::optional<Camera> camera;  // else the whole scene seen along viewDirection
   glm::dvec3 viewDirection = kDefaultViewDirection;
   int width = 1280, height = 720;  // the window
   std::vector<ScriptStep> script;  // loadScript's; empty: a person drives the viewer
+  // Ray cast with the GPU caster (an OpenGL 4.5 compute shader in the window's context) over the pool
+  // mirrored in one storage buffer, instead of on the CPU; frames are read back for the overlay's numbers,
+  // the false colors and the pager's ray feedback.
+  bool gpu = false;
   std::filesystem::path screenshotFolder = ".";
   std::chrono::steady_clock::time_point launched = std::chrono::steady_clock::now();
 };
@@ -51,6 +56,9 @@ struct ViewerSummary {
   // For each script wait on convergence: seconds from the camera stopping to the view converged, and to
   // the last frame that changed the image.
   std::vector<std::pair<double, double>> sharpAfterStop;
+  std::string device;               // what ray cast: the CPU, or the GPU's name
+  std::uint64_t uploadedBytes = 0;  // with the GPU: pool pages uploaded over the run
+  std::uint64_t bytesRead = 0;      // compressed bytes read from the store over the run
 };
 
 // Runs until the window closes, Escape, or the script's last step. Throws NoDisplay without a display, and

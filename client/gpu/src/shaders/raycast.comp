@@ -1,0 +1,361 @@
+// The ESVO ray caster (paper sec. 6, Fig. 15) as an OpenGL 4.5 compute shader: the CPU caster of
+// client/src/raycast.cpp line for line (the octree in [1,2]^3 so that a position's mantissa bits are its path,
+// directions mirrored to be negative, the (parent, t_max) stack indexed by scale, POP from the highest
+// differing position bit, contour slabs, the level-of-detail stop), and the renderer's Phong shading with
+// attributes found through page header, info section and attachment (Fig. 8). Every float expression is
+// `precise`, so no multiply-add is fused that the CPU does not fuse.
+#version 450
+layout(local_size_x = 8, local_size_y = 8) in;
+
+// The block pool's arena (or one block) as 32-bit words; a descriptor at slot s is words 2s and 2s + 1.
+layout(std430, binding = 0) readonly buffer Pool { uint words[]; };
+
+struct PixelOut {
+  vec4 color;        // linear RGB + alpha (1 = hit)
+  float depth;       // world distance along the ray; +inf for a miss
+  float voxelPixels; // the hit voxel's size in pixels at its distance
+  uint hitSlot;      // descriptor slot of the hit voxel's parent * 8 + child slot; 0xffffffff for a miss
+  uint scaleIterations;  // hit scale (bits 0-7), 1 when stopped by LOD (bit 8), iterations (bits 16-31)
+};
+layout(std430, binding = 1) writeonly buffer Frame { PixelOut pixels[]; };
+
+layout(std140, binding = 2) uniform Params {
+  // The camera basis in double precision, as the CPU renderer computes pixel rays (Camera::pixelRay).
+  dvec4 forward;
+  dvec4 right;
+  dvec4 up;
+  double tanHalf, aspect, sceneSize, pixelAngle;
+  vec4 origin;      // the eye in octree space (xyz)
+  vec4 light;       // unit, towards the scene
+  vec4 background;  // rgb
+  uint rootSlot;
+  uint width, height;
+  uint flags;  // 1: contours, 2: colors, 4: normals
+  float footprintSlope;
+  int maxIterations;
+} P;
+
+const int kScaleMax = 23;
+const float kMinDirection = 1.0 / 8388608.0;
+const float kParallelContour = 1e-20;
+const uint kColor = 1u, kNormal = 2u;
+const uint kSlotsPerPage = 1024u;
+const float kAmbient = 0.15, kDiffuse = 0.75, kSpecular = 0.25, kShininess = 32.0;
+const float kNeutralGreyAlbedo = 0.8;
+
+uint topology(uint slot) { return words[2u * slot]; }
+uint contourWord(uint slot) { return words[2u * slot + 1u]; }
+uint validMask(uint t) { return (t >> 8) & 255u; }
+uint nonLeafMask(uint t) { return validMask(t) & ~t & 255u; }
+bool isFar(uint t) { return ((t >> 16) & 1u) != 0u; }
+bool isStub(uint slot) { uint t = topology(slot); return validMask(t) == 0u && !isFar(t); }
+int childRank(uint mask, uint slot) { return bitCount(mask & ((1u << slot) - 1u)); }
+
+// A link's target (format.hpp: a descriptor with no valid children and the far bit, `contour` slots away).
+// Links chain where regions share an entry voxel (a run of sub-cubes, then one sub-cube on its own); the loop
+// is bounded, as an unbounded one here is miscompiled by Mesa 22's llvmpipe (it skips the link).
+const int kMaxLinkChain = 8;
+uint followLink(uint from) {
+  uint at = from;
+  for (int i = 0; i < kMaxLinkChain; ++i) {
+    uint t = topology(at);
+    if (validMask(t) != 0u || !isFar(t)) break;
+    at = uint(int(at) + int(contourWord(at)));
+  }
+  return at;
+}
+
+// The info section of the block holding `slot`, as a word index (page header: words from the page).
+uint infoWord(uint slot) {
+  uint page = slot & ~(kSlotsPerPage - 1u);
+  return uint(int(2u * page) + int(words[2u * page]));
+}
+
+// Sec. 5.4 / Fig. 8: the value of child `child` of the descriptor at `slot`, or false when it inherits.
+bool ownAttribute(uint slot, uint child, uint type, out uint value) {
+  uint info = infoWord(slot);
+  int slotsPointer = int(words[info + 1u]);
+  uint attachments = words[info + 5u];
+  uint index = uint(int(slot) - (int(info) + slotsPointer) / 2);
+  for (uint a = 0u; a < attachments; ++a) {
+    uint entry = info + 6u + 4u * a;
+    if (words[entry] != type) continue;
+    uint start = uint(int(info) + int(words[entry + 1u]));
+    uint lookup = words[start + index];
+    uint mask = lookup & 255u;
+    if (((mask >> child) & 1u) == 0u) return false;
+    value = words[start + (lookup >> 8) + uint(childRank(mask, child))];
+    return true;
+  }
+  return false;
+}
+
+uint rootValue(uint slot, uint type) {
+  uint info = infoWord(slot);
+  uint attachments = words[info + 5u];
+  for (uint a = 0u; a < attachments; ++a) {
+    uint entry = info + 6u + 4u * a;
+    if (words[entry] == type) return words[entry + 2u];
+  }
+  return 0u;
+}
+
+vec3 decodeContourNormal(uint bits) {
+  int s = int(bits);
+  return vec3(float(s >> 26), float((s << 6) >> 26), float((s << 12) >> 26)) / 31.0;
+}
+float contourPosition(uint bits) { return float((int(bits) << 18) >> 25) * (1.5 / 63.0); }
+float contourThickness(uint bits) { return float(bits & 127u) * (3.0 / 127.0); }
+
+vec3 decodeColor(uint abgr) {
+  return vec3(float(abgr & 255u), float((abgr >> 8) & 255u), float((abgr >> 16) & 255u)) / 255.0;
+}
+vec3 decodeNormal(uint bits) {
+  uint face = bits >> 29;
+  int axis = (face >> 1) < 2u ? int(face >> 1) : 2;
+  float u = float((bits >> 14) & 32767u) / 32767.0 * 2.0 - 1.0;
+  float v = float(bits & 16383u) / 16383.0 * 2.0 - 1.0;
+  float w = (face & 1u) != 0u ? -1.0 : 1.0;
+  vec3 n = axis == 0 ? vec3(w, u, v) : axis == 1 ? vec3(u, w, v) : vec3(u, v, w);
+  return normalize(n);
+}
+
+struct Hit {
+  bool hit, leaf;
+  float t;
+  vec3 position, cubeMin;
+  uint parent, childSlot;
+  int scale, iterations;
+};
+
+// The path's descriptors and slots by scale, for attribute inheritance (CastHit::pathParent).
+uint pathParent[kScaleMax];
+uint pathSlot[kScaleMax];
+
+Hit castRay(vec3 o, vec3 d, float footprintSlope, bool contours) {
+  Hit hit;
+  hit.hit = false, hit.leaf = false, hit.iterations = 0;
+  vec3 d0 = d;
+  // A power of two below the largest component (ilogb, read from the float's exponent bits).
+  float largest = max(max(abs(d.x), abs(d.y)), abs(d.z));
+  precise float minComponent = ldexp(kMinDirection, int((floatBitsToUint(largest) >> 23) & 255u) - 127);
+  if (abs(d.x) < minComponent) d.x = d.x < 0.0 ? -minComponent : minComponent;
+  if (abs(d.y) < minComponent) d.y = d.y < 0.0 ? -minComponent : minComponent;
+  if (abs(d.z) < minComponent) d.z = d.z < 0.0 ? -minComponent : minComponent;
+
+  precise float tx_coef = 1.0 / -abs(d.x), ty_coef = 1.0 / -abs(d.y), tz_coef = 1.0 / -abs(d.z);
+  precise float tx_bias = tx_coef * o.x, ty_bias = ty_coef * o.y, tz_bias = tz_coef * o.z;
+  int octant_mask = 7;
+  if (d.x > 0.0) octant_mask ^= 1, tx_bias = 3.0 * tx_coef - tx_bias;
+  if (d.y > 0.0) octant_mask ^= 2, ty_bias = 3.0 * ty_coef - ty_bias;
+  if (d.z > 0.0) octant_mask ^= 4, tz_bias = 3.0 * tz_coef - tz_bias;
+
+  precise float t_min = max(max(2.0 * tx_coef - tx_bias, 2.0 * ty_coef - ty_bias), 2.0 * tz_coef - tz_bias);
+  precise float t_max = min(min(tx_coef - tx_bias, ty_coef - ty_bias), tz_coef - tz_bias);
+  t_min = max(t_min, 0.0);
+  if (!(t_min <= t_max)) return hit;
+
+  uint stackParent[kScaleMax + 1];
+  float stackTmax[kScaleMax + 1];
+
+  uint parent = P.rootSlot;
+  uint topo = 0u, contourBits = 0u;
+  bool cached = false;
+  int idx = 0;
+  precise vec3 pos = vec3(1.0);
+  int scale = kScaleMax - 1;
+  precise float scale_exp2 = 0.5;
+  if (1.5 * tx_coef - tx_bias > t_min) idx ^= 1, pos.x = 1.5;
+  if (1.5 * ty_coef - ty_bias > t_min) idx ^= 2, pos.y = 1.5;
+  if (1.5 * tz_coef - tz_bias > t_min) idx ^= 4, pos.z = 1.5;
+
+  int iterations = 0;
+  bool found = false;
+  while (scale < kScaleMax) {
+    if (++iterations > P.maxIterations) break;
+    if (!cached) {
+      topo = topology(parent);
+      contourBits = contourWord(parent);
+      cached = true;
+    }
+    precise float tx_corner = pos.x * tx_coef - tx_bias;
+    precise float ty_corner = pos.y * ty_coef - ty_bias;
+    precise float tz_corner = pos.z * tz_coef - tz_bias;
+    precise float tc_max = min(min(tx_corner, ty_corner), tz_corner);
+
+    uint slot = uint(idx ^ octant_mask ^ 7);
+    if (((validMask(topo) >> slot) & 1u) != 0u && t_min <= t_max) {
+      if (tc_max * footprintSlope + 0.0 >= scale_exp2) {
+        found = true;
+        break;
+      }
+      precise float tv_max = min(t_max, tc_max);
+      precise float half_ = scale_exp2 * 0.5;
+      precise float tx_center = half_ * tx_coef + tx_corner;
+      precise float ty_center = half_ * ty_coef + ty_corner;
+      precise float tz_center = half_ * tz_coef + tz_corner;
+      uint contourMask = contourBits & 255u;
+      if (contours && ((contourMask >> slot) & 1u) != 0u) {
+        uint c = words[2u * parent + (contourBits >> 8) + uint(childRank(contourMask, slot))];
+        vec3 n = decodeContourNormal(c);
+        precise float den = n.x * d.x + n.y * d.y + n.z * d.z;
+        precise float num = n.x * d.x * tx_center + n.y * d.y * ty_center + n.z * d.z * tz_center +
+                            scale_exp2 * contourPosition(c);
+        precise float halfWidth = 0.5 * scale_exp2 * contourThickness(c);
+        if (abs(den) > kParallelContour) {
+          precise float inv = 1.0 / den;
+          precise float tmid = num * inv, tdiff = abs(halfWidth * inv);
+          t_min = max(t_min, tmid - tdiff);
+          tv_max = min(tv_max, tmid + tdiff);
+        } else if (abs(num) > halfWidth) {
+          tv_max = -1.0;
+        }
+      }
+      if (t_min <= tv_max) {
+        bool hasChild = false;
+        uint child = 0u;
+        if (((nonLeafMask(topo) >> slot) & 1u) != 0u) {
+          uint run = parent + (topo >> 17);
+          if (isFar(topo)) run = uint(int(run) + int(words[2u * run]));
+          child = followLink(run + uint(childRank(nonLeafMask(topo), slot)));
+          hasChild = !isStub(child);
+        }
+        if (!hasChild) {
+          found = true;
+          hit.leaf = true;
+          break;
+        }
+        stackParent[scale] = parent;
+        stackTmax[scale] = t_max;
+        pathParent[scale] = parent;
+        pathSlot[scale] = slot;
+        parent = child;
+        idx = 0;
+        --scale;
+        scale_exp2 = half_;
+        if (tx_center > t_min) idx ^= 1, pos.x += scale_exp2;
+        if (ty_center > t_min) idx ^= 2, pos.y += scale_exp2;
+        if (tz_center > t_min) idx ^= 4, pos.z += scale_exp2;
+        t_max = tv_max;
+        cached = false;
+        continue;
+      }
+    }
+
+    int step_mask = 0;
+    if (tx_corner <= tc_max) step_mask ^= 1, pos.x -= scale_exp2;
+    if (ty_corner <= tc_max) step_mask ^= 2, pos.y -= scale_exp2;
+    if (tz_corner <= tc_max) step_mask ^= 4, pos.z -= scale_exp2;
+    t_min = tc_max;
+    idx ^= step_mask;
+
+    if ((idx & step_mask) != 0) {
+      uint differing_bits = 0u;
+      if ((step_mask & 1) != 0) differing_bits |= floatBitsToUint(pos.x) ^ floatBitsToUint(pos.x + scale_exp2);
+      if ((step_mask & 2) != 0) differing_bits |= floatBitsToUint(pos.y) ^ floatBitsToUint(pos.y + scale_exp2);
+      if ((step_mask & 4) != 0) differing_bits |= floatBitsToUint(pos.z) ^ floatBitsToUint(pos.z + scale_exp2);
+      scale = findMSB(differing_bits);
+      if (scale >= kScaleMax) break;
+      scale_exp2 = uintBitsToFloat(uint(scale - kScaleMax + 127) << 23);
+      parent = stackParent[scale];
+      t_max = stackTmax[scale];
+      uint shx = floatBitsToUint(pos.x) >> scale, shy = floatBitsToUint(pos.y) >> scale,
+           shz = floatBitsToUint(pos.z) >> scale;
+      pos = vec3(uintBitsToFloat(shx << scale), uintBitsToFloat(shy << scale), uintBitsToFloat(shz << scale));
+      idx = int((shx & 1u) | ((shy & 1u) << 1) | ((shz & 1u) << 2));
+      cached = false;
+    }
+  }
+  hit.iterations = iterations;
+  if (!found) return hit;
+  if ((octant_mask & 1) == 0) pos.x = 3.0 - scale_exp2 - pos.x;
+  if ((octant_mask & 2) == 0) pos.y = 3.0 - scale_exp2 - pos.y;
+  if ((octant_mask & 4) == 0) pos.z = 3.0 - scale_exp2 - pos.z;
+  hit.hit = true;
+  hit.t = t_min;
+  hit.scale = scale;
+  hit.parent = parent;
+  hit.childSlot = uint(idx ^ octant_mask ^ 7);
+  hit.cubeMin = pos;
+  precise float inset = min(kMinDirection, 0.25 * scale_exp2);
+  precise vec3 p = o + t_min * d0;
+  hit.position = min(max(p, pos + inset), pos + scale_exp2 - inset);
+  return hit;
+}
+
+uint hitAttribute(Hit hit, uint type) {
+  uint value;
+  if (ownAttribute(hit.parent, hit.childSlot, type, value)) return value;
+  for (int s = hit.scale + 1; s < kScaleMax; ++s)
+    if (ownAttribute(pathParent[s], pathSlot[s], type, value)) return value;
+  return rootValue(P.rootSlot, type);
+}
+
+// The renderer's estimateNormal: the nearest cube face, or the contour slab when nearer.
+vec3 estimateNormal(Hit hit, bool contours) {
+  precise float size = ldexp(1.0, hit.scale - kScaleMax);
+  precise vec3 rel = (hit.position - hit.cubeMin) / size;
+  int axis = 0;
+  precise float faceDistance = 1.0 / 0.0;
+  float sgn = 1.0;
+  for (int i = 0; i < 3; ++i) {
+    precise float low = rel[i], high = 1.0 - rel[i];
+    if (low < faceDistance) faceDistance = low, axis = i, sgn = -1.0;
+    if (high < faceDistance) faceDistance = high, axis = i, sgn = 1.0;
+  }
+  vec3 normal = vec3(0.0);
+  normal[axis] = sgn;
+  uint contourBits = contourWord(hit.parent);
+  uint mask = contourBits & 255u;
+  if (contours && ((mask >> hit.childSlot) & 1u) != 0u) {
+    uint c = words[2u * hit.parent + (contourBits >> 8) + uint(childRank(mask, hit.childSlot))];
+    vec3 n = decodeContourNormal(c);
+    precise float len = length(n);
+    if (len > 0.0) {
+      precise float offset = dot(n, rel - 0.5) - contourPosition(c);
+      precise float slabDistance = abs(abs(offset) - 0.5 * contourThickness(c)) / len;
+      if (slabDistance < faceDistance) normal = n / len * (offset < 0.0 ? -1.0 : 1.0);
+    }
+  }
+  return normal;
+}
+
+vec3 shadePhong(vec3 albedo, vec3 n, vec3 viewDirection, vec3 lightDirection) {
+  if (dot(n, viewDirection) > 0.0) n = -n;
+  precise float diffuse = max(0.0, dot(n, -lightDirection));
+  precise vec3 reflected = reflect(lightDirection, n);
+  precise float specular = pow(max(0.0, dot(reflected, -viewDirection)), kShininess);
+  return albedo * (kAmbient + kDiffuse * diffuse) + vec3(kSpecular * specular);
+}
+
+void main() {
+  uvec2 pixel = gl_GlobalInvocationID.xy;
+  if (pixel.x >= P.width || pixel.y >= P.height) return;
+  uint index = pixel.y * P.width + pixel.x;
+  // Camera::pixelRay, in double precision; the octree direction is the world one / size (t in world units).
+  double sx = (2.0lf * (double(pixel.x) + 0.5lf) / double(P.width) - 1.0lf) * P.tanHalf * P.aspect;
+  double sy = (1.0lf - 2.0lf * (double(pixel.y) + 0.5lf) / double(P.height)) * P.tanHalf;
+  dvec3 world = P.forward.xyz + sx * P.right.xyz + sy * P.up.xyz;
+  world = world / sqrt(dot(world, world));
+  vec3 direction = vec3(world / P.sceneSize);
+  bool contours = (P.flags & 1u) != 0u;
+  Hit hit = castRay(P.origin.xyz, direction, P.footprintSlope, contours);
+  PixelOut out_;
+  out_.color = vec4(P.background.rgb, 0.0);
+  out_.depth = 1.0 / 0.0;
+  out_.voxelPixels = 0.0;
+  out_.hitSlot = 0xffffffffu;
+  out_.scaleIterations = uint(min(hit.iterations, 65535)) << 16;
+  if (hit.hit) {
+    vec3 viewDirection = normalize(direction);
+    vec3 albedo = (P.flags & 2u) != 0u ? decodeColor(hitAttribute(hit, kColor)) : vec3(kNeutralGreyAlbedo);
+    vec3 n = (P.flags & 4u) != 0u ? decodeNormal(hitAttribute(hit, kNormal)) : estimateNormal(hit, contours);
+    out_.color = vec4(shadePhong(albedo, n, viewDirection, P.light.xyz), 1.0);
+    out_.depth = hit.t;
+    out_.voxelPixels = float(double(ldexp(1.0, hit.scale - kScaleMax)) * P.sceneSize /
+                             (double(hit.t) * P.pixelAngle));
+    out_.hitSlot = hit.parent * 8u + hit.childSlot;
+    out_.scaleIterations |= uint(hit.scale) | (hit.leaf ? 0u : 256u);
+  }
+  pixels[index] = out_;
+}

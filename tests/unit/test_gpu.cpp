@@ -1,0 +1,282 @@
+// The GPU caster (an OpenGL 4.5 compute shader, on Mesa's llvmpipe here) against the CPU caster it ports:
+// the same hit voxel per pixel and the same depth to a stated number of ulps, on a contoured colored store,
+// the bunny when the data is there, and the stiff-case rays; and the pager's pool mirrored page by page
+// renders the same frame as the whole octree cut to the same slices.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+
+#include <glm/geometric.hpp>
+
+#include <OpenImageIO/imageio.h>
+
+#include "paging_helpers.hpp"
+#include "reference.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/builder/gen.hpp"
+#include "svo/builder/mesh.hpp"
+#include "svo/gpu/gl_context.hpp"
+#include "svo/gpu/gpu_caster.hpp"
+#include "svo/gpu/gpu_pool.hpp"
+#include "svo/store/store_reader.hpp"
+
+using namespace svo;
+namespace fs = std::filesystem;
+
+namespace {
+
+// Depth agreement: GLSL's float operations are IEEE-exact for + - * / here (every expression is `precise`),
+// so the depths should match exactly; a few ulps allow for a driver that rounds a division differently.
+constexpr int kDepthUlps = 4;
+// Pixels whose hit voxel may differ: rays through a voxel's edge or corner, where a one-ulp difference in a
+// direction picks the neighbour (the bound: 99.9% the same).
+constexpr double kSameVoxelShare = 0.999;
+
+std::int64_t ulpsBetween(float a, float b) {
+  const auto ordered = [](float f) {
+    const std::int32_t i = std::bit_cast<std::int32_t>(f);
+    return i < 0 ? std::int64_t(INT32_MIN) - i : std::int64_t(i);
+  };
+  return std::abs(ordered(a) - ordered(b));
+}
+
+struct Agreement {
+  std::size_t pixels = 0, hits = 0, sameVoxel = 0, depthOff = 0;
+  float worstColor = 0.0f;
+};
+
+// CPU hits per pixel (no beam, as the GPU) against the GPU's.
+Agreement compare(const BlockView& block, const SceneTransform& scene, const Camera& camera,
+                  const RenderOptions& options, const gpu::GpuHits& hits, const Frame& gpuFrame) {
+  Agreement a;
+  RenderOptions cpuOptions = options;
+  cpuOptions.beamTile = 0;
+  const Frame cpu = render(block, scene, camera, cpuOptions);
+  const PixelRays rays(scene, camera, options.lodPixels);
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      const std::size_t i = std::size_t(y) * camera.width + x;
+      const CastHit hit = castRay(block, rays(x, y), options.cast);
+      ++a.pixels;
+      std::uint32_t voxel = gpu::kMissSlot;
+      if (hit.hit) {
+        ++a.hits;
+        voxel = std::uint32_t((hit.parent - block.slots()) * 8 + hit.childSlot);
+      }
+      if (voxel != hits.voxel[i]) continue;
+      ++a.sameVoxel;
+      if (hit.hit && ulpsBetween(hit.t, gpuFrame.depth[i]) > kDepthUlps) ++a.depthOff;
+      for (int c = 0; c < 3; ++c)
+        a.worstColor = std::max(a.worstColor, std::abs(cpu.color[i][c] - gpuFrame.color[i][c]));
+    }
+  }
+  return a;
+}
+
+class Gpu : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    try {
+      context_ = std::make_unique<gpu::HeadlessGlContext>();
+      caster_ = std::make_unique<gpu::GpuCaster>();
+    } catch (const gpu::GpuUnavailable& e) {
+      FAIL() << "no OpenGL 4.5 with compute shaders (Mesa's llvmpipe through EGL is expected): " << e.what();
+    }
+  }
+  std::unique_ptr<gpu::HeadlessGlContext> context_;
+  std::unique_ptr<gpu::GpuCaster> caster_;
+};
+
+void expectAgreement(const Agreement& a, const char* what) {
+  EXPECT_GT(a.hits, a.pixels / 10) << what;
+  EXPECT_GE(double(a.sameVoxel), kSameVoxelShare * double(a.pixels))
+      << what << ": " << a.sameVoxel << " of " << a.pixels;
+  EXPECT_EQ(a.depthOff, 0u) << what;
+  // Shading runs the same float operations, but pow, normalize and reflect may round differently: 1e-4 is
+  // a hundredth of an 8-bit step.
+  EXPECT_LT(a.worstColor, 1e-4f) << what;
+}
+
+TEST_F(Gpu, SameHitsAsTheCpuCasterOnAContouredColoredStore) {
+  const Octree octree = readOctree(svotest::sphereStore());
+  for (const float lod : {0.0f, 1.0f, 4.0f}) {
+    for (const bool contours : {true, false}) {
+      RenderOptions options;
+      options.lodPixels = lod;
+      options.cast.contours = contours;
+      const Camera camera = svotest::cameraAt({1.7, 1.1, 2.3}, {0.0, -0.2, 0.0}, 160);
+      gpu::GpuHits hits;
+      const Frame frame =
+          gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, options, &hits);
+      expectAgreement(compare(octree.block.view(), octree.transform, camera, options, hits, frame),
+                      contours ? "contours" : "cubes");
+    }
+  }
+}
+
+void expectAgreementOn(gpu::GpuCaster& caster, const Octree& octree, const Camera& camera, const char* what,
+                       const RenderOptions& options = {}) {
+  gpu::GpuHits hits;
+  const Frame frame = gpu::renderBlock(caster, octree.block.view(), octree.transform, camera, options, &hits);
+  expectAgreement(compare(octree.block.view(), octree.transform, camera, options, hits, frame), what);
+}
+
+fs::path bunnyPath() {
+  if (const char* env = std::getenv("SVO_BUNNY"); env && *env) return env;
+  return fs::path(SVO_SOURCE_DIR) / "build" / "data" / "bunny.ply";
+}
+
+TEST_F(Gpu, SameHitsAsTheCpuCasterOnTheBunnyAndATerrain) {
+  BuildOptions build;
+  build.levels = 10;
+  if (fs::exists(bunnyPath())) {
+    const Octree bunny = buildOctree(loadMesh(bunnyPath()), build);
+    expectAgreementOn(*caster_, bunny, Camera::framing(bunny.transform, kDefaultViewDirection, 200, 150),
+                      "bunny");
+    const glm::dvec3 centre = bunny.transform.origin + 0.5 * bunny.transform.size;
+    expectAgreementOn(
+        *caster_, bunny,
+        svotest::cameraAt(centre + glm::dvec3(0.1, 0.15, 0.45) * bunny.transform.size, centre, 160),
+        "bunny close-up");
+  } else {
+    ADD_FAILURE() << "no bunny at " << bunnyPath() << " (tools/scripts/fetch-data.sh)";
+  }
+  GenOptions gen;
+  gen.kind = SceneKind::Terrain;
+  gen.triangles = 20000;
+  const Octree terrain = buildOctree(generateScene(gen), build);
+  expectAgreementOn(*caster_, terrain, svotest::cameraAt({0.9, 0.8, 1.4}, {0.0, 0.1, 0.0}, 160), "terrain");
+}
+
+// Stiff rays: exactly axis-parallel (the centre pixel of an odd-sized image looking along an axis), grazing
+// a box face edge-on, from far outside and from inside the scene.
+TEST_F(Gpu, SameHitsAsTheCpuCasterOnStiffRays) {
+  const Octree octree = readOctree(svotest::sphereStore());
+  const struct {
+    glm::dvec3 eye, target;
+    const char* what;
+  } cases[] = {
+      {{0.0, 0.0, 5.0}, {0.0, 0.0, 0.0}, "along -z"},
+      {{-5.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, "along +x"},
+      {{0.0, 0.3, 0.0}, {0.0, -5.0, 0.0}, "along -y from inside"},
+      {{-3.0, -1.2, 0.35}, {3.0, -1.2, 0.35}, "grazing the box's bottom face"},
+      {{0.3, -0.9, 3.0}, {0.3, -0.9, -3.0}, "along the box's top edge"},
+      {{4e3, 3e3, 5e3}, {0.0, 0.0, 0.0}, "from far away"},
+  };
+  for (const auto& c : cases) {
+    Camera camera = svotest::cameraAt(c.eye, c.target, 101);
+    if (std::abs(glm::normalize(c.target - c.eye).y) > 0.99) camera.up = {0.0, 0.0, -1.0};
+    camera.fovYDegrees = c.eye.x > 1e3 ? 0.05 : 50.0;
+    RenderOptions options;
+    options.lodPixels = 0.0f;
+    gpu::GpuHits hits;
+    const Frame frame =
+        gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, options, &hits);
+    const Agreement a = compare(octree.block.view(), octree.transform, camera, options, hits, frame);
+    EXPECT_GE(double(a.sameVoxel), kSameVoxelShare * double(a.pixels)) << c.what;
+    EXPECT_EQ(a.depthOff, 0u) << c.what;
+    EXPECT_LT(a.worstColor, 1e-4f) << c.what;
+  }
+}
+
+}  // namespace
+
+namespace {
+
+// The pager's pool mirrored page by page: after every update, the GPU frame from the pool equals the GPU
+// frame of the whole octree cut to the resident slices, bit for bit; and a converged view uploads only what
+// loaded.
+TEST_F(Gpu, PagedFrameEqualsTheWholeOctreeCutToTheSameSlices) {
+  PagerOptions pagerOptions;
+  pagerOptions.budgetBytes = std::size_t(16) << 20;
+  Pager pager(svotest::sphereStore(), pagerOptions);
+  gpu::GpuPool pool(*caster_, pager);
+  // The first sync uploads exactly the pages that hold blocks (the trunk), not the whole budget.
+  EXPECT_EQ(pool.sync(), pager.residentBytes());
+  gpu::GpuCaster wholeCaster;
+  const StoreReader reader(svotest::sphereStore());
+  const Camera camera = svotest::cameraAt({0.5, 0.4, 1.6}, {0.0, 0.0, 0.7}, 96);
+  RenderOptions options;
+  const ViewQuery view = viewOf(pager.transform(), camera, options.lodPixels);
+  std::size_t compared = 0;
+  for (int step = 0; step < 400 && !(pager.converged() && compared > 2); ++step) {
+    pager.update(view);
+    const Frame paged = pool.render(camera, options);
+    const Block cut = layoutBlock(svotest::truncatedTree(reader, pager.residentSlices()));
+    const Frame whole = gpu::renderBlock(wholeCaster, cut.view(), pager.transform(), camera, options);
+    ASSERT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)), 0)
+        << "step " << step;
+    ASSERT_EQ(std::memcmp(paged.depth.data(), whole.depth.data(), paged.depth.size() * sizeof(float)), 0);
+    ++compared;
+    pager.feedback(paged, camera, options.lodPixels);
+    pager.waitForWork(0.01);
+  }
+  ASSERT_TRUE(pager.converged());
+  // Uploads: the pages the loads wrote, never more than a page per resident page plus the links patched.
+  EXPECT_GT(pool.uploadedBytes(), 0u);
+  EXPECT_EQ(pool.sync(), 0u);  // nothing changed since the last frame
+}
+
+}  // namespace
+
+namespace {
+
+struct Png {
+  int width = 0, height = 0;
+  std::vector<std::uint8_t> pixels;
+};
+
+Png readPng(const fs::path& file) {
+  Png out;
+  auto in = OIIO::ImageInput::open(file.string());
+  if (!in) return out;
+  out.width = in->spec().width, out.height = in->spec().height;
+  out.pixels.resize(std::size_t(out.width) * out.height * 3);
+  in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, out.pixels.data());
+  return out;
+}
+
+std::string run(const std::string& command) {
+  std::string out;
+  FILE* pipe = ::popen((command + " 2>&1; echo \"exit $?\"").c_str(), "r");
+  char buffer[4096];
+  while (std::size_t n = std::fread(buffer, 1, sizeof buffer, pipe)) out.append(buffer, n);
+  ::pclose(pipe);
+  return out;
+}
+
+// `svo render --device gpu` writes the CPU's image (8-bit codes within 1, and equal on 99.9% of the pixels),
+// whole and streamed; a budget beyond one storage buffer is one clear line and no image.
+TEST(GpuCommand, RenderOnTheGpuWritesTheCpusImage) {
+  svotest::TempDir dir;
+  const std::string store = svotest::sphereStore().string();
+  for (const std::string how : {"", " --budget 8M"}) {
+    const std::string common = std::string(SVO_BINARY) + " render " + store + how +
+                               " --eye 0.6,0.5,1.7 --target 0,0,0.7 --width 200 --height 150 -o ";
+    const fs::path gpuPng = dir.path() / "gpu.png", cpuPng = dir.path() / "cpu.png";
+    const std::string onGpu = run(common + gpuPng.string() + " --device gpu");
+    ASSERT_NE(onGpu.find("exit 0"), std::string::npos) << onGpu;
+    ASSERT_NE(run(common + cpuPng.string()).find("exit 0"), std::string::npos);
+    const Png a = readPng(gpuPng), b = readPng(cpuPng);
+    ASSERT_EQ(a.pixels.size(), b.pixels.size());
+    ASSERT_FALSE(a.pixels.empty());
+    std::size_t off = 0;
+    for (std::size_t i = 0; i < a.pixels.size(); ++i) {
+      const int d = std::abs(int(a.pixels[i]) - int(b.pixels[i]));
+      ASSERT_LE(d, 1) << "byte " << i << how;
+      off += d != 0;
+    }
+    EXPECT_LE(double(off), 0.001 * double(a.pixels.size())) << how;
+  }
+  const fs::path tooLarge = dir.path() / "large.png";
+  const std::string said =
+      run(std::string(SVO_BINARY) + " render " + store + " --budget 1G --device gpu -o " + tooLarge.string());
+  EXPECT_NE(said.find("storage buffer"), std::string::npos) << said;
+  EXPECT_NE(said.find("exit 1"), std::string::npos) << said;
+  EXPECT_EQ(std::count(said.begin(), said.end(), '\n'), 2) << said;  // the error line and the exit line
+  EXPECT_FALSE(fs::exists(tooLarge));
+}
+
+}  // namespace
