@@ -8,6 +8,7 @@
 
 #include "commands.hpp"
 #include "machine.hpp"
+#include "measure.hpp"
 #include "pager_flags.hpp"
 #include "remote.hpp"
 #include "report.hpp"
@@ -58,6 +59,9 @@ void printSummary(const viewer::ViewerSummary& s) {
   for (const auto& [lastChange, converged] : s.sharpAfterStop)
     std::printf("sharp after the camera stopped: last change %.3f s, converged %.3f s\n", lastChange,
                 converged);
+  std::printf("ray cast on %s; %s read from the store", s.device.c_str(), formatBytes(s.bytesRead).c_str());
+  if (s.uploadedBytes > 0) std::printf(", %s uploaded to the GPU", formatBytes(s.uploadedBytes).c_str());
+  std::printf("\n");
 }
 
 void runView(const ViewArgs& args, bool sizeGiven, std::chrono::steady_clock::time_point launched) {
