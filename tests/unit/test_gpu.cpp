@@ -150,6 +150,27 @@ TEST_F(Gpu, SameHitsAsTheCpuCasterOnTheBunnyAndATerrain) {
   expectAgreementOn(*caster_, terrain, svotest::cameraAt({0.9, 0.8, 1.4}, {0.0, 0.1, 0.0}, 160), "terrain");
 }
 
+// The beam pass on the GPU (one per 8 x 8 work group) changes no pixel and skips the tiles the CPU skips.
+TEST_F(Gpu, TheBeamPassChangesNoPixelAndRunsAsTheCpusDoes) {
+  const Octree octree = readOctree(svotest::sphereStore());
+  const Camera camera = svotest::cameraAt({1.2, 0.9, 2.0}, {0.0, -0.2, 0.0}, 150);
+  RenderOptions withBeam, without;
+  without.beamTile = 0;
+  const Frame a = gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, withBeam);
+  const Frame b = gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, without);
+  EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(glm::vec4)), 0);
+  EXPECT_EQ(std::memcmp(a.depth.data(), b.depth.data(), a.depth.size() * sizeof(float)), 0);
+  // Tiles whose beam meets nothing cast no ray: their pixels take no iteration at all, and the iterations per
+  // pixel are the CPU renderer's, which runs the same pass on the same 8 x 8 tiles.
+  withBeam.diagnostics = without.diagnostics = true;
+  const Frame c = gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, withBeam);
+  const Frame d = gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, without);
+  const auto idle = [](const Frame& f) { return std::count(f.iterations.begin(), f.iterations.end(), 0); };
+  EXPECT_GT(idle(c), idle(d) + 1000);
+  const Frame cpu = render(octree, camera, withBeam);
+  EXPECT_EQ(c.iterations, cpu.iterations);
+}
+
 // Stiff rays: exactly axis-parallel (the centre pixel of an odd-sized image looking along an axis), grazing
 // a box face edge-on, from far outside and from inside the scene.
 TEST_F(Gpu, SameHitsAsTheCpuCasterOnStiffRays) {

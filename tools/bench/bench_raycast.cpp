@@ -331,7 +331,7 @@ void runRaycastBench(const RaycastArgs& args) {
              formatCount(cast.last.depth.size()));
 
   if (onGpu) {
-    // The GPU casts without the beam pass: its depths should equal castRay's bit for bit.
+    // The beam pass changes no ray's result: the GPU's depths should equal castRay's bit for bit.
     std::uint64_t same = 0;
     for (std::size_t i = 0; i < cast.last.depth.size(); ++i)
       same += cast.last.depth[i] == onGpu->last.depth[i] ||

@@ -135,7 +135,8 @@ Frame GpuCaster::render(std::uint32_t rootSlot, bool hasColors, bool hasNormals,
   copy3(p.light, glm::normalize(options.lightDirection));
   copy3(p.background, options.background);
   p.rootSlot = rootSlot, p.width = std::uint32_t(camera.width), p.height = std::uint32_t(camera.height);
-  p.flags = (options.cast.contours ? 1u : 0u) | (hasColors ? 2u : 0u) | (hasNormals ? 4u : 0u);
+  p.flags = (options.cast.contours ? 1u : 0u) | (hasColors ? 2u : 0u) | (hasNormals ? 4u : 0u) |
+            (options.beamTile > 0 ? 8u : 0u);
   p.footprintSlope = rays.footprintSlope();
   p.maxIterations = options.cast.maxIterations;
   glNamedBufferSubData(params_, 0, sizeof p, &p);

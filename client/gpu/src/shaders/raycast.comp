@@ -1,9 +1,10 @@
 // The ESVO ray caster (paper sec. 6, Fig. 15) as an OpenGL 4.5 compute shader: the CPU caster of
 // client/src/raycast.cpp line for line (the octree in [1,2]^3 so that a position's mantissa bits are its path,
 // directions mirrored to be negative, the (parent, t_max) stack indexed by scale, POP from the highest
-// differing position bit, contour slabs, the level-of-detail stop), and the renderer's Phong shading with
-// attributes found through page header, info section and attachment (Fig. 8). Every float expression is
-// `precise`, so no multiply-add is fused that the CPU does not fuse.
+// differing position bit, contour slabs, the level-of-detail stop), the beam pass of client/src/beam.cpp once
+// per work group, and the renderer's Phong shading with attributes found through page header, info section
+// and attachment (Fig. 8). The traversal's float expressions are `precise`, so no multiply-add is fused that
+// the CPU does not fuse, and its depths equal the CPU's bit for bit.
 #version 450
 layout(local_size_x = 8, local_size_y = 8) in;
 
@@ -30,7 +31,7 @@ layout(std140, binding = 2) uniform Params {
   vec4 background;  // rgb
   uint rootSlot;
   uint width, height;
-  uint flags;  // 1: contours, 2: colors, 4: normals
+  uint flags;  // 1: contours, 2: colors, 4: normals, 8: the beam pass
   float footprintSlope;
   int maxIterations;
 } P;
@@ -132,7 +133,7 @@ struct Hit {
 uint pathParent[kScaleMax];
 uint pathSlot[kScaleMax];
 
-Hit castRay(vec3 o, vec3 d, float footprintSlope, bool contours) {
+Hit castRay(vec3 o, vec3 d, float tStart, float footprintSlope, bool contours) {
   Hit hit;
   hit.hit = false, hit.leaf = false, hit.iterations = 0;
   vec3 d0 = d;
@@ -152,7 +153,7 @@ Hit castRay(vec3 o, vec3 d, float footprintSlope, bool contours) {
 
   precise float t_min = max(max(2.0 * tx_coef - tx_bias, 2.0 * ty_coef - ty_bias), 2.0 * tz_coef - tz_bias);
   precise float t_max = min(min(tx_coef - tx_bias, ty_coef - ty_bias), tz_coef - tz_bias);
-  t_min = max(t_min, 0.0);
+  t_min = max(t_min, max(tStart, 0.0));
   if (!(t_min <= t_max)) return hit;
 
   uint stackParent[kScaleMax + 1];
@@ -328,18 +329,139 @@ vec3 shadePhong(vec3 albedo, vec3 n, vec3 viewDirection, vec3 lightDirection) {
   return albedo * (kAmbient + kDiffuse * diffuse) + vec3(kSpecular * specular);
 }
 
+// ---------------------------------------------------------------------------------------------------------
+// The beam pass (sec. 6.2) of client/src/beam.cpp, once per work group (its 8 x 8 pixels are the tile): a
+// front-to-back walk keeping the cubes that meet the tile's beam, in double precision, whose nearest stop
+// bounds every ray of the tile from below.
+const double kEdgeMarginPixels = 1.0lf / 64.0lf;
+const double kCubeMargin = 1.0lf / 1048576.0lf;
+const double kStartMargin = 1.0lf / 1024.0lf;
+const double kLodSafety = 2.0lf;
+
+dvec3 pixelDirection(double x, double y) {  // Camera::pixelRay
+  double sx = (2.0lf * (x + 0.5lf) / double(P.width) - 1.0lf) * P.tanHalf * P.aspect;
+  double sy = (1.0lf - 2.0lf * (y + 0.5lf) / double(P.height)) * P.tanHalf;
+  dvec3 world = P.forward.xyz + sx * P.right.xyz + sy * P.up.xyz;
+  return world / sqrt(dot(world, world));
+}
+
+dvec3 beamEye;
+dvec3 beamInward[4];
+
+bool meetsBeam(dvec3 lo, double size) {
+  for (int i = 0; i < 4; ++i) {
+    dvec3 n = beamInward[i];
+    dvec3 p = dvec3(n.x > 0.0lf ? lo.x + size : lo.x, n.y > 0.0lf ? lo.y + size : lo.y,
+                    n.z > 0.0lf ? lo.z + size : lo.z);
+    if (dot(n, p - beamEye) < 0.0lf) return false;
+  }
+  return true;
+}
+
+double nearestDistance(dvec3 lo, double size) {
+  dvec3 below = max(lo - beamEye, dvec3(0.0lf)), above = max(beamEye - (lo + size), dvec3(0.0lf));
+  dvec3 v = below + above;
+  return sqrt(dot(v, v));
+}
+double furthestDistance(dvec3 lo, double size) {
+  dvec3 v = max(abs(beamEye - lo), abs(lo + size - beamEye));
+  return sqrt(dot(v, v));
+}
+
+struct BeamEntry {
+  uint descriptor;
+  dvec3 lo;
+  double size, nearest;
+};
+
+float castBeam(uvec2 tileMin, uvec2 tileEnd) {
+  double m = 0.5lf + kEdgeMarginPixels;
+  double x0 = double(tileMin.x) - m, x1 = double(tileEnd.x) - 1.0lf + m;
+  double y0 = double(tileMin.y) - m, y1 = double(tileEnd.y) - 1.0lf + m;
+  dvec3 corner[4] = dvec3[4](pixelDirection(x0, y0), pixelDirection(x1, y0), pixelDirection(x1, y1),
+                             pixelDirection(x0, y1));
+  dvec3 centre = pixelDirection(0.5lf * (x0 + x1), 0.5lf * (y0 + y1));
+  beamEye = dvec3(P.origin.xyz);
+  for (int i = 0; i < 4; ++i) {
+    dvec3 n = cross(corner[i], corner[(i + 1) % 4]);
+    if (dot(n, centre) < 0.0lf) n = -n;
+    beamInward[i] = n;
+  }
+  double tilePixels = double(max(tileEnd.x - tileMin.x, tileEnd.y - tileMin.y));
+  double stopSlope = max(tilePixels * P.pixelAngle, kLodSafety * double(P.footprintSlope) * P.sceneSize);
+
+  BeamEntry stack[8 * kScaleMax];
+  int top = 0;
+  double best = 1.0lf / 0.0lf;
+  dvec3 rootLo = dvec3(1.0lf - kCubeMargin);
+  double rootSize = 1.0lf + 2.0lf * kCubeMargin;
+  if (!meetsBeam(rootLo, rootSize)) return 1.0 / 0.0;
+  stack[top++] = BeamEntry(P.rootSlot, dvec3(1.0lf), 1.0lf, nearestDistance(rootLo, rootSize));
+  while (top > 0) {
+    BeamEntry e = stack[--top];
+    if (e.nearest >= best) continue;
+    uint topo = topology(e.descriptor);
+    uint valid = validMask(topo), nonLeaf = nonLeafMask(topo);
+    double half_ = 0.5lf * e.size;
+    BeamEntry children[8];
+    int count = 0;
+    for (uint slot = 0u; slot < 8u; ++slot) {
+      if (((valid >> slot) & 1u) == 0u) continue;
+      dvec3 lo = e.lo + half_ * dvec3(double(slot & 1u), double((slot >> 1) & 1u), double((slot >> 2) & 1u));
+      dvec3 grownLo = lo - kCubeMargin;
+      double grownSize = half_ + 2.0lf * kCubeMargin;
+      if (!meetsBeam(grownLo, grownSize)) continue;
+      double nearest = nearestDistance(grownLo, grownSize);
+      if (nearest >= best) continue;
+      bool leaf = true;
+      uint child = 0u;
+      if (((nonLeaf >> slot) & 1u) != 0u) {
+        uint run = e.descriptor + (topo >> 17);
+        if (isFar(topo)) run = uint(int(run) + int(words[2u * run]));
+        child = followLink(run + uint(childRank(nonLeaf, slot)));
+        leaf = isStub(child);
+      }
+      if (leaf || half_ <= stopSlope * furthestDistance(grownLo, grownSize)) {
+        best = nearest;
+        continue;
+      }
+      children[count++] = BeamEntry(child, lo, half_, nearest);
+    }
+    // Furthest first on the stack, so the nearest child is walked next (insertion sort of at most 8).
+    for (int i = 1; i < count; ++i)
+      for (int j = i; j > 0 && children[j - 1].nearest < children[j].nearest; --j) {
+        BeamEntry t = children[j - 1];
+        children[j - 1] = children[j];
+        children[j] = t;
+      }
+    for (int i = 0; i < count; ++i)
+      if (children[i].nearest < best) stack[top++] = children[i];
+  }
+  return isinf(best) ? 1.0 / 0.0 : float(best * P.sceneSize * (1.0lf - kStartMargin));
+}
+
+shared float tileStart;
+
 void main() {
   uvec2 pixel = gl_GlobalInvocationID.xy;
+  bool beam = (P.flags & 8u) != 0u;
+  if (beam) {
+    if (gl_LocalInvocationIndex == 0u) {
+      uvec2 tileMin = gl_WorkGroupID.xy * gl_WorkGroupSize.xy;
+      tileStart = castBeam(tileMin, min(tileMin + gl_WorkGroupSize.xy, uvec2(P.width, P.height)));
+    }
+    barrier();
+  }
   if (pixel.x >= P.width || pixel.y >= P.height) return;
   uint index = pixel.y * P.width + pixel.x;
   // Camera::pixelRay, in double precision; the octree direction is the world one / size (t in world units).
-  double sx = (2.0lf * (double(pixel.x) + 0.5lf) / double(P.width) - 1.0lf) * P.tanHalf * P.aspect;
-  double sy = (1.0lf - 2.0lf * (double(pixel.y) + 0.5lf) / double(P.height)) * P.tanHalf;
-  dvec3 world = P.forward.xyz + sx * P.right.xyz + sy * P.up.xyz;
-  world = world / sqrt(dot(world, world));
-  vec3 direction = vec3(world / P.sceneSize);
+  vec3 direction = vec3(pixelDirection(double(pixel.x), double(pixel.y)) / P.sceneSize);
   bool contours = (P.flags & 1u) != 0u;
-  Hit hit = castRay(P.origin.xyz, direction, P.footprintSlope, contours);
+  Hit hit;
+  hit.hit = false, hit.iterations = 0;
+  float tStart = beam ? tileStart : 0.0;
+  // A tile whose beam meets nothing casts no ray.
+  if (!isinf(tStart)) hit = castRay(P.origin.xyz, direction, tStart, P.footprintSlope, contours);
   PixelOut out_;
   out_.color = vec4(P.background.rgb, 0.0);
   out_.depth = 1.0 / 0.0;

@@ -41,7 +41,8 @@ class GpuCaster {
 
   // One frame of the octree whose root descriptor is `rootSlot` (64-bit slots from the buffer's start), as
   // svo::render gives it: color, depth, voxel size in pixels, iterations and LOD stops (`diagnostics`).
-  // `hasColors` / `hasNormals`: the root block's attachments. The beam pass is not run on the GPU.
+  // `hasColors` / `hasNormals`: the root block's attachments. With options.beamTile > 0 each 8 x 8 work group
+  // runs the beam pass first (its tile is the group, whatever beamTile's size).
   Frame render(std::uint32_t rootSlot, bool hasColors, bool hasNormals, const SceneTransform& scene,
                const Camera& camera, const RenderOptions& options, GpuHits* hits = nullptr);
 
