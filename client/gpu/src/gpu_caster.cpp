@@ -78,16 +78,22 @@ GpuCaster::GpuCaster() {
     throw GpuUnavailable("OpenGL " + std::to_string(major) + "." + std::to_string(minor) +
                          " here; the GPU caster needs 4.5 (compute shaders, storage buffers)");
   program_ = compile(kRaycastShader);
-  GLuint buffers[3];
-  glCreateBuffers(3, buffers);
-  pool_ = buffers[0], pixels_ = buffers[1], params_ = buffers[2];
+  // The beam pass is the same source with SVO_BEAM_PASS defined right after its #version line.
+  std::string beamSource = kRaycastShader;
+  const std::string version = "#version 450\n";
+  beamSource.insert(beamSource.find(version) + version.size(), "#define SVO_BEAM_PASS\n");
+  beamProgram_ = compile(beamSource.c_str());
+  GLuint buffers[4];
+  glCreateBuffers(4, buffers);
+  pool_ = buffers[0], pixels_ = buffers[1], params_ = buffers[2], tileStarts_ = buffers[3];
   glNamedBufferStorage(params_, sizeof(Params), nullptr, GL_DYNAMIC_STORAGE_BIT);
 }
 
 GpuCaster::~GpuCaster() {
-  const GLuint buffers[3] = {pool_, pixels_, params_};
-  glDeleteBuffers(3, buffers);
+  const GLuint buffers[4] = {pool_, pixels_, params_, tileStarts_};
+  glDeleteBuffers(4, buffers);
   glDeleteProgram(program_);
+  glDeleteProgram(beamProgram_);
 }
 
 std::size_t GpuCaster::maxBufferBytes() const {
@@ -141,12 +147,26 @@ Frame GpuCaster::render(std::uint32_t rootSlot, bool hasColors, bool hasNormals,
   p.maxIterations = options.cast.maxIterations;
   glNamedBufferSubData(params_, 0, sizeof p, &p);
 
-  glUseProgram(program_);
+  const GLuint tilesX = GLuint((camera.width + kGroupSide - 1) / kGroupSide);
+  const GLuint tilesY = GLuint((camera.height + kGroupSide - 1) / kGroupSide);
+  if (std::size_t(tilesX) * tilesY * sizeof(float) > tileStartBytes_) {
+    glDeleteBuffers(1, &tileStarts_);
+    glCreateBuffers(1, &tileStarts_);
+    tileStartBytes_ = std::size_t(tilesX) * tilesY * sizeof(float);
+    glNamedBufferStorage(tileStarts_, GLsizeiptr(tileStartBytes_), nullptr, 0);
+  }
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, pool_);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, pixels_);
   glBindBufferBase(GL_UNIFORM_BUFFER, 2, params_);
-  glDispatchCompute(GLuint((camera.width + kGroupSide - 1) / kGroupSide),
-                    GLuint((camera.height + kGroupSide - 1) / kGroupSide), 1);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, tileStarts_);
+  if (options.beamTile > 0) {
+    // One invocation per tile, 8 x 8 tiles per work group.
+    glUseProgram(beamProgram_);
+    glDispatchCompute((tilesX + kGroupSide - 1) / kGroupSide, (tilesY + kGroupSide - 1) / kGroupSide, 1);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+  }
+  glUseProgram(program_);
+  glDispatchCompute(tilesX, tilesY, 1);
   glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT | GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
   const auto* out = static_cast<const PixelOut*>(
       glMapNamedBufferRange(pixels_, 0, GLsizeiptr(pixelBytes_), GL_MAP_READ_BIT));

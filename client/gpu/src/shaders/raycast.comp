@@ -2,7 +2,7 @@
 // client/src/raycast.cpp line for line (the octree in [1,2]^3 so that a position's mantissa bits are its path,
 // directions mirrored to be negative, the (parent, t_max) stack indexed by scale, POP from the highest
 // differing position bit, contour slabs, the level-of-detail stop), the beam pass of client/src/beam.cpp once
-// per work group, and the renderer's Phong shading with attributes found through page header, info section
+// per 8 x 8 tile, and the renderer's Phong shading with attributes found through page header, info section
 // and attachment (Fig. 8). The traversal's float expressions are `precise`, so no multiply-add is fused that
 // the CPU does not fuse, and its depths equal the CPU's bit for bit.
 #version 450
@@ -330,7 +330,7 @@ vec3 shadePhong(vec3 albedo, vec3 n, vec3 viewDirection, vec3 lightDirection) {
 }
 
 // ---------------------------------------------------------------------------------------------------------
-// The beam pass (sec. 6.2) of client/src/beam.cpp, once per work group (its 8 x 8 pixels are the tile): a
+// The beam pass (sec. 6.2) of client/src/beam.cpp, once per 8 x 8 tile (the ray pass's work group): a
 // front-to-back walk keeping the cubes that meet the tile's beam, in double precision, whose nearest stop
 // bounds every ray of the tile from below.
 const double kEdgeMarginPixels = 1.0lf / 64.0lf;
@@ -440,18 +440,23 @@ float castBeam(uvec2 tileMin, uvec2 tileEnd) {
   return isinf(best) ? 1.0 / 0.0 : float(best * P.sceneSize * (1.0lf - kStartMargin));
 }
 
-shared float tileStart;
+// The beam pass's result per 8 x 8 tile, row by row: written by this shader compiled with SVO_BEAM_PASS (one
+// invocation per tile, so the walks run side by side), read by the ray pass (one work group per tile).
+layout(std430, binding = 3) buffer TileStarts { float tileStarts[]; };
+const uint kTileSide = 8u;
 
+#ifdef SVO_BEAM_PASS
+void main() {
+  uvec2 tile = gl_GlobalInvocationID.xy;
+  uvec2 tiles = (uvec2(P.width, P.height) + kTileSide - 1u) / kTileSide;
+  if (tile.x >= tiles.x || tile.y >= tiles.y) return;
+  uvec2 tileMin = tile * kTileSide;
+  tileStarts[tile.y * tiles.x + tile.x] = castBeam(tileMin, min(tileMin + kTileSide, uvec2(P.width, P.height)));
+}
+#else
 void main() {
   uvec2 pixel = gl_GlobalInvocationID.xy;
   bool beam = (P.flags & 8u) != 0u;
-  if (beam) {
-    if (gl_LocalInvocationIndex == 0u) {
-      uvec2 tileMin = gl_WorkGroupID.xy * gl_WorkGroupSize.xy;
-      tileStart = castBeam(tileMin, min(tileMin + gl_WorkGroupSize.xy, uvec2(P.width, P.height)));
-    }
-    barrier();
-  }
   if (pixel.x >= P.width || pixel.y >= P.height) return;
   uint index = pixel.y * P.width + pixel.x;
   // Camera::pixelRay, in double precision; the octree direction is the world one / size (t in world units).
@@ -459,7 +464,8 @@ void main() {
   bool contours = (P.flags & 1u) != 0u;
   Hit hit;
   hit.hit = false, hit.iterations = 0;
-  float tStart = beam ? tileStart : 0.0;
+  uint tilesX = (P.width + kTileSide - 1u) / kTileSide;
+  float tStart = beam ? tileStarts[gl_WorkGroupID.y * tilesX + gl_WorkGroupID.x] : 0.0;
   // A tile whose beam meets nothing casts no ray.
   if (!isinf(tStart)) hit = castRay(P.origin.xyz, direction, tStart, P.footprintSlope, contours);
   PixelOut out_;
@@ -481,3 +487,4 @@ void main() {
   }
   pixels[index] = out_;
 }
+#endif
