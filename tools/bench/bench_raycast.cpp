@@ -281,9 +281,14 @@ void runRaycastBench(const RaycastArgs& args) {
   beamed.seconds =
       timeRuns(args.runs, [&] { beamed.last = traceEsvo(*scene, camera, renderOptions, threads, true); });
 
-  std::optional<Timed> onGpu;
+  std::optional<Timed> onGpu, onGpuBeam;
   std::string gpuName;
-  if (args.device == "gpu") onGpu = timeGpu(*scene, camera, renderOptions, args.runs, gpuName);
+  if (args.device == "gpu") {
+    RenderOptions noBeam = renderOptions;
+    noBeam.beamTile = 0;
+    onGpu = timeGpu(*scene, camera, noBeam, args.runs, gpuName);
+    onGpuBeam = timeGpu(*scene, camera, renderOptions, args.runs, gpuName);
+  }
 
   std::optional<double> peerSeconds;
   std::optional<Timed> peer;
@@ -306,7 +311,10 @@ void runRaycastBench(const RaycastArgs& args) {
   addMethodRow(table, "ESVO svo::render (shaded)", shaded, rays, true, peerSeconds);
   addMethodRow(table, "ESVO castRay (depth only)", cast, rays, true, peerSeconds);
   addMethodRow(table, "ESVO castRay + beam (depth only)", beamed, rays, true, peerSeconds);
-  if (onGpu) addMethodRow(table, "ESVO OpenGL compute (shaded, GPU)", *onGpu, rays, true, peerSeconds);
+  if (onGpu) {
+    addMethodRow(table, "ESVO OpenGL compute (shaded, GPU)", *onGpu, rays, true, peerSeconds);
+    addMethodRow(table, "ESVO OpenGL compute + beam (GPU)", *onGpuBeam, rays, true, peerSeconds);
+  }
   if (peer) {
     addMethodRow(table, "Embree 3 rtcIntersect1", *peer, rays, false, peerSeconds);
   } else {

@@ -72,4 +72,8 @@ void addRenderFlags(CLI::App& cmd, RenderOptions& options, bool& noContours) {
       ->check(CLI::NonNegativeNumber);
 }
 
+void applyDeviceBeamDefault(const CLI::App& cmd, const std::string& device, RenderOptions& options) {
+  if (device == "gpu" && cmd.count("--beam-tile") == 0) options.beamTile = 0;
+}
+
 }  // namespace svo::tools

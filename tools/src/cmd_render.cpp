@@ -263,8 +263,9 @@ void addRenderCommand(CLI::App& app) {
                   "pool in one storage buffer, so --budget at most its size)")
       ->check(CLI::IsMember({"cpu", "gpu"}))
       ->capture_default_str();
-  cmd->callback([args] {
+  cmd->callback([args, cmd] {
     if (args->pathFile.empty()) checkImageOutput(*args);
+    applyDeviceBeamDefault(*cmd, args->device, args->options);
     if (args->device == "gpu") {
       try {
         args->gpu = std::make_shared<gpu::HeadlessGpu>();

@@ -136,6 +136,7 @@ void addViewCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->callback([args, cmd] {
     const auto launched = std::chrono::steady_clock::now();
+    applyDeviceBeamDefault(*cmd, args->device, args->render);
     runView(*args, cmd->count("--width") + cmd->count("--height") > 0, launched);
   });
 }
