@@ -12,6 +12,7 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include "command_helpers.hpp"
 #include "paging_helpers.hpp"
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
@@ -244,30 +245,6 @@ TEST_F(Gpu, PagedFrameEqualsTheWholeOctreeCutToTheSameSlices) {
 
 namespace {
 
-struct Png {
-  int width = 0, height = 0;
-  std::vector<std::uint8_t> pixels;
-};
-
-Png readPng(const fs::path& file) {
-  Png out;
-  auto in = OIIO::ImageInput::open(file.string());
-  if (!in) return out;
-  out.width = in->spec().width, out.height = in->spec().height;
-  out.pixels.resize(std::size_t(out.width) * out.height * 3);
-  in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, out.pixels.data());
-  return out;
-}
-
-std::string run(const std::string& command) {
-  std::string out;
-  FILE* pipe = ::popen((command + " 2>&1; echo \"exit $?\"").c_str(), "r");
-  char buffer[4096];
-  while (std::size_t n = std::fread(buffer, 1, sizeof buffer, pipe)) out.append(buffer, n);
-  ::pclose(pipe);
-  return out;
-}
-
 // `svo render --device gpu` writes the CPU's image (8-bit codes within 1, and equal on 99.9% of the pixels),
 // whole and streamed; a budget beyond one storage buffer is one clear line and no image.
 TEST(GpuCommand, RenderOnTheGpuWritesTheCpusImage) {
@@ -277,10 +254,10 @@ TEST(GpuCommand, RenderOnTheGpuWritesTheCpusImage) {
     const std::string common = std::string(SVO_BINARY) + " render " + store + how +
                                " --eye 0.6,0.5,1.7 --target 0,0,0.7 --width 200 --height 150 -o ";
     const fs::path gpuPng = dir.path() / "gpu.png", cpuPng = dir.path() / "cpu.png";
-    const std::string onGpu = run(common + gpuPng.string() + " --device gpu");
+    const std::string onGpu = svotest::runShell(common + gpuPng.string() + " --device gpu");
     ASSERT_NE(onGpu.find("exit 0"), std::string::npos) << onGpu;
-    ASSERT_NE(run(common + cpuPng.string()).find("exit 0"), std::string::npos);
-    const Png a = readPng(gpuPng), b = readPng(cpuPng);
+    ASSERT_NE(svotest::runShell(common + cpuPng.string()).find("exit 0"), std::string::npos);
+    const svotest::Rgb8 a = svotest::readRgb8(gpuPng), b = svotest::readRgb8(cpuPng);
     ASSERT_EQ(a.pixels.size(), b.pixels.size());
     ASSERT_FALSE(a.pixels.empty());
     std::size_t off = 0;
@@ -292,8 +269,8 @@ TEST(GpuCommand, RenderOnTheGpuWritesTheCpusImage) {
     EXPECT_LE(double(off), 0.001 * double(a.pixels.size())) << how;
   }
   const fs::path tooLarge = dir.path() / "large.png";
-  const std::string said =
-      run(std::string(SVO_BINARY) + " render " + store + " --budget 1G --device gpu -o " + tooLarge.string());
+  const std::string said = svotest::runShell(std::string(SVO_BINARY) + " render " + store +
+                                             " --budget 1G --device gpu -o " + tooLarge.string());
   EXPECT_NE(said.find("storage buffer"), std::string::npos) << said;
   EXPECT_NE(said.find("exit 1"), std::string::npos) << said;
   EXPECT_EQ(std::count(said.begin(), said.end(), '\n'), 2) << said;  // the error line and the exit line

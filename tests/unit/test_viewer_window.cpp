@@ -20,6 +20,7 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include "command_helpers.hpp"
 #include "paging_helpers.hpp"
 #include "reference.hpp"
 
@@ -153,28 +154,10 @@ class Xvfb {
   std::string display_;
 };
 
-struct Rgb {
-  int width = 0, height = 0;
-  std::vector<std::uint8_t> pixels;
-};
-
-Rgb readRgb(const fs::path& png) {
-  Rgb out;
-  auto in = OIIO::ImageInput::open(png.string());
-  if (!in) {
-    ADD_FAILURE() << png << ": " << OIIO::geterror();
-    return out;
-  }
-  out.width = in->spec().width, out.height = in->spec().height;
-  out.pixels.resize(std::size_t(out.width) * out.height * 3);
-  in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, out.pixels.data());
-  return out;
-}
-
 // The grab matches the reference when no channel differs by more than 1 (the stated tolerance: X's 24-bit
 // visual keeps 8 bits per channel, so the codes should be equal) on at least 99.9% of the pixels.
 void expectSameImage(const fs::path& grab, const fs::path& reference) {
-  const Rgb a = readRgb(grab), b = readRgb(reference);
+  const svotest::Rgb8 a = svotest::readRgb8(grab), b = svotest::readRgb8(reference);
   ASSERT_EQ(a.width, b.width) << grab;
   ASSERT_EQ(a.height, b.height) << grab;
   std::size_t off = 0;
@@ -226,16 +209,6 @@ int deepestLevelOfExr(const fs::path& exr, double fovDegrees, double sceneSize) 
   return deepest;
 }
 
-std::string run(const std::string& command) {
-  std::string out;
-  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
-  if (!pipe) return out;
-  char buffer[4096];
-  while (std::size_t n = std::fread(buffer, 1, sizeof buffer, pipe)) out.append(buffer, n);
-  ::pclose(pipe);
-  return out;
-}
-
 // The viewer on `device` (cpu or gpu) against `svo render` on the CPU.
 void expectScreenshotsMatchRender(const std::string& device) {
   Xvfb x;
@@ -275,8 +248,8 @@ void expectScreenshotsMatchRender(const std::string& device) {
   for (const std::string name : {"close", "far"}) {
     ASSERT_TRUE(waitForText(output, "mark grab-" + name, viewer)) << slurp(output);
     const fs::path grab = dir.path() / ("grab_" + name + ".png");
-    run("import -display " + x.display() + " -window root -crop " + std::to_string(kWidth) + "x" +
-        std::to_string(kHeight) + "+0+0 +repage " + grab.string());
+    svotest::runShell("import -display " + x.display() + " -window root -crop " + std::to_string(kWidth) +
+                      "x" + std::to_string(kHeight) + "+0+0 +repage " + grab.string());
     std::ofstream(grabbed + "-" + name).put('\n');
   }
   ASSERT_EQ(viewer.wait(), 0) << slurp(output);
@@ -294,7 +267,7 @@ void expectScreenshotsMatchRender(const std::string& device) {
     const fs::path camera = dir.path() / (name + ".json");
     const std::string common = std::string(SVO_BINARY) + " render " + store.string() + " --camera " +
                                camera.string() + " --budget 64M";
-    const std::string rendered = run(common + " -o " + (dir.path() / (name + ".png")).string());
+    const std::string rendered = svotest::runShell(common + " -o " + (dir.path() / (name + ".png")).string());
     ASSERT_NE(rendered.find("wrote"), std::string::npos) << rendered;
     expectSameImage(dir.path() / ("grab_" + name + ".png"), dir.path() / (name + ".png"));
     if (name == "far") expectSameImage(screenshot, dir.path() / "far.png");
@@ -307,7 +280,7 @@ void expectScreenshotsMatchRender(const std::string& device) {
         << viewed;
     EXPECT_EQ(m[1], slices) << viewed << rendered;
     EXPECT_NE(viewed.find("overlay: slices in flight 0, wanted 0, converged"), std::string::npos) << viewed;
-    const std::string exr = run(common + " --aux -o " + (dir.path() / "close.exr").string());
+    const std::string exr = svotest::runShell(common + " --aux -o " + (dir.path() / "close.exr").string());
     ASSERT_NE(exr.find("wrote"), std::string::npos) << exr;
     const svo::StoreReader reader(store);
     const int deepest = deepestLevelOfExr(dir.path() / "close.exr", 45.0, reader.header().transform.size);
