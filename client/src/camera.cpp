@@ -19,6 +19,8 @@ constexpr double kDefaultFovDegrees = 45.0;
 constexpr int kDefaultImageSide = 512;
 // |sin| of the angle between up and the view below which the camera basis is ill-conditioned.
 constexpr double kParallelSine = 1e-9;
+// framingBox keeps the eye at least this fraction of the box's diagonal in front of its nearest corner.
+constexpr double kNearFraction = 1e-3;
 
 double radians(double degrees) {
   return degrees * std::numbers::pi / 180.0;
@@ -81,14 +83,27 @@ void Camera::validate() const {
                              " must not be zero or parallel to the view direction");
 }
 
-Camera Camera::framing(const SceneTransform& scene, glm::dvec3 viewDirection, int width, int height) {
+namespace {
+
+// A camera of the default field of view looking along `viewDirection` (-z when it is not a direction); its
+// unit forward vector is returned in `forward`. Eye and target are the caller's.
+Camera lookingAlong(glm::dvec3 viewDirection, int width, int height, glm::dvec3& forward) {
   Camera camera;
   camera.width = width;
   camera.height = height;
   camera.fovYDegrees = kDefaultFovDegrees;
   const double length = glm::length(viewDirection);
-  const glm::dvec3 forward =
-      (length > 0.0 && std::isfinite(length)) ? viewDirection / length : glm::dvec3(0.0, 0.0, -1.0);
+  forward = (length > 0.0 && std::isfinite(length)) ? viewDirection / length : glm::dvec3(0.0, 0.0, -1.0);
+  // Looking straight up or down: y cannot be up, so the image's top points along -z.
+  camera.up = std::abs(forward.y) > 0.999 ? glm::dvec3(0.0, 0.0, -1.0) : glm::dvec3(0.0, 1.0, 0.0);
+  return camera;
+}
+
+}  // namespace
+
+Camera Camera::framing(const SceneTransform& scene, glm::dvec3 viewDirection, int width, int height) {
+  glm::dvec3 forward;
+  Camera camera = lookingAlong(viewDirection, width, height, forward);
   // The octree's [1, 2]^3 is the world cube [origin, origin + size]^3.
   const glm::dvec3 centre = scene.origin + 0.5 * scene.size;
   const double radius = 0.5 * std::sqrt(3.0) * scene.size;
@@ -99,8 +114,37 @@ Camera Camera::framing(const SceneTransform& scene, glm::dvec3 viewDirection, in
   const double distance = radius / std::sin(halfAngle);
   camera.target = centre;
   camera.eye = centre - forward * distance;
-  // Looking straight up or down: y cannot be up, so the image's top points along -z.
-  camera.up = std::abs(forward.y) > 0.999 ? glm::dvec3(0.0, 0.0, -1.0) : glm::dvec3(0.0, 1.0, 0.0);
+  return camera;
+}
+
+Camera Camera::framingBox(glm::dvec3 lo, glm::dvec3 hi, glm::dvec3 viewDirection, int width, int height) {
+  glm::dvec3 forward;
+  Camera camera = lookingAlong(viewDirection, width, height, forward);
+  const glm::dvec3 centre = 0.5 * (lo + hi);
+  camera.target = centre;
+  camera.eye = centre - forward;  // only the basis is wanted here: it does not depend on the distance
+  const Basis basis = camera.basis();
+  const double tanHalfY = basis.tanHalf, tanHalfX = basis.tanHalf * basis.aspect;
+  // Each corner q (relative to the centre) projects inside the image when the eye is far enough back:
+  // |q.right| <= (distance + q.forward) tanHalfX, and the same vertically.
+  double distance = 0.0;
+  for (int corner = 0; corner < 8; ++corner) {
+    const glm::dvec3 q =
+        glm::dvec3(corner & 1 ? hi.x : lo.x, corner & 2 ? hi.y : lo.y, corner & 4 ? hi.z : lo.z) - centre;
+    const double along = glm::dot(q, basis.forward);
+    distance = std::max({distance, std::abs(glm::dot(q, basis.right)) / tanHalfX - along,
+                         std::abs(glm::dot(q, basis.up)) / tanHalfY - along});
+  }
+  // The eye stays in front of every corner (a box seen end-on projects to a point), and off the centre of a
+  // point-like box.
+  const double diagonal = glm::length(hi - lo);
+  for (int corner = 0; corner < 8; ++corner) {
+    const glm::dvec3 q =
+        glm::dvec3(corner & 1 ? hi.x : lo.x, corner & 2 ? hi.y : lo.y, corner & 4 ? hi.z : lo.z) - centre;
+    distance = std::max(distance, kNearFraction * diagonal - glm::dot(q, basis.forward));
+  }
+  if (!(distance > 0.0)) distance = 1.0;
+  camera.eye = centre - forward * distance;
   return camera;
 }
 

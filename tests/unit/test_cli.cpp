@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <regex>
 #include <sstream>
 #include <string>
 
@@ -506,6 +507,30 @@ TEST_F(Cli, BenchAccelWritesTablesMarkdownAndPlot) {
                      md.string() + "x");
   expectCleanFailure(svo("bench accel --scenes nowhere --markdown " + md.string() + "x"), "nowhere",
                      md.string() + "x");
+}
+
+TEST_F(Cli, BenchRaycastPrintsBothCamerasAndTheScalingPlot) {
+  const CommandResult r =
+      svo("bench raycast " + tetrahedron().string() + " --levels 5 --size 32 --runs 1 --threads 1,2");
+  ASSERT_EQ(r.exitCode, 0) << r.err;
+  // One row per camera and thread count, each with its iterations and error against Embree.
+  for (const char* row : {"tet +whole +1 ", "tet +whole +2 ", "tet +close +1 +100.0% ", "tet +close +2 +100.0% "})
+    EXPECT_TRUE(std::regex_search(r.out, std::regex(row))) << row << "\n" << r.out;
+
+  const fs::path out = dir_ / "raycast";
+  const CommandResult scaling =
+      svo("bench raycast --scaling 200,2k --levels 5 --size 32 --runs 1 --cameras whole -o " + out.string());
+  ASSERT_EQ(scaling.exitCode, 0) << scaling.err;
+  EXPECT_NE(scaling.out.find("whole camera: "), std::string::npos) << scaling.out;
+  const std::vector<std::string> plotted = plotRows(out / "raycast_scaling.png", 1400, 1000);
+  // A point per triangle count for each of the two.
+  EXPECT_EQ(countSeries(plotted, "ESVO castRay + beam"), 2u);
+  EXPECT_EQ(countSeries(plotted, "Embree rtcIntersect1"), 2u);
+
+  expectCleanFailure(svo("bench raycast --levels 5 -o " + out.string() + "x"), "--scaling", out.string() + "x");
+  expectCleanFailure(svo("bench raycast --scaling 5 -o " + out.string() + "x"), "'5'", out.string() + "x");
+  expectCleanFailure(svo("bench raycast " + tetrahedron().string() + " --scaling 1k -o " + out.string() + "x"),
+                     "not both", out.string() + "x");
 }
 
 TEST_F(Cli, GenWritesALoadableSceneAndRejectsBadParameters) {

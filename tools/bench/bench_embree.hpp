@@ -23,6 +23,7 @@
 #endif
 
 #include "bench_common.hpp"
+#include "mesh_shading.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo::tools::bench {
@@ -39,6 +40,7 @@ struct TraceResult {
   std::uint64_t hits = 0;
   double meanIterations = 0.0;           // ESVO only
   std::vector<std::uint32_t> primitive;  // Embree: primID per pixel (kNoPrimitive for a miss)
+  std::vector<glm::vec3> color;          // shaded traces only: linear RGB, the background for a miss
 };
 
 inline std::uint64_t countHits(const std::vector<float>& depth) {
@@ -92,11 +94,13 @@ class EmbreePeer {
   double buildSeconds() const { return buildSeconds_; }
 
   // rtcIntersect1 for every camera pixel ray; flush-to-zero and denormals-are-zero set in each task (and the
-  // thread's previous mode restored afterwards, so the ESVO runs on the same workers are not affected).
-  TraceResult trace(const Camera& camera, int threads) const {
+  // thread's previous mode restored afterwards, so the ESVO runs on the same workers are not affected). With
+  // `shading`, each hit is also shaded as svo::render shades a voxel (the like-for-like peer of a frame).
+  TraceResult trace(const Camera& camera, int threads, const MeshShading* shading = nullptr) const {
     TraceResult result;
     result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
     result.primitive.assign(result.depth.size(), kNoPrimitive);
+    if (shading) result.color.assign(result.depth.size(), shading->background());
     // Per-frame constants computed once, as svo::render does: the look-at basis and the eye relative to the
     // scene centre.
     const Camera::Basis basis = camera.basis();
@@ -130,6 +134,9 @@ class EmbreePeer {
           if (rayHit.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
             result.depth[std::size_t(y) * camera.width + x] = rayHit.ray.tfar;
             result.primitive[std::size_t(y) * camera.width + x] = rayHit.hit.primID;
+            if (shading)
+              result.color[std::size_t(y) * camera.width + x] =
+                  shading->shade(rayHit.hit.primID, rayHit.hit.u, rayHit.hit.v, direction);
           }
         }
       }

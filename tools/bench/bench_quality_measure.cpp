@@ -10,6 +10,7 @@
 #include <glm/geometric.hpp>
 
 #include "bench_quality.hpp"
+#include "mesh_shading.hpp"
 
 namespace svo::tools::bench {
 namespace {
@@ -41,18 +42,10 @@ std::unique_ptr<accel::Accel> buildReference(const Mesh& mesh) {
 // The mesh ray cast through the kd-tree, shaded like svo::render with interpolated normals and colors.
 Image renderReference(const Mesh& mesh, const accel::Accel& kd, const Camera& camera,
                       const RenderOptions& options, int threads) {
-  std::vector<glm::dvec3> normals(mesh.positions.size(), glm::dvec3(0.0));
-  for (const glm::uvec3& t : mesh.triangles) {
-    // Area-weighted: the unnormalized cross product is twice the area times the unit normal.
-    const glm::dvec3 n =
-        glm::cross(mesh.positions[t.y] - mesh.positions[t.x], mesh.positions[t.z] - mesh.positions[t.x]);
-    for (int k = 0; k < 3; ++k) normals[t[k]] += n;
-  }
-  const bool hasColor = mesh.hasColor();
-  const glm::vec3 light = glm::normalize(options.lightDirection);
+  const MeshShading shading(mesh, options);
   Image image;
   image.width = camera.width, image.height = camera.height;
-  image.color.assign(std::size_t(camera.width) * camera.height, options.background);
+  image.color.assign(std::size_t(camera.width) * camera.height, shading.background());
   image.depth.assign(image.color.size(), std::numeric_limits<float>::infinity());
   const Camera::Basis basis = camera.basis();
   forEachTile(camera.width, camera.height, 8, threads, [&](const PixelTile& tile) {
@@ -63,22 +56,8 @@ Image renderReference(const Mesh& mesh, const accel::Accel& kd, const Camera& ca
         Camera::pixelRay(camera, basis, x, y, ray.direction);
         const accel::Hit hit = kd.closestHit(ray);
         if (!hit.hit()) continue;
-        const glm::uvec3 t = mesh.triangles[hit.triangle];
-        const double w0 = 1.0 - hit.u - hit.v;
-        glm::dvec3 n = w0 * normals[t.x] + hit.u * normals[t.y] + hit.v * normals[t.z];
-        if (!(glm::length(n) > 0.0))
-          n = glm::cross(mesh.positions[t.y] - mesh.positions[t.x],
-                         mesh.positions[t.z] - mesh.positions[t.x]);
-        glm::vec3 albedo(kNeutralGreyAlbedo);
-        if (hasColor) {
-          glm::vec4 c = mesh.materialOf(hit.triangle).baseColor;
-          if (!mesh.colors.empty())
-            c *= float(w0) * mesh.colors[t.x] + float(hit.u) * mesh.colors[t.y] +
-                 float(hit.v) * mesh.colors[t.z];
-          albedo = glm::vec3(c);
-        }
         const std::size_t i = std::size_t(y) * camera.width + x;
-        image.color[i] = shadePhong(albedo, glm::vec3(glm::normalize(n)), glm::vec3(ray.direction), light);
+        image.color[i] = shading.shade(hit.triangle, hit.u, hit.v, ray.direction);
         image.depth[i] = float(hit.t);
       }
   });

@@ -1,12 +1,11 @@
-// `svo bench raycast MESH`: primary-ray throughput of the ESVO ray caster against Embree 3 on the source
-// triangles, same camera rays, same thread count, measured in the same run; plus the octree's bytes per leaf
-// voxel next to the paper's Table 1 and a pixel-by-pixel agreement check between the two.
+// `svo bench raycast MESH...`: primary-ray throughput of the ESVO ray caster against Embree 3 on the source
+// triangles, like for like (depth only against rtcIntersect1; shaded against Embree plus the same Phong
+// shading), same rays, same thread count, measured in the same run, on a whole-scene camera and a close-up;
+// with iterations per ray and the image error against Embree's frame. `--scaling 10k,...,10M`: the same
+// on generated scenes of growing triangle count at a fixed voxel resolution, as a table and a plot.
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstdint>
-#include <limits>
-#include <memory>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -14,16 +13,10 @@
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
-#include "bench_common.hpp"
-#include "bench_embree.hpp"
-#include "svo/builder/build.hpp"
-#include "svo/client/raycast.hpp"
-#include "svo/client/render.hpp"
-#include "svo/gpu/headless_gpu.hpp"
+#include "bench_raycast.hpp"
+#include "plot.hpp"
+#include "svo/builder/gen.hpp"
 
 namespace svo::tools::bench {
 
@@ -37,197 +30,167 @@ constexpr double kPaperContourBytes = 1.0;
 constexpr double kPaperColorBytes = 1.0;
 constexpr double kPaperNormalBytes = 2.0;
 
-struct RaycastArgs {
-  std::string mesh;
-  int levels = 10;
-  int size = 1024;
-  int runs = 5;
-  float lodPixels = 1.0f;
-  std::string view = defaultViewText();
-  int threads = 0;
-  int width = 0, height = 0;  // 0: --size
-  std::string device = "cpu";
-};
-
-// ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles, depth written like the
-// Embree peer does; with `beam`, each tile first runs the beam pass (sec. 6.2).
-TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
-                      int threads, bool beam) {
-  TraceResult result;
-  result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
-  const BlockView block = scene.root();
-  // Per-frame ray constants computed once, as svo::render does.
-  const PixelRays rays(scene.transform(), camera, options.lodPixels);
-  std::atomic<std::uint64_t> iterations{0};
-  forEachTile(camera.width, camera.height, kTileSize, threads, [&](const PixelTile& tile) {
-    iterations.fetch_add(castTile(block, rays, tile, beam, options.cast,
-                                  [&](int x, int y, const OctreeRay&, const CastHit& hit) {
-                                    result.depth[std::size_t(y) * camera.width + x] = hit.t;
-                                  }),
-                         std::memory_order_relaxed);
-  });
-  result.hits = countHits(result.depth);
-  result.meanIterations = double(iterations.load()) / double(result.depth.size());
-  return result;
+std::string mrays(double rays, const Timed& timed) {
+  return fmt::format("{:.2f}", mraysPerSecond(rays, timed.seconds.median));
 }
-
-struct Timed {
-  Summary seconds;
-  TraceResult last;  // the result of the last run
-};
-
-std::string mrays(double rays, double seconds) {
-  return fmt::format("{:.2f}", rays / seconds * 1e-6);
+std::string ratio(const Timed& ours, const std::optional<Timed>& peer) {
+  return peer ? fmt::format("{:.2f}x", peer->seconds.median / ours.seconds.median)
+              : std::string(kPeerNotBuilt);
 }
 std::string percent(std::uint64_t part, std::uint64_t whole) {
-  return fmt::format("{:.2f}%", whole ? 100.0 * double(part) / double(whole) : 0.0);
+  return fmt::format("{:.1f}%", whole ? 100.0 * double(part) / double(whole) : 0.0);
 }
 
-void addMethodRow(Table& table, const std::string& name, const Timed& timed, double rays, bool iterations,
-                  std::optional<double> peerMedianSeconds) {
-  table.addRow({name, mrays(rays, timed.seconds.median),
-                fmt::format("{} / {}", mrays(rays, timed.seconds.max), mrays(rays, timed.seconds.min)),
-                formatSeconds(timed.seconds.median), percent(timed.last.hits, timed.last.depth.size()),
-                iterations ? fmt::format("{:.1f}", timed.last.meanIterations) : std::string("-"),
-                peerMedianSeconds ? fmt::format("{:.3f}x", *peerMedianSeconds / timed.seconds.median)
-                                  : std::string(kPeerNotBuilt)});
-}
-
-void printMemory(const BuildStats& stats, const WholeScene& scene) {
-  const LayoutStats& layout = stats.layout;
-  const double leaves = double(std::max<std::uint64_t>(stats.leafVoxels, 1));
-  if (scene.isPaged()) {
-    printTitle(
-        fmt::format("Octree memory per leaf voxel ({} leaf voxels, paged)", formatCount(stats.leafVoxels)));
+void printMemory(const SceneResult& scene) {
+  const LayoutStats& layout = scene.stats.layout;
+  const double leaves = double(std::max<std::uint64_t>(scene.stats.leafVoxels, 1));
+  if (scene.paged) {
+    printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, paged)",
+                           formatCount(scene.stats.leafVoxels)));
     fmt::print(
         "the octree exceeds one block: its blocks in the pool take {:.1f} MB, {:.2f} B per leaf voxel "
         "(parts are split for one block only)\n",
-        double(scene.bytes()) / (1 << 20), double(scene.bytes()) / leaves);
+        double(scene.octreeBytes) / (1 << 20), double(scene.octreeBytes) / leaves);
     return;
   }
   const bool hasColor = layout.colorValues > 0 || layout.inheritedColors > 0;
   const double paperAttributes = (hasColor ? kPaperColorBytes : 0.0) + kPaperNormalBytes;
   const double paperTotal = kPaperHierarchyBytes + kPaperContourBytes + paperAttributes;
-  const double hierarchy = double(layout.hierarchyBytes) / leaves;
-  const double contours = double(layout.contourBytes) / leaves;
-  const double attributes = double(layout.attributeBytes) / leaves;
-  const double total = double(layout.totalBytes) / leaves;
-
   printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, block {:.1f} MB)",
-                         formatCount(stats.leafVoxels), double(scene.bytes()) / (1 << 20)));
+                         formatCount(scene.stats.leafVoxels), double(scene.octreeBytes) / (1 << 20)));
   Table table({"part", "ESVO B/voxel", "paper B/voxel", "ESVO/paper"});
-  const auto row = [&](std::string name, double ours, double paper) {
-    table.addRow({std::move(name), fmt::format("{:.2f}", ours), fmt::format("~{:.0f}", paper),
-                  fmt::format("{:.2f}x", ours / paper)});
+  const auto row = [&](std::string name, double bytes, double paper) {
+    table.addRow({std::move(name), fmt::format("{:.2f}", bytes / leaves), fmt::format("~{:.0f}", paper),
+                  fmt::format("{:.2f}x", bytes / leaves / paper)});
   };
-  row("hierarchy (incl. far pointers, page headers)", hierarchy, kPaperHierarchyBytes);
-  row("contours", contours, kPaperContourBytes);
+  row("hierarchy (incl. far pointers, page headers)", double(layout.hierarchyBytes), kPaperHierarchyBytes);
+  row("contours", double(layout.contourBytes), kPaperContourBytes);
   row(hasColor ? "attributes (color + normal, uncompressed)" : "attributes (normal only, uncompressed)",
-      attributes, paperAttributes);
-  row("total (incl. info section, padding)", total, paperTotal);
+      double(layout.attributeBytes), paperAttributes);
+  row("total (incl. info section, padding)", double(layout.totalBytes), paperTotal);
   table.print();
-  fmt::print("attribute values stored: {} colors ({} inherited), {} normals ({} inherited); {} contours\n",
-             formatCount(layout.colorValues), formatCount(layout.inheritedColors),
-             formatCount(layout.normalValues), formatCount(layout.inheritedNormals),
-             formatCount(stats.contours));
-  const double paperWithColor =
-      kPaperHierarchyBytes + kPaperContourBytes + kPaperColorBytes + kPaperNormalBytes;
   fmt::print(
-      "paper Table 1: ~{:.0f} B/voxel with compressed attributes (hierarchy ~{:.0f}, contours ~{:.0f}, "
-      "color {:.0f}, normal {:.0f}){}.\n",
-      paperWithColor, kPaperHierarchyBytes, kPaperContourBytes, kPaperColorBytes, kPaperNormalBytes,
+      "attribute values stored: {} colors ({} inherited), {} normals ({} inherited); {} contours. Paper "
+      "Table 1: ~5 B/voxel with compressed attributes{}.\n",
+      formatCount(layout.colorValues), formatCount(layout.inheritedColors), formatCount(layout.normalValues),
+      formatCount(layout.inheritedNormals), formatCount(scene.stats.contours),
       hasColor ? std::string()
                : fmt::format("; this scene has no color, so ~{:.0f} is the comparable figure", paperTotal));
-  fmt::print(
-      "uncompressed attributes here: {:.2f} B/voxel, {:.2f}x the paper's compressed {:.0f} ({:+.2f}); "
-      "total {:.2f} B/voxel, {:.2f}x the paper's ~{:.0f} ({:+.2f}).\n",
-      attributes, attributes / paperAttributes, paperAttributes, attributes - paperAttributes, total,
-      total / paperTotal, paperTotal, total - paperTotal);
 }
 
-void printAgreement([[maybe_unused]] const std::vector<float>& esvo, [[maybe_unused]] const TraceResult* peer,
-                    [[maybe_unused]] double finestVoxel) {
-  printTitle("Agreement, ESVO svo::render vs Embree (same camera rays)");
-  if (!peer) {
-    fmt::print("{}\n", kPeerNotBuilt);
-    return;
-  }
-  std::uint64_t both = 0, onlyEsvo = 0, onlyPeer = 0;
-  std::vector<double> difference;
-  for (std::size_t i = 0; i < esvo.size(); ++i) {
-    const bool a = std::isfinite(esvo[i]), b = std::isfinite(peer->depth[i]);
-    if (a && b) {
-      ++both;
-      difference.push_back(std::abs(double(esvo[i]) - double(peer->depth[i])) / finestVoxel);
-    } else if (a) {
-      ++onlyEsvo;
-    } else if (b) {
-      ++onlyPeer;
+void printScenes(const std::vector<SceneResult>& scenes) {
+  printTitle("Scenes");
+  Table table({"scene", "triangles", "levels", "leaf voxels", "octree", "B/leaf voxel", "ESVO build",
+               "Embree build"});
+  for (const SceneResult& s : scenes)
+    table.addRow(
+        {s.name, formatCount(s.triangles), std::to_string(s.levels), formatCount(s.stats.leafVoxels),
+         fmt::format("{:.1f} MB{}", double(s.octreeBytes) / (1 << 20), s.paged ? " paged" : ""),
+         fmt::format("{:.2f}",
+                     double(s.octreeBytes) / double(std::max<std::uint64_t>(s.stats.leafVoxels, 1))),
+         formatSeconds(s.esvoBuildSeconds),
+         s.embreeBuildSeconds > 0.0 ? formatSeconds(s.embreeBuildSeconds) : std::string(kPeerNotBuilt)});
+  table.print();
+}
+
+void printComparison(const std::vector<SceneResult>& scenes, const RaycastArgs& args) {
+  printTitle(fmt::format(
+      "Ray casting: ESVO vs Embree 3, same rays, same threads (Mrays/s, median of {} runs)", args.runs));
+  Table table({"scene", "camera", "thr", "hit px", "depth ESVO", "Embree", "ESVO/Embree", "shaded ESVO",
+               "Embree", "ESVO/Embree", "iter/ray", "PSNR dB", "depth p99", "silhouette"});
+  for (const SceneResult& s : scenes)
+    for (const CameraRow& r : s.rows) {
+      const bool peer = r.embreeShaded.has_value();
+      table.addRow({s.name, r.camera, std::to_string(r.threads),
+                    percent(r.esvoDepth.last.hits, r.esvoDepth.last.depth.size()), mrays(r.rays, r.esvoDepth),
+                    r.embreeDepth ? mrays(r.rays, *r.embreeDepth) : std::string(kPeerNotBuilt),
+                    ratio(r.esvoDepth, r.embreeDepth), mrays(r.rays, r.esvoShaded),
+                    r.embreeShaded ? mrays(r.rays, *r.embreeShaded) : std::string(kPeerNotBuilt),
+                    ratio(r.esvoShaded, r.embreeShaded),
+                    fmt::format("{:.1f}", r.esvoDepth.last.meanIterations),
+                    peer ? fmt::format("{:.1f}", r.quality.psnr) : "-",
+                    peer ? fmt::format("{:.2f} vx", r.quality.depthTailOffEdges) : "-",
+                    peer ? fmt::format("{:.2f}%", r.quality.silhouettePercent) : "-"});
+    }
+  table.print();
+  fmt::print(
+      "{} px, LOD {} px. whole: framed to the model's projected box; close: a surface patch from near enough "
+      "that every\n"
+      "pixel hits. depth: ESVO castRay with the beam pass (sec. 6.2, 8x8 tiles) vs rtcIntersect1; shaded: "
+      "svo::render vs\n"
+      "rtcIntersect1 plus the same Phong shading with normals (and colors) interpolated from the mesh. "
+      "ESVO/Embree > 1: ESVO\n"
+      "is faster. iter/ray: ESVO loop iterations per ray, all rays. PSNR, depth p99 (in finest voxels, where "
+      "both hit, off edges) and\n"
+      "silhouette (pixels hit by exactly one): ESVO's shaded frame against Embree's.\n",
+      args.width ? args.width : args.size, args.lodPixels);
+  for (const SceneResult& s : scenes)
+    for (const CameraRow& r : s.rows)
+      if (r.gpu)
+        fmt::print(
+            "GPU ({}), {} {}: {:.2f} Mrays/s shaded without the beam pass, frame read back included.\n",
+            r.gpuName, s.name, r.camera, mraysPerSecond(r.rays, r.gpu->seconds.median));
+}
+
+// Where ESVO's curve crosses Embree's: the triangle count at which their depth-only ratio passes 1,
+// interpolated on log axes between the two counts around it.
+std::string crossing(const std::vector<SceneResult>& scenes, const std::string& camera) {
+  std::vector<std::pair<double, double>> points;  // (triangles, ESVO/Embree)
+  for (const SceneResult& s : scenes)
+    for (const CameraRow& r : s.rows)
+      if (r.camera == camera && r.embreeDepth && r.threads == s.rows.front().threads)
+        points.emplace_back(double(s.triangles), r.embreeDepth->seconds.median / r.esvoDepth.seconds.median);
+  if (points.empty()) return "no Embree numbers";
+  for (std::size_t i = 1; i < points.size(); ++i) {
+    const auto [t0, r0] = points[i - 1];
+    const auto [t1, r1] = points[i];
+    if ((r0 < 1.0) != (r1 < 1.0)) {
+      const double f = std::log(r0) / (std::log(r0) - std::log(r1));
+      const double at = std::exp(std::log(t0) + f * (std::log(t1) - std::log(t0)));
+      return fmt::format("the curves cross at about {} triangles (ESVO {} beyond)",
+                         formatCount(std::uint64_t(at)), r1 >= 1.0 ? "ahead" : "behind");
     }
   }
-  const std::uint64_t pixels = esvo.size();
-  Table table({"pixels", "count", "fraction"});
-  table.addRow({"both hit", formatCount(both), percent(both, pixels)});
-  table.addRow({"exactly one hits (silhouette mismatch)", formatCount(onlyEsvo + onlyPeer),
-                percent(onlyEsvo + onlyPeer, pixels)});
-  table.addRow({"  ESVO only", formatCount(onlyEsvo), percent(onlyEsvo, pixels)});
-  table.addRow({"  Embree only", formatCount(onlyPeer), percent(onlyPeer, pixels)});
-  table.addRow({"neither", formatCount(pixels - both - onlyEsvo - onlyPeer),
-                percent(pixels - both - onlyEsvo - onlyPeer, pixels)});
+  return points.front().second >= 1.0 ? "ESVO ahead at every count" : "ESVO behind at every count";
+}
+
+void printScaling(const std::vector<SceneResult>& scenes, const RaycastArgs& args) {
+  printTitle(fmt::format("Scaling with the triangle count: generated {} at {} levels, {} threads",
+                         args.scalingKind, args.levels, scenes.front().rows.front().threads));
+  Table table({"triangles", "camera", "depth ESVO", "Embree", "ESVO/Embree", "shaded ESVO", "Embree",
+               "ESVO/Embree", "iter/ray", "leaf voxels"});
+  std::vector<plot::Panel> panels;
+  for (const std::string& camera : args.cameras) {
+    plot::Panel panel{fmt::format("{} camera, depth only", camera), {}};
+    plot::Series esvo{"ESVO castRay + beam", {}}, embree{"Embree rtcIntersect1", {}};
+    for (const SceneResult& s : scenes)
+      for (const CameraRow& r : s.rows) {
+        if (r.camera != camera) continue;
+        table.addRow({formatCount(s.triangles), camera, mrays(r.rays, r.esvoDepth),
+                      r.embreeDepth ? mrays(r.rays, *r.embreeDepth) : std::string(kPeerNotBuilt),
+                      ratio(r.esvoDepth, r.embreeDepth), mrays(r.rays, r.esvoShaded),
+                      r.embreeShaded ? mrays(r.rays, *r.embreeShaded) : std::string(kPeerNotBuilt),
+                      ratio(r.esvoShaded, r.embreeShaded),
+                      fmt::format("{:.1f}", r.esvoDepth.last.meanIterations),
+                      formatCount(s.stats.leafVoxels)});
+        esvo.points.emplace_back(double(s.triangles), mraysPerSecond(r.rays, r.esvoDepth.seconds.median));
+        if (r.embreeDepth)
+          embree.points.emplace_back(double(s.triangles),
+                                     mraysPerSecond(r.rays, r.embreeDepth->seconds.median));
+      }
+    panel.series = {esvo, embree};
+    panels.push_back(std::move(panel));
+  }
   table.print();
-  if (difference.empty()) {
-    fmt::print("no pixel hit by both: no depth comparison\n");
-    return;
-  }
-  // 95th percentile of the depth difference: the tail beside the median.
-  constexpr double kTailQuantile = 0.95;
-  std::sort(difference.begin(), difference.end());
-  const double median = summarize(difference).median;
-  const double tail =
-      difference[std::min(difference.size() - 1, std::size_t(kTailQuantile * difference.size()))];
-  fmt::print(
-      "|depth difference| where both hit, in finest voxels ({:.4g} world units): median {:.3f}, "
-      "95th percentile {:.3f}, max {:.3f}\n",
-      finestVoxel, median, tail, difference.back());
+  for (const std::string& camera : args.cameras)
+    fmt::print("{} camera: {}.\n", camera, crossing(scenes, camera));
+  std::filesystem::create_directories(args.output);
+  const std::filesystem::path png = std::filesystem::path(args.output) / "raycast_scaling.png";
+  plot::writeLogLogPlot(png, panels, "triangles", "Mrays/s");
+  fmt::print("wrote {}\n", png.string());
 }
 
-// The GPU caster's shaded frames of the same camera (--device gpu): the octree uploaded once (a paged one
-// through the pool's mirror), then timed like the CPU methods. `name` receives the device's name.
-Timed timeGpu(const WholeScene& scene, const Camera& camera, const RenderOptions& options, int runs,
-              std::string& name) {
-  std::unique_ptr<gpu::HeadlessGpu> device;
-  try {
-    device = std::make_unique<gpu::HeadlessGpu>();
-  } catch (const gpu::GpuUnavailable& e) {
-    throw std::runtime_error(std::string("--device gpu: ") + e.what());
-  }
-  name = device->renderer();
-  gpu::GpuCaster& caster = device->caster();
-  std::unique_ptr<gpu::GpuPool> pool;
-  const BlockView root = scene.root();
-  std::uint32_t rootSlot = root.info().rootSlot;
-  if (scene.isPaged()) {
-    pool = std::make_unique<gpu::GpuPool>(caster, *scene.pager());
-    pool->sync();
-    rootSlot = scene.pager()->takePoolChanges().rootSlot;
-  } else {
-    caster.reserve(root.size());
-    caster.upload(0, std::span<const std::byte>(root.base(), root.size()));
-  }
-  const bool colors = root.attachment(AttachmentType::Color) != nullptr;
-  const bool normals = root.attachment(AttachmentType::Normal) != nullptr;
-  spdlog::info("ESVO on the GPU ({}): 1 warm-up + {} runs ...", name, runs);
-  Timed timed;
-  Frame frame;
-  timed.seconds = timeRuns(
-      runs, [&] { frame = caster.render(rootSlot, colors, normals, scene.transform(), camera, options); });
-  timed.last.depth = std::move(frame.depth);
-  timed.last.hits = countHits(timed.last.depth);
-  timed.last.meanIterations = frame.meanIterations;
-  return timed;
-}
-
-void runRaycastBench(const RaycastArgs& args) {
+void validate(const RaycastArgs& args) {
   if (args.levels < 1 || args.levels > kMaxLevels)
     throw UsageError(fmt::format("--levels must be in [1, {}] (got {})", kMaxLevels, args.levels));
   if (args.size < 1 || args.size > kMaxImageSize)
@@ -235,123 +198,72 @@ void runRaycastBench(const RaycastArgs& args) {
   requireRuns(args.runs);
   if (!std::isfinite(args.lodPixels) || args.lodPixels < 0.0f)
     throw UsageError(fmt::format("--lod-pixels must be a finite number >= 0 (got {})", args.lodPixels));
-  const glm::dvec3 view = parseDirection(args.view, "--view");
-  const int threads = resolveThreads(args.threads);
+  parseDirection(args.view, "--view");
+  if (args.meshes.empty() == args.scaling.empty())
+    throw UsageError("give either meshes or --scaling COUNTS, not both");
+  if (!args.scaling.empty() && !parseSceneKind(args.scalingKind))
+    throw UsageError(
+        fmt::format("--scaling-scene must be one of {} (got '{}')", sceneKindList(), args.scalingKind));
+}
 
-  const Mesh mesh = loadBenchMesh(args.mesh);
-  BuildOptions buildOptions;
-  buildOptions.levels = args.levels;
-  BuildStats stats;
-  spdlog::info("building the octree, {} levels ...", args.levels);
-  const SceneTransform transform = fitSceneCube(mesh);
-  const BuildParameters parameters = storedParameters(buildOptions);
-  // Where the octree exceeds one block it is paged whole from a scratch store, removed however this ends.
-  const ScratchPath scratch("svo-bench-raycast.svo");
-  std::optional<WholeScene> scene;
-  const double esvoBuildSeconds = timeSeconds([&] {
-    const VoxelTree tree = voxelize(mesh, transform, buildOptions, &stats);
-    scene.emplace(wholeSceneOf(tree, transform, parameters, scratch.path(), &stats.layout));
-  });
-  const Camera camera = Camera::framing(transform, view, args.width ? args.width : args.size,
-                                        args.height ? args.height : args.size);
-  camera.validate();
-  const double rays = double(camera.width) * camera.height;
-  const double finestVoxel = transform.size / double(std::int64_t(1) << args.levels);
-
-  RenderOptions renderOptions;
-  renderOptions.lodPixels = args.lodPixels;
-  renderOptions.threads = threads;
-
-  spdlog::info("ESVO svo::render: 1 warm-up + {} runs ...", args.runs);
-  Timed shaded;
-  {
-    Frame frame;
-    shaded.seconds =
-        timeRuns(args.runs, [&] { frame = render(scene->root(), transform, camera, renderOptions); });
-    shaded.last.depth = std::move(frame.depth);
-    shaded.last.hits = countHits(shaded.last.depth);
-    shaded.last.meanIterations = frame.meanIterations;
-  }
-  spdlog::info("ESVO castRay only: 1 warm-up + {} runs ...", args.runs);
-  Timed cast;
-  cast.seconds =
-      timeRuns(args.runs, [&] { cast.last = traceEsvo(*scene, camera, renderOptions, threads, false); });
-  spdlog::info("ESVO castRay with the beam pass: 1 warm-up + {} runs ...", args.runs);
-  Timed beamed;
-  beamed.seconds =
-      timeRuns(args.runs, [&] { beamed.last = traceEsvo(*scene, camera, renderOptions, threads, true); });
-
-  std::optional<Timed> onGpu, onGpuBeam;
-  std::string gpuName;
-  if (args.device == "gpu") {
-    RenderOptions noBeam = renderOptions;
-    noBeam.beamTile = 0;
-    onGpu = timeGpu(*scene, camera, noBeam, args.runs, gpuName);
-    onGpuBeam = timeGpu(*scene, camera, renderOptions, args.runs, gpuName);
-  }
-
-  std::optional<double> peerSeconds;
-  std::optional<Timed> peer;
-  [[maybe_unused]] double peerBuildSeconds = 0.0;
-#ifdef SVO_BENCH_PEERS
-  spdlog::info("Embree: building the BVH (quality high) ...");
-  const EmbreePeer embree(mesh, transform.toWorld(glm::dvec3(1.5)));
-  peerBuildSeconds = embree.buildSeconds();
-  spdlog::info("Embree rtcIntersect1: 1 warm-up + {} runs ...", args.runs);
-  peer.emplace();
-  peer->seconds = timeRuns(args.runs, [&] { peer->last = embree.trace(camera, threads); });
-  peerSeconds = peer->seconds.median;
-#endif
-
-  printTitle("Ray casting: ESVO vs Embree 3, same camera rays");
-  fmt::print("{}: {} triangles; {}x{} primary rays; {} levels; lod {} px; {} threads; median of {} runs\n",
-             args.mesh, formatCount(mesh.triangles.size()), camera.width, camera.height, args.levels,
-             args.lodPixels, threads, args.runs);
-  Table table({"method", "Mrays/s", "min/max", "time", "hit px", "iter/ray", "vs Embree"});
-  addMethodRow(table, "ESVO svo::render (shaded)", shaded, rays, true, peerSeconds);
-  addMethodRow(table, "ESVO castRay (depth only)", cast, rays, true, peerSeconds);
-  addMethodRow(table, "ESVO castRay + beam (depth only)", beamed, rays, true, peerSeconds);
-  if (onGpu) {
-    addMethodRow(table, "ESVO OpenGL compute (shaded, GPU)", *onGpu, rays, true, peerSeconds);
-    addMethodRow(table, "ESVO OpenGL compute + beam (GPU)", *onGpuBeam, rays, true, peerSeconds);
-  }
-  if (peer) {
-    addMethodRow(table, "Embree 3 rtcIntersect1", *peer, rays, false, peerSeconds);
+// --threads: the counts given, or 1 and every core.
+std::vector<int> threadCounts(const RaycastArgs& args) {
+  std::vector<int> counts;
+  if (args.threads.empty()) {
+    counts = {1, resolveThreads(0)};
   } else {
-    table.addRow({"Embree 3 rtcIntersect1", std::string(kPeerNotBuilt)});
+    for (int t : args.threads) counts.push_back(resolveThreads(t));
   }
-  table.print();
-  fmt::print(
-      "Mrays/s: median, min/max over the runs; time: median wall time of one frame; iter/ray: ESVO loop\n"
-      "iterations per ray, all rays; vs Embree: throughput ratio (> 1: faster than Embree). svo::render\n"
-      "uses the beam pass (sec. 6.2, {}x{} tiles); castRay rows without and with it; every method traces "
-      "the\n"
-      "same 8x8 pixel tiles.\n"
-      "Build: ESVO octree {}, Embree BVH {}.\n",
-      renderOptions.beamTile, renderOptions.beamTile, formatSeconds(esvoBuildSeconds),
-      peer ? formatSeconds(peerBuildSeconds) : std::string(kPeerNotBuilt));
-  // The beam pass must not change any ray's result: count the pixels where it does.
-  std::uint64_t beamChanged = 0;
-  for (std::size_t i = 0; i < cast.last.depth.size(); ++i)
-    beamChanged += !(cast.last.depth[i] == beamed.last.depth[i] ||
-                     (std::isinf(cast.last.depth[i]) && std::isinf(beamed.last.depth[i])));
-  fmt::print("beam pass vs none: {} of {} pixels differ in depth.\n", formatCount(beamChanged),
-             formatCount(cast.last.depth.size()));
+  std::sort(counts.begin(), counts.end());
+  counts.erase(std::unique(counts.begin(), counts.end()), counts.end());
+  return counts;
+}
 
-  if (onGpu) {
-    // The beam pass changes no ray's result: the GPU's depths should equal castRay's bit for bit.
-    std::uint64_t same = 0;
-    for (std::size_t i = 0; i < cast.last.depth.size(); ++i)
-      same += cast.last.depth[i] == onGpu->last.depth[i] ||
-              (std::isinf(cast.last.depth[i]) && std::isinf(onGpu->last.depth[i]));
-    fmt::print(
-        "GPU: {}; {:.2f}x the CPU svo::render on this machine ({} threads); depth equal to castRay's on "
-        "{} of {} pixels. Its time includes reading the frame back.\n",
-        gpuName, shaded.seconds.median / onGpu->seconds.median, threads, formatCount(same),
-        formatCount(cast.last.depth.size()));
+// "10k,100k,1M" -> counts within what svo gen accepts.
+std::vector<std::uint64_t> scalingCounts(const std::string& text) {
+  std::vector<std::uint64_t> counts;
+  std::size_t start = 0;
+  while (start <= text.size()) {
+    const std::size_t end = std::min(text.find(',', start), text.size());
+    const std::string word = text.substr(start, end - start);
+    const std::optional<std::uint64_t> count = parseCount(word);
+    if (!count || *count < kMinGenTriangles || *count > kMaxGenTriangles)
+      throw UsageError(fmt::format("--scaling: '{}' is not a triangle count in [{}, {}]", word,
+                                   formatCount(kMinGenTriangles), formatCount(kMaxGenTriangles)));
+    counts.push_back(*count);
+    start = end + 1;
   }
-  printMemory(stats, *scene);
-  printAgreement(shaded.last.depth, peer ? &peer->last : nullptr, finestVoxel);
+  std::sort(counts.begin(), counts.end());
+  return counts;
+}
+
+void runRaycastBench(const RaycastArgs& args) {
+  validate(args);
+  const std::vector<int> threads = threadCounts(args);
+  std::vector<SceneResult> scenes;
+  if (!args.scaling.empty()) {
+    // One thread count (the largest): the sweep is about the triangle count.
+    const std::vector<int> sweepThreads{threads.back()};
+    for (std::uint64_t count : scalingCounts(args.scaling)) {
+      GenOptions gen;
+      gen.kind = *parseSceneKind(args.scalingKind);
+      gen.triangles = count;
+      spdlog::info("generating {} with {} triangles ...", args.scalingKind, formatCount(count));
+      const Mesh mesh = generateScene(gen);
+      scenes.push_back(
+          benchScene(mesh, fmt::format("{} {}", args.scalingKind, formatCount(count)), args, sweepThreads));
+    }
+    printScenes(scenes);
+    printScaling(scenes, args);
+    return;
+  }
+  for (const std::string& path : args.meshes) {
+    const Mesh mesh = loadBenchMesh(path);
+    scenes.push_back(benchScene(mesh, std::filesystem::path(path).stem().string(), args, threads));
+  }
+  printScenes(scenes);
+  printComparison(scenes, args);
+  if (scenes.size() == 1) printMemory(scenes.front());
 }
 
 }  // namespace
@@ -359,8 +271,15 @@ void runRaycastBench(const RaycastArgs& args) {
 void addRaycastBench(CLI::App& bench) {
   auto args = std::make_shared<RaycastArgs>();
   CLI::App* cmd = bench.add_subcommand(
-      "raycast", "ESVO ray caster vs Embree 3 on the source triangles: Mrays/s, bytes/voxel, agreement");
-  cmd->add_option("mesh", args->mesh, "triangle mesh (OBJ, PLY, STL, glTF, ...)")->required();
+      "raycast",
+      "ESVO ray caster vs Embree 3 on the source triangles, like for like: Mrays/s, iterations, image error");
+  cmd->add_option("meshes", args->meshes, "triangle meshes (OBJ, PLY, STL, glTF, ...): one table row each");
+  cmd->add_option("--scaling", args->scaling,
+                  "instead of meshes: generated scenes of these triangle counts (e.g. 10k,100k,1M,10M), "
+                  "a table and raycast_scaling.png");
+  cmd->add_option("--scaling-scene", args->scalingKind,
+                  "the generated scene of --scaling: " + sceneKindList())
+      ->capture_default_str();
   cmd->add_option("--levels", args->levels, "octree depth")->capture_default_str();
   cmd->add_option("--size", args->size, "image width and height in pixels")->capture_default_str();
   cmd->add_option("--runs", args->runs, "timed runs per method (after one warm-up); the median is reported")
@@ -368,8 +287,14 @@ void addRaycastBench(CLI::App& bench) {
   cmd->add_option("--lod-pixels", args->lodPixels,
                   "ESVO level of detail: stop at voxels this many pixels wide")
       ->capture_default_str();
-  cmd->add_option("--view", args->view, "view direction x,y,z for Camera::framing")->capture_default_str();
-  cmd->add_option("--threads", args->threads, "threads for every method (0 = all cores)")
+  cmd->add_option("--view", args->view, "view direction x,y,z of the whole-scene camera")
+      ->capture_default_str();
+  cmd->add_option("--threads", args->threads,
+                  "thread counts to measure, e.g. 1,2 (0 = all cores; default: 1 and all cores)")
+      ->delimiter(',');
+  cmd->add_option("--cameras", args->cameras, "whole (framed to the projected box), close (every pixel hits)")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"whole", "close"}))
       ->capture_default_str();
   cmd->add_option("--width", args->width, "image width (default: --size)")
       ->check(CLI::Range(1, kMaxImageSize));
@@ -379,6 +304,9 @@ void addRaycastBench(CLI::App& bench) {
                   "gpu adds the OpenGL 4.5 compute caster (headless EGL; Mesa's llvmpipe without a GPU)")
       ->check(CLI::IsMember({"cpu", "gpu"}))
       ->capture_default_str();
+  cmd->add_option("-o,--output", args->output, "folder for the scaling plot and --images")
+      ->capture_default_str();
+  cmd->add_flag("--images", args->images, "write each camera's ESVO and Embree frames as PNG");
   cmd->callback([args] { runRaycastBench(*args); });
 }
 

@@ -1,6 +1,9 @@
 #include "report.hpp"
 
 #include <algorithm>
+#include <cctype>
+#include <charconv>
+#include <cmath>
 #include <stdexcept>
 
 #include <fmt/format.h>
@@ -72,6 +75,34 @@ std::string formatCount(std::uint64_t count) {
     out += digits[i];
   }
   return out;
+}
+
+std::optional<std::uint64_t> parseCount(const std::string& text) {
+  double value = 0.0;
+  const char* end = text.data() + text.size();
+  const auto [rest, ec] = std::from_chars(text.data(), end, value);
+  if (ec != std::errc() || text.empty() || !(value >= 0.0)) return std::nullopt;
+  double scale = 1.0;
+  if (rest != end) {
+    if (rest + 1 != end) return std::nullopt;
+    switch (std::toupper(static_cast<unsigned char>(*rest))) {
+      case 'K':
+        scale = 1e3;
+        break;
+      case 'M':
+        scale = 1e6;
+        break;
+      case 'G':
+        scale = 1e9;
+        break;
+      default:
+        return std::nullopt;
+    }
+  }
+  const double count = std::round(value * scale);
+  // Beyond 2^63 the conversion is undefined; such counts are rejected by the range check anyway.
+  if (count > 9e18) return std::uint64_t(9e18);
+  return std::uint64_t(count);
 }
 
 }  // namespace svo::tools

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -38,5 +39,7 @@ void printTitle(std::string_view title, std::FILE* out = stdout);
 std::string formatSeconds(double seconds);
 // "12,345,678".
 std::string formatCount(std::uint64_t count);
+// "20000", "20k", "20M", "1.5G" (decimal multipliers) -> a count; nullopt when it is not one.
+std::optional<std::uint64_t> parseCount(const std::string& text);
 
 }  // namespace svo::tools

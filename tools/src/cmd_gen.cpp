@@ -15,6 +15,7 @@
 
 #include "commands.hpp"
 #include "progress.hpp"
+#include "report.hpp"
 #include "stability.hpp"
 #include "svo/builder/gen.hpp"
 
@@ -26,35 +27,6 @@ namespace {
 constexpr double kMeshBytesPerTriangle = 48.0;
 // Below this many triangles generating and writing take well under a second: no progress bar.
 constexpr std::uint64_t kProgressTriangles = 1'000'000;
-
-// "20000", "20k", "20M", "1.5G" (decimal multipliers) -> a count; nullopt when it is not one.
-std::optional<std::uint64_t> parseCount(const std::string& text) {
-  double value = 0.0;
-  const char* end = text.data() + text.size();
-  const auto [rest, ec] = std::from_chars(text.data(), end, value);
-  if (ec != std::errc() || text.empty() || !(value >= 0.0)) return std::nullopt;
-  double scale = 1.0;
-  if (rest != end) {
-    if (rest + 1 != end) return std::nullopt;
-    switch (std::toupper(static_cast<unsigned char>(*rest))) {
-      case 'K':
-        scale = 1e3;
-        break;
-      case 'M':
-        scale = 1e6;
-        break;
-      case 'G':
-        scale = 1e9;
-        break;
-      default:
-        return std::nullopt;
-    }
-  }
-  const double count = std::round(value * scale);
-  // Beyond 2^63 the conversion is undefined; such counts are rejected by the range check anyway.
-  if (count > 9e18) return std::uint64_t(9e18);
-  return std::uint64_t(count);
-}
 
 double physicalMemoryBytes() {
   const long pages = ::sysconf(_SC_PHYS_PAGES), pageSize = ::sysconf(_SC_PAGE_SIZE);

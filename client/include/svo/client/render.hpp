@@ -41,6 +41,9 @@ struct Camera {
   void validate() const;
   // A camera looking at the whole scene cube from the given direction.
   static Camera framing(const SceneTransform& scene, glm::dvec3 viewDirection, int width, int height);
+  // A camera looking along viewDirection at the box [lo, hi] from just far enough that all its corners
+  // project into the image: the box fills the frame's width or height (no bounding sphere's slack).
+  static Camera framingBox(glm::dvec3 lo, glm::dvec3 hi, glm::dvec3 viewDirection, int width, int height);
 };
 // The direction the commands look at a whole scene from when given no camera: from the front, slightly
 // above and to the right, so that no face of the scene cube is seen edge-on.
