@@ -5,29 +5,13 @@
 #include "svo/client/raycast.hpp"
 
 #include <algorithm>
-#include <bit>
 #include <cmath>
 
+#include "ray_setup.hpp"
+
 namespace svo {
-namespace {
 
-constexpr int kScaleMax = kMaxLevels;  // s_max: 23 mantissa bits
-// Direction components below 2^-23 of the largest one (rounded down to a power of two) are clamped to +-that
-// (released code: 2^-23 for its unit-scale rays; relative here, since a ray's direction carries the scene's
-// scale): no division by zero and no infinities, while still far steeper than any voxel the float positions
-// can address.
-constexpr float kMinDirection = 1.0f / float(1 << kScaleMax);
-// Below this |n.d| a ray runs parallel to a contour slab: inside it or outside, never through it.
-constexpr float kParallelContour = 1e-20f;
-
-inline float asFloat(std::uint32_t bits) {
-  return std::bit_cast<float>(bits);
-}
-inline std::uint32_t asBits(float f) {
-  return std::bit_cast<std::uint32_t>(f);
-}
-
-}  // namespace
+using namespace ray_setup;
 
 float CastHit::voxelSize() const {
   return std::ldexp(1.0f, scale - kScaleMax);
@@ -35,32 +19,13 @@ float CastHit::voxelSize() const {
 
 CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options) {
   CastHit hit;
-  glm::vec3 d = ray.direction;
-  const glm::vec3 o = ray.origin;
-  if (!std::isfinite(d.x) || !std::isfinite(d.y) || !std::isfinite(d.z) || !std::isfinite(o.x) ||
-      !std::isfinite(o.y) || !std::isfinite(o.z) || d == glm::vec3(0.0f))
-    return hit;
-  // A power of two, so that the clamped axis' t = position * coef - bias stays exact on the voxel grid (a
-  // ray exactly in a voxel face keeps t = 0 there, not a rounding residue).
-  const float minComponent =
-      std::ldexp(kMinDirection, std::ilogb(std::max({std::abs(d.x), std::abs(d.y), std::abs(d.z)})));
-  for (int i = 0; i < 3; ++i)
-    if (std::abs(d[i]) < minComponent) d[i] = std::copysign(minComponent, d[i]);
-
-  // t_x(x) = x * tx_coef - tx_bias, in the mirrored system where every direction component is negative.
-  float tx_coef = 1.0f / -std::abs(d.x), ty_coef = 1.0f / -std::abs(d.y), tz_coef = 1.0f / -std::abs(d.z);
-  float tx_bias = tx_coef * o.x, ty_bias = ty_coef * o.y, tz_bias = tz_coef * o.z;
-  int octant_mask = 7;
-  if (d.x > 0.0f) octant_mask ^= 1, tx_bias = 3.0f * tx_coef - tx_bias;
-  if (d.y > 0.0f) octant_mask ^= 2, ty_bias = 3.0f * ty_coef - ty_bias;
-  if (d.z > 0.0f) octant_mask ^= 4, tz_bias = 3.0f * tz_coef - tz_bias;
-
-  // Active t-span: the root cube, clipped to [0, tMax].
-  float t_min = std::max({2.0f * tx_coef - tx_bias, 2.0f * ty_coef - ty_bias, 2.0f * tz_coef - tz_bias});
-  float t_max = std::min({tx_coef - tx_bias, ty_coef - ty_bias, tz_coef - tz_bias});
-  t_min = std::max(t_min, std::max(ray.tMin, 0.0f));
-  t_max = std::min(t_max, ray.tMax);
-  if (!(t_min <= t_max)) return hit;
+  MirroredRay m;
+  if (!mirrorRay(ray, m)) return hit;
+  const glm::vec3 d = m.d;
+  const float tx_coef = m.tx_coef, ty_coef = m.ty_coef, tz_coef = m.tz_coef;
+  const float tx_bias = m.tx_bias, ty_bias = m.ty_bias, tz_bias = m.tz_bias;
+  const int octant_mask = m.octant_mask;
+  float t_min = m.t_min, t_max = m.t_max;
 
   struct StackEntry {
     const ChildDescriptor* parent;
@@ -71,13 +36,10 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   ChildDescriptor descriptor{};
   bool cached = false;
   std::uint8_t validMask = 0, nonLeafMask = 0;
-  int idx = 0;
-  glm::vec3 pos(1.0f);
+  int idx = m.idx;
+  glm::vec3 pos = m.pos;
   int scale = kScaleMax - 1;
   float scale_exp2 = 0.5f;
-  if (1.5f * tx_coef - tx_bias > t_min) idx ^= 1, pos.x = 1.5f;
-  if (1.5f * ty_coef - ty_bias > t_min) idx ^= 2, pos.y = 1.5f;
-  if (1.5f * tz_coef - tz_bias > t_min) idx ^= 4, pos.z = 1.5f;
 
   int iterations = 0;
   bool found = false;
@@ -108,24 +70,9 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
       const float tx_center = half * tx_coef + tx_corner;
       const float ty_center = half * ty_coef + ty_corner;
       const float tz_center = half * tz_coef + tz_corner;
-      if (options.contours && (descriptor.contourMask() >> slot & 1)) {
-        const auto* words = reinterpret_cast<const std::uint32_t*>(parent) + descriptor.contourPointer();
-        const Contour c = decodeContour(words[childRank(descriptor.contourMask(), slot)]);
-        // Slab |n.(x - centre)/size - position| <= thickness/2 along x = o + t d, with n.(centre - o)
-        // = sum n_i d_i t_center_i (t_center_i is where the ray crosses the centre plane of axis i).
-        const float den = c.normal.x * d.x + c.normal.y * d.y + c.normal.z * d.z;
-        const float num = c.normal.x * d.x * tx_center + c.normal.y * d.y * ty_center +
-                          c.normal.z * d.z * tz_center + scale_exp2 * c.position;
-        const float halfWidth = 0.5f * scale_exp2 * c.thickness;
-        if (std::abs(den) > kParallelContour) {
-          const float inv = 1.0f / den;
-          const float tmid = num * inv, tdiff = std::abs(halfWidth * inv);
-          t_min = std::max(t_min, tmid - tdiff);
-          tv_max = std::min(tv_max, tmid + tdiff);
-        } else if (std::abs(num) > halfWidth) {
-          tv_max = -1.0f;  // parallel and outside: the voxel's shape is not on this ray
-        }
-      }
+      if (options.contours && (descriptor.contourMask() >> slot & 1))
+        clipToContour(contourOf(parent, descriptor, slot), d, tx_center, ty_center, tz_center, scale_exp2,
+                      t_min, tv_max);
       if (t_min <= tv_max) {
         const ChildDescriptor* child = nullptr;
         if (nonLeafMask >> slot & 1) {
@@ -189,20 +136,7 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   hit.iterations = iterations;
   if (!found) return hit;
 
-  // Undo the mirroring and clamp the hit position into the voxel's cube (sec. 6.1).
-  if ((octant_mask & 1) == 0) pos.x = 3.0f - scale_exp2 - pos.x;
-  if ((octant_mask & 2) == 0) pos.y = 3.0f - scale_exp2 - pos.y;
-  if ((octant_mask & 4) == 0) pos.z = 3.0f - scale_exp2 - pos.z;
-  hit.hit = true;
-  hit.t = t_min;
-  hit.scale = scale;
-  hit.parent = parent;
-  hit.childSlot = idx ^ octant_mask ^ 7;
-  hit.cubeMin = pos;
-  const float inset = std::min(kMinDirection, 0.25f * scale_exp2);
-  for (int i = 0; i < 3; ++i)
-    hit.position[i] =
-        std::min(std::max(o[i] + t_min * ray.direction[i], pos[i] + inset), pos[i] + scale_exp2 - inset);
+  completeHit(ray, octant_mask, pos, scale_exp2, scale, t_min, parent, idx, hit);
   return hit;
 }
 

@@ -49,6 +49,14 @@ struct CastHit {
 // Casts one ray through the block. Never returns NaN; never loops forever.
 CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options = {});
 
+// Rays castPacket casts together: the lanes of an AVX2 register (castTile: a 4x2 block of pixels).
+inline constexpr int kPacketLanes = 8;
+// castRay for `count` <= kPacketLanes rays at once, in SIMD lanes on a CPU with AVX2, else one by one;
+// coherent rays (neighbouring pixels) keep the lanes busy together. hits[i] is castRay(block, rays[i],
+// options) bit for bit.
+void castPacket(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
+                CastHit* hits);
+
 // Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4).
 std::uint32_t hitAttribute(const BlockView& block, const CastHit& hit, AttachmentType type);
 

@@ -144,16 +144,27 @@ std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const Pixe
     if (!(tStart < std::numeric_limits<float>::infinity())) return 0;
   }
   std::uint64_t iterations = 0;
-  for (int y = tile.y0; y < tile.y1; ++y) {
-    for (int x = tile.x0; x < tile.x1; ++x) {
-      OctreeRay ray = rays(x, y);
-      ray.tMin = tStart;
-      const CastHit hit = castRay(block, ray, options);
-      iterations += std::uint64_t(hit.iterations);
-      if (hit.hit) {
-        onHit(x, y, ray, hit);
-      } else {
-        onMiss(x, y, hit);
+  // 4x2 pixel blocks, cast together (castPacket).
+  static_assert(kPacketLanes == 8);
+  for (int y = tile.y0; y < tile.y1; y += 2) {
+    for (int x = tile.x0; x < tile.x1; x += 4) {
+      OctreeRay quad[kPacketLanes];
+      int qx[kPacketLanes], qy[kPacketLanes], count = 0;
+      for (int dy = 0; dy < 2 && y + dy < tile.y1; ++dy)
+        for (int dx = 0; dx < 4 && x + dx < tile.x1; ++dx) {
+          qx[count] = x + dx, qy[count] = y + dy;
+          quad[count] = rays(x + dx, y + dy);
+          quad[count++].tMin = tStart;
+        }
+      CastHit hits[kPacketLanes];
+      castPacket(block, quad, count, options, hits);
+      for (int i = 0; i < count; ++i) {
+        iterations += std::uint64_t(hits[i].iterations);
+        if (hits[i].hit) {
+          onHit(qx[i], qy[i], quad[i], hits[i]);
+        } else {
+          onMiss(qx[i], qy[i], hits[i]);
+        }
       }
     }
   }

@@ -1,0 +1,199 @@
+// castPacket (client/raycast.hpp) against castRay, ray by ray: the same hit, t, voxel, position, path and
+// iteration count, bit for bit, over coherent pixel packets, incoherent random packets, stiff rays, partial
+// packets, iteration caps and a block pool's linked regions. castRay itself is checked against the
+// brute-force reference in test_raycast.cpp.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <fmt/format.h>
+#include <glm/geometric.hpp>
+
+#include "reference.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/client/pager.hpp"
+#include "svo/client/raycast.hpp"
+#include "svo/client/render.hpp"
+#include "svo/client/whole_scene.hpp"
+
+namespace {
+
+bool sameBits(float a, float b) {
+  return std::memcmp(&a, &b, sizeof a) == 0;
+}
+
+// Empty when the two hits agree in every field castRay defines; else what differs.
+std::string difference(const svo::CastHit& a, const svo::CastHit& b) {
+  if (a.hit != b.hit) return fmt::format("hit {} vs {}", a.hit, b.hit);
+  if (a.iterations != b.iterations) return fmt::format("iterations {} vs {}", a.iterations, b.iterations);
+  if (!a.hit) return {};
+  if (!sameBits(a.t, b.t)) return fmt::format("t {} vs {}", a.t, b.t);
+  if (a.scale != b.scale || a.parent != b.parent || a.childSlot != b.childSlot || a.leaf != b.leaf)
+    return "voxel";
+  for (int i = 0; i < 3; ++i)
+    if (!sameBits(a.position[i], b.position[i]) || !sameBits(a.cubeMin[i], b.cubeMin[i])) return "position";
+  for (int s = a.scale + 1; s < svo::kMaxLevels; ++s)
+    if (a.pathParent[s] != b.pathParent[s] || a.pathSlot[s] != b.pathSlot[s]) return "path";
+  return {};
+}
+
+std::string describe(const svo::OctreeRay& r) {
+  return fmt::format("o ({:.9g}, {:.9g}, {:.9g}) d ({:.9g}, {:.9g}, {:.9g}) tMin {:.9g} slope {:.9g}",
+                     r.origin.x, r.origin.y, r.origin.z, r.direction.x, r.direction.y, r.direction.z, r.tMin,
+                     r.footprintSlope);
+}
+
+// Casts `rays` in packets of `lanes` (the last one partial) and expects each hit to equal castRay's.
+void expectSameAsCastRay(const svo::BlockView& block, const std::vector<svo::OctreeRay>& rays,
+                         const svo::CastOptions& options, int lanes = svo::kPacketLanes) {
+  std::size_t hits = 0;
+  for (std::size_t first = 0; first < rays.size(); first += std::size_t(lanes)) {
+    const int count = int(std::min<std::size_t>(std::size_t(lanes), rays.size() - first));
+    svo::CastHit packet[svo::kPacketLanes];
+    svo::castPacket(block, &rays[first], count, options, packet);
+    for (int l = 0; l < count; ++l) {
+      const svo::CastHit single = svo::castRay(block, rays[first + std::size_t(l)], options);
+      const std::string why = difference(single, packet[l]);
+      ASSERT_TRUE(why.empty()) << why << " for ray " << first + std::size_t(l) << ": "
+                               << describe(rays[first + std::size_t(l)]);
+      hits += single.hit;
+    }
+  }
+  EXPECT_GT(hits, 0u);
+}
+
+svo::Octree sphereAndBoxes() {
+  svo::Mesh mesh = svotest::makeSphere({0.3, -0.2, 0.1}, 1.0, 32, 32);
+  svotest::appendMesh(mesh, svotest::makeBox({-1.2, -1.2, -1.2}, {-0.6, -0.5, -0.7}));
+  svotest::appendMesh(mesh, svotest::makeRandomTriangles(5, 60, {-1, -1, -1}, {1, 1, 1}, 0.2));
+  svo::BuildOptions options;
+  options.levels = 8;
+  return svo::buildOctree(mesh, options);
+}
+const svo::Octree& scene() {
+  static const svo::Octree octree = sphereAndBoxes();
+  return octree;
+}
+
+// Every pixel of a camera, in the 4x2 blocks castTile casts together.
+std::vector<svo::OctreeRay> pixelPackets(const svo::SceneTransform& transform, const svo::Camera& camera,
+                                         float lodPixels) {
+  const svo::PixelRays rays(transform, camera, lodPixels);
+  std::vector<svo::OctreeRay> out;
+  for (int y = 0; y < camera.height; y += 2)
+    for (int x = 0; x < camera.width; x += 4)
+      for (int i = 0; i < svo::kPacketLanes; ++i) out.push_back(rays(x + i % 4, y + i / 4));
+  return out;
+}
+
+svo::Camera closeUp(const svo::SceneTransform& transform) {
+  svo::Camera camera = svo::Camera::framing(transform, svo::kDefaultViewDirection, 96, 64);
+  camera.eye = camera.target + 0.25 * (camera.eye - camera.target);
+  return camera;
+}
+
+TEST(CastPacket, PixelPacketsEqualCastRay) {
+  const svo::Octree& octree = scene();
+  for (const svo::Camera& camera :
+       {svo::Camera::framing(octree.transform, svo::kDefaultViewDirection, 96, 64),
+        closeUp(octree.transform)})
+    for (float lod : {0.0f, 1.0f, 4.0f})
+      for (bool contours : {true, false}) {
+        SCOPED_TRACE(fmt::format("lod {} contours {}", lod, contours));
+        svo::CastOptions options;
+        options.contours = contours;
+        expectSameAsCastRay(octree.block.view(), pixelPackets(octree.transform, camera, lod), options);
+      }
+}
+
+// Incoherent packets: every lane its own origin and direction, so lanes push, advance and pop apart.
+TEST(CastPacket, RandomPacketsEqualCastRay) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<float> inCube(0.9f, 2.1f), component(-1.0f, 1.0f);
+  std::vector<svo::OctreeRay> rays;
+  for (int i = 0; i < 20000; ++i) {
+    svo::OctreeRay r;
+    r.origin = {inCube(rng), inCube(rng), inCube(rng)};
+    if (i % 3 == 0) r.origin = 1.5f + 2.0f * glm::vec3(component(rng), component(rng), component(rng));
+    r.direction = {component(rng), component(rng), component(rng)};
+    if (i % 5 == 0) r.footprintSlope = 0.002f;  // some lanes stop at their level of detail
+    rays.push_back(r);
+  }
+  expectSameAsCastRay(scene().block.view(), rays, {});
+  // Partial packets: every count from 1 to kPacketLanes.
+  for (int lanes = 1; lanes < svo::kPacketLanes; ++lanes)
+    expectSameAsCastRay(scene().block.view(), rays, {}, lanes);
+}
+
+// Axis-parallel and grazing rays, tiny and zero components, rays along voxel faces, far origins, lanes that
+// miss or are degenerate beside lanes that hit.
+TEST(CastPacket, StiffRaysEqualCastRay) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<svo::OctreeRay> rays;
+  const auto add = [&](glm::vec3 o, glm::vec3 d) {
+    svo::OctreeRay r;
+    r.origin = o, r.direction = d;
+    rays.push_back(r);
+  };
+  for (int axis = 0; axis < 3; ++axis)
+    for (float sign : {-1.0f, 1.0f})
+      for (float u : {1.25f, 1.5f, 1.5f + 1.0f / 256.0f, 1.37f})
+        for (float v : {1.5f, 1.75f, 1.0f + 1.0f / 64.0f}) {
+          glm::vec3 o(u, v, 1.41f), d(0.0f);
+          o[axis] = sign < 0 ? 2.5f : 0.5f;
+          d[axis] = sign;
+          add(o, d);                                       // exactly along an axis
+          add(o, d + glm::vec3(1e-30f, -1e-30f, 1e-30f));  // components far below 2^-23
+          add(o, d + glm::vec3(1e-4f, 1e-4f, -1e-4f));     // grazing
+          add(glm::vec3(o.x, 1.5f, o.z), d);               // in a grid plane of every level
+          add(o + 8000.0f * glm::vec3(-d), d);             // far away
+        }
+  add({1.5f, 1.5f, 0.5f}, {0.0f, 0.0f, 0.0f});  // degenerate lanes
+  add({1.5f, 1.5f, 0.5f}, {nan, 0.0f, 1.0f});
+  add({1.5f, 1.5f, 0.5f}, {-0.0f, 0.0f, 1.0f});
+  for (const svo::OctreeRay& r : std::vector<svo::OctreeRay>(rays)) {  // the same rays from behind the hit
+    svo::OctreeRay late = r;
+    late.tMin = 0.9f;
+    rays.push_back(late);
+  }
+  for (bool contours : {true, false}) {
+    svo::CastOptions options;
+    options.contours = contours;
+    expectSameAsCastRay(scene().block.view(), rays, options);
+  }
+}
+
+TEST(CastPacket, IterationCapsEqualCastRay) {
+  const svo::Octree& octree = scene();
+  const auto rays = pixelPackets(octree.transform, closeUp(octree.transform), 0.0f);
+  for (int cap : {1, 3, 10}) {
+    svo::CastOptions options;
+    options.maxIterations = cap;
+    for (std::size_t first = 0; first < rays.size(); first += svo::kPacketLanes) {
+      svo::CastHit packet[svo::kPacketLanes];
+      svo::castPacket(octree.block.view(), &rays[first], svo::kPacketLanes, options, packet);
+      for (int l = 0; l < svo::kPacketLanes; ++l)
+        ASSERT_TRUE(
+            difference(svo::castRay(octree.block.view(), rays[first + l], options), packet[l]).empty());
+    }
+  }
+}
+
+// A block pool: regions joined by links, and stubs where a region's next level is not resident.
+TEST(CastPacket, PoolRegionsEqualCastRay) {
+  const std::filesystem::path store =
+      std::filesystem::temp_directory_path() / fmt::format("svo-packet-{}.svo", ::getpid());
+  svotest::writeSphereAndBoxStore(store, 2048);
+  {
+    const svo::WholeScene whole = svo::WholeScene::paged(store, std::size_t(64) << 20);
+    const svo::Camera camera = svo::Camera::framing(whole.transform(), svo::kDefaultViewDirection, 96, 64);
+    for (float lod : {0.0f, 1.0f})
+      expectSameAsCastRay(whole.root(), pixelPackets(whole.transform(), camera, lod), {});
+  }
+  std::filesystem::remove(store);
+}
+
+}  // namespace
