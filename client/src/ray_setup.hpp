@@ -29,6 +29,16 @@ inline std::uint32_t asBits(float f) {
   return std::bit_cast<std::uint32_t>(f);
 }
 
+// kMinDirection scaled by the power of two at or below `largest` (> 0, finite): std::ldexp(kMinDirection,
+// std::ilogb(largest)), from the exponent bits where both are normal floats (no library calls per ray).
+inline float minDirection(float largest) {
+  const int exponent = int(asBits(largest) >> 23) - 127;  // ilogb of a normal float
+  constexpr int kMinNormalExponent = -126;
+  // `largest` subnormal, or a result below the normal floats: the library's rounding.
+  if (exponent < kMinNormalExponent + kScaleMax) return std::ldexp(kMinDirection, std::ilogb(largest));
+  return asFloat(std::uint32_t(exponent - kScaleMax + 127) << 23);
+}
+
 // A ray in the mirrored system, with its entry into the root's first child cube (scale kScaleMax - 1).
 struct MirroredRay {
   glm::vec3 d{0.0f};                            // the direction, tiny components clamped
@@ -50,8 +60,7 @@ inline bool mirrorRay(const OctreeRay& ray, MirroredRay& m) {
     return false;
   // A power of two, so that the clamped axis' t = position * coef - bias stays exact on the voxel grid (a
   // ray exactly in a voxel face keeps t = 0 there, not a rounding residue).
-  const float minComponent =
-      std::ldexp(kMinDirection, std::ilogb(std::max({std::abs(d.x), std::abs(d.y), std::abs(d.z)})));
+  const float minComponent = minDirection(std::max({std::abs(d.x), std::abs(d.y), std::abs(d.z)}));
   for (int i = 0; i < 3; ++i)
     if (std::abs(d[i]) < minComponent) d[i] = std::copysign(minComponent, d[i]);
   m.d = d;

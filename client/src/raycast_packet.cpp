@@ -51,15 +51,15 @@ inline Ints gather(const T* const (&p)[N], F f) {
   return gatherLanes(p, f, std::make_index_sequence<N>());
 }
 
-// castRay's state, one lane per ray (names as in castRay).
+// castRay's state, one lane per ray (names as in castRay). No member initializers: start() sets every one
+// (GCC 12 fails to compile the implicit constructor of 256-bit members at -O0).
 struct Lanes {
   // The mirrored rays' constants.
-  Floats tx_coef{}, ty_coef{}, tz_coef{}, tx_bias{}, ty_bias{}, tz_bias{}, dx{}, dy{}, dz{}, slope{},
-      origin{};
-  Ints octantMask{};
+  Floats tx_coef, ty_coef, tz_coef, tx_bias, ty_bias, tz_bias, dx, dy, dz, slope, origin;
+  Ints octantMask;
   // The loop's state.
-  Floats t_min{}, t_max{}, scale_exp2{}, px{}, py{}, pz{};
-  Ints idx{}, scale{}, iterations{}, active{}, found{};
+  Floats t_min, t_max, scale_exp2, px, py, pz;
+  Ints idx, scale, iterations, active, found;
   const ChildDescriptor* parent[N];
   struct StackEntry {
     const ChildDescriptor* parent;
@@ -70,6 +70,10 @@ struct Lanes {
 // castRay's set-up for each ray; lanes past `count` and rays that cannot hit start inactive.
 [[gnu::always_inline]] inline void start(Lanes& s, const BlockView& block, const OctreeRay* rays, int count,
                                          CastHit* hits) {
+  const Floats zero{};
+  s.tx_coef = s.ty_coef = s.tz_coef = s.tx_bias = s.ty_bias = s.tz_bias = zero;
+  s.dx = s.dy = s.dz = s.slope = s.origin = s.t_min = s.t_max = s.scale_exp2 = s.px = s.py = s.pz = zero;
+  s.octantMask = s.idx = s.scale = s.iterations = s.active = s.found = Ints{};
   for (int l = 0; l < N; ++l) {
     s.parent[l] = block.root();
     if (l < count) new (&hits[l]) CastHit;  // as castRay's: the path arrays are written by each PUSH

@@ -510,11 +510,12 @@ TEST_F(Cli, BenchAccelWritesTablesMarkdownAndPlot) {
 }
 
 TEST_F(Cli, BenchRaycastPrintsBothCamerasAndTheScalingPlot) {
-  const CommandResult r =
-      svo("bench raycast " + tetrahedron().string() + " --levels 5 --size 32 --runs 1 --threads 1,2");
+  const CommandResult r = svo("bench raycast " + tetrahedron().string() +
+                              " --levels 5 --size 32 --runs 1 --threads 1,2 --lod-pixels 1,2");
   ASSERT_EQ(r.exitCode, 0) << r.err;
-  // One row per camera and thread count, each with its iterations and error against Embree.
-  for (const char* row : {"tet +whole +1 ", "tet +whole +2 ", "tet +close +1 +100.0% ", "tet +close +2 +100.0% "})
+  // One row per camera, thread count and LOD, each with its iterations and error against Embree.
+  for (const char* row : {"tet +whole +1 +1 px ", "tet +whole +2 +2 px ", "tet +close +1 +1 px +100.0% ",
+                          "tet +close +2 +2 px +100.0% "})
     EXPECT_TRUE(std::regex_search(r.out, std::regex(row))) << row << "\n" << r.out;
 
   const fs::path out = dir_ / "raycast";
@@ -527,10 +528,12 @@ TEST_F(Cli, BenchRaycastPrintsBothCamerasAndTheScalingPlot) {
   EXPECT_EQ(countSeries(plotted, "ESVO castRay + beam"), 2u);
   EXPECT_EQ(countSeries(plotted, "Embree rtcIntersect1"), 2u);
 
-  expectCleanFailure(svo("bench raycast --levels 5 -o " + out.string() + "x"), "--scaling", out.string() + "x");
+  expectCleanFailure(svo("bench raycast --levels 5 -o " + out.string() + "x"), "--scaling",
+                     out.string() + "x");
   expectCleanFailure(svo("bench raycast --scaling 5 -o " + out.string() + "x"), "'5'", out.string() + "x");
-  expectCleanFailure(svo("bench raycast " + tetrahedron().string() + " --scaling 1k -o " + out.string() + "x"),
-                     "not both", out.string() + "x");
+  expectCleanFailure(
+      svo("bench raycast " + tetrahedron().string() + " --scaling 1k -o " + out.string() + "x"), "not both",
+      out.string() + "x");
 }
 
 TEST_F(Cli, GenWritesALoadableSceneAndRejectsBadParameters) {

@@ -96,12 +96,12 @@ void printScenes(const std::vector<SceneResult>& scenes) {
 void printComparison(const std::vector<SceneResult>& scenes, const RaycastArgs& args) {
   printTitle(fmt::format(
       "Ray casting: ESVO vs Embree 3, same rays, same threads (Mrays/s, median of {} runs)", args.runs));
-  Table table({"scene", "camera", "thr", "hit px", "depth ESVO", "Embree", "ESVO/Embree", "shaded ESVO",
-               "Embree", "ESVO/Embree", "iter/ray", "PSNR dB", "depth p99", "silhouette"});
+  Table table({"scene", "camera", "thr", "LOD", "hit px", "depth ESVO", "Embree", "ESVO/Embree",
+               "shaded ESVO", "Embree", "ESVO/Embree", "iter/ray", "PSNR dB", "depth p99", "silhouette"});
   for (const SceneResult& s : scenes)
     for (const CameraRow& r : s.rows) {
       const bool peer = r.embreeShaded.has_value();
-      table.addRow({s.name, r.camera, std::to_string(r.threads),
+      table.addRow({s.name, r.camera, std::to_string(r.threads), fmt::format("{:g} px", r.lodPixels),
                     percent(r.esvoDepth.last.hits, r.esvoDepth.last.depth.size()), mrays(r.rays, r.esvoDepth),
                     r.embreeDepth ? mrays(r.rays, *r.embreeDepth) : std::string(kPeerNotBuilt),
                     ratio(r.esvoDepth, r.embreeDepth), mrays(r.rays, r.esvoShaded),
@@ -114,16 +114,18 @@ void printComparison(const std::vector<SceneResult>& scenes, const RaycastArgs& 
     }
   table.print();
   fmt::print(
-      "{} px, LOD {} px. whole: framed to the model's projected box; close: a surface patch from near enough "
-      "that every\n"
-      "pixel hits. depth: ESVO castRay with the beam pass (sec. 6.2, 8x8 tiles) vs rtcIntersect1; shaded: "
-      "svo::render vs\n"
-      "rtcIntersect1 plus the same Phong shading with normals (and colors) interpolated from the mesh. "
-      "ESVO/Embree > 1: ESVO\n"
+      "{} px. whole: framed to the model's projected box; close: a surface patch from near enough that every "
+      "pixel hits;\n"
+      "LOD: ESVO stops at voxels this many pixels wide. depth: ESVO castRay with the beam pass (sec. 6.2, "
+      "8x8 "
+      "tiles) vs\n"
+      "rtcIntersect1; shaded: svo::render vs "
+      "rtcIntersect1 plus the same Phong shading with normals (and colors) interpolated from\n"
+      "the mesh. ESVO/Embree > 1: ESVO "
       "is faster. iter/ray: ESVO loop iterations per ray, all rays. PSNR, depth p99 (in finest voxels, where "
       "both hit, off edges) and\n"
       "silhouette (pixels hit by exactly one): ESVO's shaded frame against Embree's.\n",
-      args.width ? args.width : args.size, args.lodPixels);
+      args.width ? args.width : args.size);
   for (const SceneResult& s : scenes)
     for (const CameraRow& r : s.rows)
       if (r.gpu)
@@ -196,8 +198,9 @@ void validate(const RaycastArgs& args) {
   if (args.size < 1 || args.size > kMaxImageSize)
     throw UsageError(fmt::format("--size must be in [1, {}] (got {})", kMaxImageSize, args.size));
   requireRuns(args.runs);
-  if (!std::isfinite(args.lodPixels) || args.lodPixels < 0.0f)
-    throw UsageError(fmt::format("--lod-pixels must be a finite number >= 0 (got {})", args.lodPixels));
+  for (float lod : args.lodPixels)
+    if (!std::isfinite(lod) || lod < 0.0f)
+      throw UsageError(fmt::format("--lod-pixels must be finite numbers >= 0 (got {})", lod));
   parseDirection(args.view, "--view");
   if (args.meshes.empty() == args.scaling.empty())
     throw UsageError("give either meshes or --scaling COUNTS, not both");
@@ -242,8 +245,10 @@ void runRaycastBench(const RaycastArgs& args) {
   const std::vector<int> threads = threadCounts(args);
   std::vector<SceneResult> scenes;
   if (!args.scaling.empty()) {
-    // One thread count (the largest): the sweep is about the triangle count.
+    // One thread count (the largest) and one LOD (the first): the sweep is about the triangle count.
     const std::vector<int> sweepThreads{threads.back()};
+    RaycastArgs sweep = args;
+    sweep.lodPixels.resize(1);
     for (std::uint64_t count : scalingCounts(args.scaling)) {
       GenOptions gen;
       gen.kind = *parseSceneKind(args.scalingKind);
@@ -251,10 +256,10 @@ void runRaycastBench(const RaycastArgs& args) {
       spdlog::info("generating {} with {} triangles ...", args.scalingKind, formatCount(count));
       const Mesh mesh = generateScene(gen);
       scenes.push_back(
-          benchScene(mesh, fmt::format("{} {}", args.scalingKind, formatCount(count)), args, sweepThreads));
+          benchScene(mesh, fmt::format("{} {}", args.scalingKind, formatCount(count)), sweep, sweepThreads));
     }
     printScenes(scenes);
-    printScaling(scenes, args);
+    printScaling(scenes, sweep);
     return;
   }
   for (const std::string& path : args.meshes) {
@@ -285,7 +290,8 @@ void addRaycastBench(CLI::App& bench) {
   cmd->add_option("--runs", args->runs, "timed runs per method (after one warm-up); the median is reported")
       ->capture_default_str();
   cmd->add_option("--lod-pixels", args->lodPixels,
-                  "ESVO level of detail: stop at voxels this many pixels wide")
+                  "ESVO levels of detail, a row each: stop at voxels this many pixels wide (e.g. 1,2,4)")
+      ->delimiter(',')
       ->capture_default_str();
   cmd->add_option("--view", args->view, "view direction x,y,z of the whole-scene camera")
       ->capture_default_str();

@@ -20,7 +20,7 @@ struct RaycastArgs {
   int levels = 10;
   int size = 1024;
   int runs = 5;
-  float lodPixels = 1.0f;
+  std::vector<float> lodPixels{1.0f};
   std::string view = defaultViewText();
   std::vector<int> threads;  // empty: 1 and every core
   std::vector<std::string> cameras{"whole", "close"};
@@ -42,6 +42,7 @@ struct Timed {
 struct CameraRow {
   std::string camera;  // "whole" or "close"
   int threads = 0;
+  float lodPixels = 0.0f;
   double rays = 0.0;
   Timed esvoDepth, esvoShaded;                     // castRay + beam; svo::render
   std::optional<Timed> embreeDepth, embreeShaded;  // absent when built without the peers

@@ -187,6 +187,33 @@ Timed timeGpu(const WholeScene& scene, const Camera& camera, const RenderOptions
   return timed;
 }
 
+// ESVO's depth-only and shaded frames of `camera`, timed into `row`, with the shaded frame's errors against
+// Embree's when the row has it; images named `imageStem` (when not empty) go to the output folder.
+void measureEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
+                 const RaycastArgs& args, double finestVoxel, CameraRow& row, const std::string& imageStem) {
+  row.rays = double(camera.width) * camera.height;
+  row.esvoDepth.seconds =
+      timeRuns(args.runs, [&] { row.esvoDepth.last = traceEsvo(scene, camera, options, options.threads); });
+  Frame frame;
+  row.esvoShaded.seconds =
+      timeRuns(args.runs, [&] { frame = render(scene.root(), scene.transform(), camera, options); });
+  row.esvoShaded.last.meanIterations = frame.meanIterations;
+  const Image voxels = imageOf(std::move(frame));
+  row.esvoShaded.last.hits = countHits(voxels.depth);
+  const std::filesystem::path folder(args.output);
+  if (!imageStem.empty()) {
+    std::filesystem::create_directories(folder);
+    writePng(folder / (imageStem + "-esvo.png"), voxels);
+  }
+  if (!row.embreeShaded) return;
+  Image reference;
+  reference.width = camera.width, reference.height = camera.height;
+  reference.color = row.embreeShaded->last.color;
+  reference.depth = row.embreeShaded->last.depth;
+  compare(reference, voxels, finestVoxel, row.quality);
+  if (!imageStem.empty()) writePng(folder / (imageStem + "-embree.png"), reference);
+}
+
 }  // namespace
 
 SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastArgs& args,
@@ -218,7 +245,6 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
 #endif
 
   RenderOptions options;
-  options.lodPixels = args.lodPixels;
   const MeshShading shading(mesh, options);
   const glm::dvec3 view = parseDirection(args.view, "--view");
   glm::dvec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());
@@ -233,8 +259,8 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
     if (cameraName == "close") {
       if (!close) {
         RenderOptions probe = options;
-        probe.threads = threads.back();
-        close = closeUpCamera(*scene, whole, traceEsvo(*scene, whole, probe, threads.back()).depth, options);
+        probe.lodPixels = args.lodPixels.front();
+        close = closeUpCamera(*scene, whole, traceEsvo(*scene, whole, probe, threads.back()).depth, probe);
       }
       if (!close) {
         spdlog::warn("{}: no close-up where every pixel hits; the close-up camera is left out", name);
@@ -243,50 +269,35 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
       camera = *close;
     }
     for (std::size_t k = 0; k < threads.size(); ++k) {
-      CameraRow row;
-      row.camera = cameraName;
-      row.threads = threads[k];
-      row.rays = double(camera.width) * camera.height;
-      options.threads = threads[k];
       spdlog::info("{}, {} camera, {} thread(s): 1 warm-up + {} runs per method ...", name, cameraName,
                    threads[k], args.runs);
-      row.esvoDepth.seconds =
-          timeRuns(args.runs, [&] { row.esvoDepth.last = traceEsvo(*scene, camera, options, threads[k]); });
-      Frame frame;
-      row.esvoShaded.seconds =
-          timeRuns(args.runs, [&] { frame = render(scene->root(), transform, camera, options); });
-      row.esvoShaded.last.meanIterations = frame.meanIterations;
-      const Image voxels = imageOf(std::move(frame));
-      row.esvoShaded.last.hits = countHits(voxels.depth);
+      // Embree's frames do not depend on the LOD: timed once for the camera's rows.
+      CameraRow peer;
 #ifdef SVO_BENCH_PEERS
-      row.embreeDepth.emplace();
-      row.embreeDepth->seconds =
-          timeRuns(args.runs, [&] { row.embreeDepth->last = embree.trace(camera, threads[k]); });
-      row.embreeShaded.emplace();
-      row.embreeShaded->seconds =
-          timeRuns(args.runs, [&] { row.embreeShaded->last = embree.trace(camera, threads[k], &shading); });
-      Image reference;
-      reference.width = camera.width, reference.height = camera.height;
-      reference.color = row.embreeShaded->last.color;
-      reference.depth = row.embreeShaded->last.depth;
-      compare(reference, voxels, result.finestVoxel, row.quality);
-      if (args.images && k == 0) {
-        std::filesystem::create_directories(args.output);
-        writePng(std::filesystem::path(args.output) / fmt::format("{}-{}-embree.png", name, cameraName),
-                 reference);
-      }
+      peer.embreeDepth.emplace();
+      peer.embreeDepth->seconds =
+          timeRuns(args.runs, [&] { peer.embreeDepth->last = embree.trace(camera, threads[k]); });
+      peer.embreeShaded.emplace();
+      peer.embreeShaded->seconds =
+          timeRuns(args.runs, [&] { peer.embreeShaded->last = embree.trace(camera, threads[k], &shading); });
 #endif
-      if (args.images && k == 0) {
-        std::filesystem::create_directories(args.output);
-        writePng(std::filesystem::path(args.output) / fmt::format("{}-{}-esvo.png", name, cameraName),
-                 voxels);
+      for (float lod : args.lodPixels) {
+        CameraRow row = peer;
+        row.camera = cameraName;
+        row.threads = threads[k];
+        row.lodPixels = lod;
+        options.threads = threads[k];
+        options.lodPixels = lod;
+        const bool first = k == 0 && lod == args.lodPixels.front();
+        measureEsvo(*scene, camera, options, args, result.finestVoxel, row,
+                    args.images && first ? fmt::format("{}-{}", name, cameraName) : std::string());
+        if (args.device == "gpu" && first) {
+          RenderOptions noBeam = options;
+          noBeam.beamTile = 0;
+          row.gpu = timeGpu(*scene, camera, noBeam, args.runs, row.gpuName);
+        }
+        result.rows.push_back(std::move(row));
       }
-      if (args.device == "gpu" && k == 0) {
-        RenderOptions noBeam = options;
-        noBeam.beamTile = 0;
-        row.gpu = timeGpu(*scene, camera, noBeam, args.runs, row.gpuName);
-      }
-      result.rows.push_back(std::move(row));
     }
   }
   return result;
