@@ -37,15 +37,14 @@ constexpr int kCloseUpProbe = 64;
 constexpr int kCloseUpHalvings = 24;
 
 // ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles with the beam pass, depth
-// written as the Embree peer writes it.
-TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
-                      int threads) {
+// written as the Embree peer writes it, on options.threads threads.
+TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options) {
   TraceResult result;
   result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
   const BlockView block = scene.root();
   const PixelRays rays(scene.transform(), camera, options.lodPixels);
   std::atomic<std::uint64_t> iterations{0};
-  forEachTile(camera.width, camera.height, kTileSize, threads, [&](const PixelTile& tile) {
+  forEachTile(camera.width, camera.height, kTileSize, options.threads, [&](const PixelTile& tile) {
     iterations.fetch_add(castTile(block, rays, tile, options.beamTile > 0, options.cast,
                                   [&](int x, int y, const OctreeRay&, const CastHit& hit) {
                                     result.depth[std::size_t(y) * camera.width + x] = hit.t;
@@ -193,7 +192,7 @@ void measureEsvo(const WholeScene& scene, const Camera& camera, const RenderOpti
                  const RaycastArgs& args, double finestVoxel, CameraRow& row, const std::string& imageStem) {
   row.rays = double(camera.width) * camera.height;
   row.esvoDepth.seconds =
-      timeRuns(args.runs, [&] { row.esvoDepth.last = traceEsvo(scene, camera, options, options.threads); });
+      timeRuns(args.runs, [&] { row.esvoDepth.last = traceEsvo(scene, camera, options); });
   Frame frame;
   row.esvoShaded.seconds =
       timeRuns(args.runs, [&] { frame = render(scene.root(), scene.transform(), camera, options); });
@@ -260,7 +259,8 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
       if (!close) {
         RenderOptions probe = options;
         probe.lodPixels = args.lodPixels.front();
-        close = closeUpCamera(*scene, whole, traceEsvo(*scene, whole, probe, threads.back()).depth, probe);
+        probe.threads = threads.back();
+        close = closeUpCamera(*scene, whole, traceEsvo(*scene, whole, probe).depth, probe);
       }
       if (!close) {
         spdlog::warn("{}: no close-up where every pixel hits; the close-up camera is left out", name);
