@@ -74,7 +74,7 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
   regions_ = std::make_unique<paging::RegionTable>(slices, options_.budgetBytes, name);
   scheduler_ = std::make_unique<paging::Scheduler>(
       slices, *regions_, paging::RetryBackoff{options_.sourceRetrySeconds, options_.sourceRetryMaxSeconds});
-  loader_ = std::make_unique<paging::RegionLoader>(*source_, *regions_, poolMutex_);
+  loader_ = std::make_unique<paging::RegionLoader>(*source_, *regions_, poolMutex_, options_.attributes);
 
   // The trunk: the root cube's levels, synchronously. It is the first coarse image and never leaves the pool.
   const std::vector<std::uint32_t>& trunk = (*regions_)[0].slices;

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "ray_setup.hpp"
 
@@ -138,6 +139,24 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
 
   completeHit(ray, octant_mask, pos, scale_exp2, scale, t_min, parent, idx, hit);
   return hit;
+}
+
+glm::vec3 hitColor(const BlockView& block, const CastHit& hit) {
+  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::ColorUnits)) {
+    ColorUnit words;
+    std::memcpy(words.words.data(), unit->words, sizeof(words.words));
+    return glm::vec3(decodeColor(decodeColorUnit(words, unit->half * 8 + hit.childSlot)));
+  }
+  return glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)));
+}
+
+glm::vec3 hitNormal(const BlockView& block, const CastHit& hit) {
+  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::NormalUnits)) {
+    NormalUnit words;
+    std::memcpy(words.words.data(), unit->words, sizeof(words.words));
+    return decodeNormalUnit(words, unit->half * 8 + hit.childSlot);
+  }
+  return decodeNormal(hitAttribute(block, hit, AttachmentType::Normal));
 }
 
 std::uint32_t hitAttribute(const BlockView& block, const CastHit& hit, AttachmentType type) {

@@ -21,6 +21,7 @@
 #include <tbb/task_arena.h>
 #include <glm/geometric.hpp>
 
+#include "svo/client/post_filter.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo {
@@ -75,11 +76,8 @@ struct Shading {
 };
 
 glm::vec3 shade(const BlockView& block, const CastHit& hit, glm::vec3 viewDirection, const Shading& s) {
-  const glm::vec3 albedo = s.hasColor
-                               ? glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)))
-                               : glm::vec3(kNeutralGreyAlbedo);
-  const glm::vec3 n = s.hasNormal ? decodeNormal(hitAttribute(block, hit, AttachmentType::Normal))
-                                  : estimateNormal(hit, s.contours);
+  const glm::vec3 albedo = s.hasColor ? hitColor(block, hit) : glm::vec3(kNeutralGreyAlbedo);
+  const glm::vec3 n = s.hasNormal ? hitNormal(block, hit) : estimateNormal(hit, s.contours);
   return shadePhong(albedo, n, viewDirection, s.lightDirection);
 }
 
@@ -165,9 +163,8 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
   if (!finite(options.lightDirection) || !(glm::length(options.lightDirection) > 0.0f))
     throw std::runtime_error("render: the light direction must be finite and non-zero");
 
-  const Shading shading{glm::normalize(options.lightDirection),
-                        block.attachment(AttachmentType::Color) != nullptr,
-                        block.attachment(AttachmentType::Normal) != nullptr, options.cast.contours};
+  const Shading shading{glm::normalize(options.lightDirection), block.hasColors(), block.hasNormals(),
+                        options.cast.contours};
   const double pixelAngle = camera.pixelAngle();
   const PixelRays rays(scene, camera, options.lodPixels);
 
@@ -206,9 +203,16 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
         keepIterations);
     iterations.fetch_add(tileIterations, std::memory_order_relaxed);
   });
+  if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations.load()) / double(pixels);
   return frame;
+}
+
+void applyFilter(Frame& frame, const RenderOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  postFilter(frame, PostFilterOptions{.radiusPerVoxel = options.filterRadius, .threads = options.threads});
+  frame.filterSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
 // ---------------------------------------------------------------------------------------------------------

@@ -53,9 +53,11 @@ std::size_t wholeStoreBudget(const std::vector<SliceInfo>& slices) {
 
 WholeScene::WholeScene(Octree octree) : octree_(std::move(octree)) {}
 
-WholeScene WholeScene::paged(const std::filesystem::path& store, std::size_t poolBytes) {
+WholeScene WholeScene::paged(const std::filesystem::path& store, std::size_t poolBytes,
+                             AttributeLayout attributes) {
   PagerOptions options;
   options.budgetBytes = poolBytes;
+  options.attributes = attributes;
   WholeScene scene;
   scene.pager_ = std::make_unique<Pager>(store, options);
   if (!loadEverything(*scene.pager_, kLoadEverythingTimeout))

@@ -195,6 +195,7 @@ VoxelTree StoreReader::loadTree() const {
   const int levelCount = index.header().parameters.levels;
   VoxelLevels levels(1);
   levels[0].push_back(rootVoxel(index.header()));
+  std::vector<std::uint32_t> childSlice;  // per voxel, level by level as the tree's records
   for (int level = 1; level <= levelCount && !index.slicesOfLevel(level).empty(); ++level) {
     std::vector<SliceVoxel>& parents = levels[std::size_t(level - 1)];
     std::vector<std::uint8_t> covered(parents.size(), 0);  // a slice has given this voxel's split bit
@@ -206,6 +207,11 @@ VoxelTree StoreReader::loadTree() const {
       claims.push_back({claimParents(index, id, parents, covered), id});
     std::stable_sort(claims.begin(), claims.end(),
                      [](const auto& a, const auto& b) { return a.first.data() < b.first.data(); });
+    const std::size_t levelStart = childSlice.size();
+    childSlice.resize(levelStart + parents.size(), SliceInfo::kNoSlice);
+    for (const auto& [span, id] : claims)
+      std::fill_n(childSlice.begin() + std::ptrdiff_t(levelStart + std::size_t(span.data() - parents.data())),
+                  span.size(), id);
     std::vector<SliceVoxel> voxels;
     for (const auto& [span, id] : claims) decodeSlice(id, readSlice(id), span, voxels);
     assert(std::is_sorted(voxels.begin(), voxels.end(), [](const SliceVoxel& a, const SliceVoxel& b) {
@@ -217,19 +223,24 @@ VoxelTree StoreReader::loadTree() const {
     if (!index.slicesOfLevel(int(l)).empty())
       index.fail("slices of level " + std::to_string(l) + " have no parents");
   if (levels.size() < 2) index.fail("the store holds no voxels");
-  return treeOfLevels(levels, index.header().hasColors, index.header().hasNormals);
+  VoxelTree tree = treeOfLevels(levels, index.header().hasColors, index.header().hasNormals);
+  childSlice.resize(tree.voxels.size(), SliceInfo::kNoSlice);  // the deepest level has no children
+  tree.childSlice = std::move(childSlice);
+  return tree;
 }
 
-Octree readOctree(const std::filesystem::path& path) {
-  return readOctree(StoreReader(path));
+Octree readOctree(const std::filesystem::path& path, AttributeLayout attributes) {
+  return readOctree(StoreReader(path), attributes);
 }
 
-Octree readOctree(const StoreReader& reader) {
+Octree readOctree(const StoreReader& reader, AttributeLayout attributes) {
   Octree octree;
   octree.transform = reader.header().transform;
   octree.parameters = reader.header().parameters;
   try {
-    octree.block = layoutBlock(reader.loadTree());
+    LayoutOptions layout;
+    layout.attributes = attributes;
+    octree.block = layoutBlock(reader.loadTree(), layout);
   } catch (const std::invalid_argument& e) {
     file::fail(reader.index().name(), e.what());
   }

@@ -470,6 +470,9 @@ svo::VoxelTree truncatedTree(const svo::StoreReader& reader, const std::vector<s
   svo::VoxelTree out;
   out.hasColors = full.hasColors, out.hasNormals = full.hasNormals;
   out.voxels.push_back(full.voxels[0]);
+  // The slice each kept voxel's children come from, for the compressed layout's units.
+  const bool childSlices = !full.childSlice.empty();
+  if (childSlices) out.childSlice.push_back(full.childSlice[0]);
   struct Item {
     std::uint32_t from, to;
     int level;
@@ -497,6 +500,7 @@ svo::VoxelTree truncatedTree(const svo::StoreReader& reader, const std::vector<s
       svo::VoxelRecord record = full.voxels[child.from];
       record.childMask = 0, record.firstChild = 0;
       out.voxels.push_back(record);
+      if (childSlices) out.childSlice.push_back(full.childSlice[child.from]);
       queue.push_back(child);
     }
   }

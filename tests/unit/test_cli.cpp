@@ -647,6 +647,15 @@ TEST_F(Cli, StreamingRenderStressAndTheirBadInput) {
             std::string::npos)
       << streamedRun.out;
   EXPECT_EQ(slurp(whole), slurp(streamed));
+  // The same in the compressed attribute layout: its own image, whole and streamed alike.
+  const std::string compressed = " --attributes compressed --width 64 --height 64 -o ";
+  ASSERT_EQ(svo("render " + store.string() + compressed + (dir_ / "cw.png").string()).exitCode, 0);
+  ASSERT_EQ(svo("render " + store.string() + compressed + (dir_ / "cs.png").string(), "SVO_MACHINE_MEMORY=1M")
+                .exitCode,
+            0);
+  EXPECT_EQ(slurp(dir_ / "cw.png"), slurp(dir_ / "cs.png"));
+  expectCleanFailure(svo("render " + store.string() + " --attributes dxt -o " + (dir_ / "a.png").string()),
+                     "--attributes", dir_ / "a.png");
 
   // Without --budget a camera path streams through a default pool, and says so.
   const CommandResult defaultPath =

@@ -101,18 +101,20 @@ void expectAgreement(const Agreement& a, const char* what) {
 }
 
 TEST_F(Gpu, SameHitsAsTheCpuCasterOnAContouredColoredStore) {
-  const Octree octree = readOctree(svotest::sphereStore());
-  for (const float lod : {0.0f, 1.0f, 4.0f}) {
-    for (const bool contours : {true, false}) {
-      RenderOptions options;
-      options.lodPixels = lod;
-      options.cast.contours = contours;
-      const Camera camera = svotest::cameraAt({1.7, 1.1, 2.3}, {0.0, -0.2, 0.0}, 160);
-      gpu::GpuHits hits;
-      const Frame frame =
-          gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, options, &hits);
-      expectAgreement(compare(octree.block.view(), octree.transform, camera, options, hits, frame),
-                      contours ? "contours" : "cubes");
+  for (const AttributeLayout attributes : {AttributeLayout::Raw, AttributeLayout::Compressed}) {
+    const Octree octree = readOctree(svotest::sphereStore(), attributes);
+    for (const float lod : {0.0f, 1.0f, 4.0f}) {
+      for (const bool contours : {true, false}) {
+        RenderOptions options;
+        options.lodPixels = lod;
+        options.cast.contours = contours;
+        const Camera camera = svotest::cameraAt({1.7, 1.1, 2.3}, {0.0, -0.2, 0.0}, 160);
+        gpu::GpuHits hits;
+        const Frame frame =
+            gpu::renderBlock(*caster_, octree.block.view(), octree.transform, camera, options, &hits);
+        expectAgreement(compare(octree.block.view(), octree.transform, camera, options, hits, frame),
+                        (std::string(nameOf(attributes)) + (contours ? ", contours" : ", cubes")).c_str());
+      }
     }
   }
 }
@@ -211,34 +213,40 @@ namespace {
 // frame of the whole octree cut to the resident slices, bit for bit; and a converged view uploads only what
 // loaded.
 TEST_F(Gpu, PagedFrameEqualsTheWholeOctreeCutToTheSameSlices) {
-  PagerOptions pagerOptions;
-  pagerOptions.budgetBytes = std::size_t(16) << 20;
-  Pager pager(svotest::sphereStore(), pagerOptions);
-  gpu::GpuPool pool(*caster_, pager);
-  // The first sync uploads exactly the pages that hold blocks (the trunk), not the whole budget.
-  EXPECT_EQ(pool.sync(), pager.residentBytes());
-  gpu::GpuCaster wholeCaster;
-  const StoreReader reader(svotest::sphereStore());
-  const Camera camera = svotest::cameraAt({0.5, 0.4, 1.6}, {0.0, 0.0, 0.7}, 96);
-  RenderOptions options;
-  const ViewQuery view = viewOf(pager.transform(), camera, options.lodPixels);
-  std::size_t compared = 0;
-  for (int step = 0; step < 400 && !(pager.converged() && compared > 2); ++step) {
-    pager.update(view);
-    const Frame paged = pool.render(camera, options);
-    const Block cut = layoutBlock(svotest::truncatedTree(reader, pager.residentSlices()));
-    const Frame whole = gpu::renderBlock(wholeCaster, cut.view(), pager.transform(), camera, options);
-    ASSERT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)), 0)
-        << "step " << step;
-    ASSERT_EQ(std::memcmp(paged.depth.data(), whole.depth.data(), paged.depth.size() * sizeof(float)), 0);
-    ++compared;
-    pager.feedback(paged, camera, options.lodPixels);
-    pager.waitForWork(0.01);
+  for (const AttributeLayout attributes : {AttributeLayout::Raw, AttributeLayout::Compressed}) {
+    PagerOptions pagerOptions;
+    pagerOptions.budgetBytes = std::size_t(16) << 20;
+    pagerOptions.attributes = attributes;
+    LayoutOptions layout;
+    layout.attributes = attributes;
+    Pager pager(svotest::sphereStore(), pagerOptions);
+    gpu::GpuPool pool(*caster_, pager);
+    // The first sync uploads exactly the pages that hold blocks (the trunk), not the whole budget.
+    EXPECT_EQ(pool.sync(), pager.residentBytes());
+    gpu::GpuCaster wholeCaster;
+    const StoreReader reader(svotest::sphereStore());
+    const Camera camera = svotest::cameraAt({0.5, 0.4, 1.6}, {0.0, 0.0, 0.7}, 96);
+    RenderOptions options;
+    const ViewQuery view = viewOf(pager.transform(), camera, options.lodPixels);
+    std::size_t compared = 0;
+    for (int step = 0; step < 400 && !(pager.converged() && compared > 2); ++step) {
+      pager.update(view);
+      const Frame paged = pool.render(camera, options);
+      const Block cut = layoutBlock(svotest::truncatedTree(reader, pager.residentSlices()), layout);
+      const Frame whole = gpu::renderBlock(wholeCaster, cut.view(), pager.transform(), camera, options);
+      ASSERT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)),
+                0)
+          << nameOf(attributes) << ", step " << step;
+      ASSERT_EQ(std::memcmp(paged.depth.data(), whole.depth.data(), paged.depth.size() * sizeof(float)), 0);
+      ++compared;
+      pager.feedback(paged, camera, options.lodPixels);
+      pager.waitForWork(0.01);
+    }
+    ASSERT_TRUE(pager.converged());
+    // Uploads: the pages the loads wrote, never more than a page per resident page plus the links patched.
+    EXPECT_GT(pool.uploadedBytes(), 0u);
+    EXPECT_EQ(pool.sync(), 0u);  // nothing changed since the last frame
   }
-  ASSERT_TRUE(pager.converged());
-  // Uploads: the pages the loads wrote, never more than a page per resident page plus the links patched.
-  EXPECT_GT(pool.uploadedBytes(), 0u);
-  EXPECT_EQ(pool.sync(), 0u);  // nothing changed since the last frame
 }
 
 }  // namespace

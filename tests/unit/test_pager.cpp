@@ -48,13 +48,18 @@ svo::Camera cameraAt(glm::dvec3 eye, glm::dvec3 target, int size) {
 // The paged frame and the reference frame for what is resident are identical, pixel for pixel.
 // `reference` reads the same content as the pager's store (it differs only for the corrupt-store test).
 void expectSameAsReference(svo::Pager& pager, const svo::Camera& camera, float lodPixels,
-                           const svo::StoreReader* reference = nullptr) {
+                           const svo::StoreReader* reference = nullptr,
+                           svo::AttributeLayout attributes = svo::AttributeLayout::Raw) {
   svo::RenderOptions options;
   options.lodPixels = lodPixels;
   options.threads = 1;
   const svo::Frame paged = svo::render(pager.trunk(), pager.transform(), camera, options);
-  const svo::Block block = svo::layoutBlock(svotest::truncatedTree(
-      reference ? *reference : svo::StoreReader(pager.index().name()), pager.residentSlices()));
+  svo::LayoutOptions layout;
+  layout.attributes = attributes;
+  const svo::Block block =
+      svo::layoutBlock(svotest::truncatedTree(reference ? *reference : svo::StoreReader(pager.index().name()),
+                                              pager.residentSlices()),
+                       layout);
   const svo::Frame whole = svo::render(block.view(), pager.transform(), camera, options);
   std::size_t differing = 0, hits = 0;
   for (std::size_t i = 0; i < paged.color.size(); ++i) {
@@ -265,9 +270,14 @@ TEST(Pager, ViewConvergedMeansTheFrustumIsCompleteAndTheFrameFinal) {
   pager.checkInvariants();
 }
 
-TEST(Pager, RandomViewsUnderATightBudgetStayExactAndWithinBudget) {
+class PagerLayouts : public ::testing::TestWithParam<svo::AttributeLayout> {};
+
+// In either attribute layout: with compressed units the pool carries each region's units as they are and
+// keeps the exact values of its deepest level, so that paged frames still equal the cut octree's.
+TEST_P(PagerLayouts, RandomViewsUnderATightBudgetStayExactAndWithinBudget) {
   const TempStore& store = sphereStore();
   svo::PagerOptions options;
+  options.attributes = GetParam();
   options.budgetBytes = wholeStoreBytes(store.path) / 6;
   options.maxInFlight = 4;
   svo::Pager pager(store.path, options);
@@ -288,11 +298,28 @@ TEST(Pager, RandomViewsUnderATightBudgetStayExactAndWithinBudget) {
       ASSERT_NO_THROW(pager.checkInvariants());
       pager.waitForWork(0.01);
     }
-    if (step % 6 == 0) expectSameAsReference(pager, camera, lod);
+    if (step % 6 == 0) expectSameAsReference(pager, camera, lod, nullptr, GetParam());
   }
   EXPECT_GT(loaded, 0u);
   EXPECT_GT(evicted, 0u);  // the budget forced evictions, and the frames stayed exact
+  // And with every slice resident, the paged frame equals the store read whole in the same layout.
+  svo::ViewQuery everything = svo::viewOf(pager.transform(), cameraAt({0, 0, 4}, {0, 0, 0}, 64), 1e-9);
+  everything.frustum.clear();
+  svo::PagerOptions all = options;
+  all.budgetBytes = std::size_t(256) << 20;
+  svo::Pager full(store.path, all);
+  converge(full, everything);
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96);
+  svo::RenderOptions render;
+  render.lodPixels = 0.0f, render.threads = 1;
+  const svo::Frame paged = svo::render(full.trunk(), full.transform(), camera, render);
+  const svo::Frame whole = svo::render(svo::readOctree(store.path, GetParam()), camera, render);
+  EXPECT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)), 0);
+  EXPECT_EQ(std::memcmp(paged.depth.data(), whole.depth.data(), paged.depth.size() * sizeof(float)), 0);
 }
+INSTANTIATE_TEST_SUITE_P(Attributes, PagerLayouts,
+                         ::testing::Values(svo::AttributeLayout::Raw, svo::AttributeLayout::Compressed),
+                         [](const auto& info) { return std::string(svo::nameOf(info.param)); });
 
 // Ray feedback boosts the slices that would refine what rays hit; once such a slice is resident its boost
 // stops. Had the boost also decided eviction, two slices could evict each other frame after frame under a

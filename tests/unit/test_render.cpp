@@ -260,8 +260,9 @@ TEST(OctreeRay, MapsWorldPointsAtTheSameT) {
 // render
 
 // The whole scene cube filled: a root with eight leaf children, all colored `color`, optionally with a
-// normal attachment holding `normal` everywhere.
-Octree solidCube(const SceneTransform& scene, glm::vec4 color, std::optional<glm::vec3> normal) {
+// normal attachment holding `normal` everywhere, in either attribute layout.
+Octree solidCube(const SceneTransform& scene, glm::vec4 color, std::optional<glm::vec3> normal,
+                 AttributeLayout attributes = AttributeLayout::Raw) {
   VoxelTree tree;
   tree.hasColors = true;
   tree.hasNormals = normal.has_value();
@@ -274,7 +275,9 @@ Octree solidCube(const SceneTransform& scene, glm::vec4 color, std::optional<glm
   }
   Octree octree;
   octree.transform = scene;
-  octree.block = layoutBlock(tree);
+  LayoutOptions layout;
+  layout.attributes = attributes;
+  octree.block = layoutBlock(tree, layout);
   return octree;
 }
 
@@ -288,10 +291,13 @@ glm::dvec3 expectedShade(glm::dvec3 albedo, glm::dvec3 n, glm::dvec3 view, glm::
   return albedo * (0.15 + 0.75 * diffuse) + glm::dvec3(0.25 * specular);
 }
 
-TEST(Render, SolidCubeFaceOnHasAnalyticDepthShadingAndVoxelSize) {
+class RenderLayouts : public ::testing::TestWithParam<AttributeLayout> {};
+
+// Pure red and an axis normal are exact in both attribute layouts (an RGB565 endpoint, a cube face's centre).
+TEST_P(RenderLayouts, SolidCubeFaceOnHasAnalyticDepthShadingAndVoxelSize) {
   const SceneTransform scene{{-2.0, 1.0, 3.0}, 4.0};  // world cube [-2,2] x [1,5] x [3,7]
   const glm::vec4 red(1.0f, 0.0f, 0.0f, 1.0f);
-  const Octree octree = solidCube(scene, red, std::nullopt);
+  const Octree octree = solidCube(scene, red, glm::vec3(0.0f, 0.0f, 1.0f), GetParam());
   // Face-on to the +z face (z = 7) from 10 units away, narrow view so the corners miss.
   Camera camera = makeCamera({0.0, 3.0, 17.0}, {0.0, 3.0, 7.0}, 64, 48, 30.0);
   RenderOptions options;
@@ -337,6 +343,9 @@ TEST(Render, SolidCubeFaceOnHasAnalyticDepthShadingAndVoxelSize) {
   EXPECT_GT(frame.meanIterations, 0.0);
   EXPECT_GE(frame.seconds, 0.0);
 }
+INSTANTIATE_TEST_SUITE_P(Attributes, RenderLayouts,
+                         ::testing::Values(AttributeLayout::Raw, AttributeLayout::Compressed),
+                         [](const auto& info) { return std::string(nameOf(info.param)); });
 
 TEST(Render, NormalsFacingAwayAreFlippedAndThreadCountDoesNotMatter) {
   const SceneTransform scene{{0.0, 0.0, 0.0}, 1.0};

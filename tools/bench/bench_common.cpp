@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <numbers>
 #include <set>
 #include <stdexcept>
 #include <system_error>
@@ -12,6 +13,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 #include <tbb/info.h>
+#include <glm/geometric.hpp>
 
 #include "bench.hpp"
 #include "svo/client/render.hpp"
@@ -141,14 +143,43 @@ ScratchPath::~ScratchPath() {
 
 WholeScene wholeSceneOf(const VoxelTree& tree, const SceneTransform& transform,
                         const BuildParameters& parameters, const std::filesystem::path& store,
-                        LayoutStats* layout) {
+                        LayoutStats* layout, AttributeLayout attributes) {
   try {
-    return WholeScene(Octree{transform, parameters, layoutBlock(tree, {}, layout)});
+    LayoutOptions options;
+    options.attributes = attributes;
+    return WholeScene(Octree{transform, parameters, layoutBlock(tree, options, layout)});
   } catch (const BlockTooLarge&) {
   }
   spdlog::info("{} levels exceed one block: paging the whole store through a pool ...", parameters.levels);
   if (!std::filesystem::exists(store)) writeStore(store, tree, transform, parameters);
-  return WholeScene::paged(store, wholeStoreBudget(StoreReader(store).slices()));
+  return WholeScene::paged(store, wholeStoreBudget(StoreReader(store).slices()), attributes);
+}
+
+AttributeError attributeError(const BlockView& raw, const BlockView& compressed) {
+  const VoxelTree a = readBlock(raw), b = readBlock(compressed);
+  if (a.voxels.size() != b.voxels.size())
+    throw std::logic_error("attributeError: the two layouts hold different octrees");
+  AttributeError e;
+  double colorSquares = 0.0, angles = 0.0;
+  for (std::size_t i = 1; i < a.voxels.size(); ++i) {  // the root's value is stored as it is
+    if (a.hasColors)
+      for (int shift = 0; shift < 24; shift += 8) {
+        const double d =
+            double((a.voxels[i].color >> shift) & 255u) - double((b.voxels[i].color >> shift) & 255u);
+        colorSquares += d * d, e.colorMax = std::max(e.colorMax, std::abs(d));
+      }
+    if (a.hasNormals) {
+      const double cosine = glm::dot(glm::dvec3(decodeNormal(a.voxels[i].normal)),
+                                     glm::dvec3(decodeNormal(b.voxels[i].normal)));
+      const double degrees = std::acos(std::clamp(cosine, -1.0, 1.0)) * 180.0 / std::numbers::pi;
+      angles += degrees, e.normalMaxDegrees = std::max(e.normalMaxDegrees, degrees);
+    }
+  }
+  e.voxels = a.voxels.size() - 1;
+  const double n = double(std::max<std::uint64_t>(e.voxels, 1));
+  e.colorRmse = std::sqrt(colorSquares / (3.0 * n));
+  e.normalMeanDegrees = angles / n;
+  return e;
 }
 
 }  // namespace svo::tools::bench

@@ -98,11 +98,20 @@ class ScratchPath {
   std::filesystem::path path_;
 };
 
-// A voxel tree at every depth: laid out as one block (`layout` receives its stats), or where it does not fit
-// one, paged whole from the store at `store`, which is written from the tree when absent (the caller removes
-// it after the scene).
+// A voxel tree at every depth, its attributes laid out as `attributes` says: as one block (`layout` receives
+// its stats), or where it does not fit one, paged whole from the store at `store`, which is written from the
+// tree when absent (the caller removes it after the scene).
 WholeScene wholeSceneOf(const VoxelTree& tree, const SceneTransform& transform,
                         const BuildParameters& parameters, const std::filesystem::path& store,
-                        LayoutStats* layout = nullptr);
+                        LayoutStats* layout = nullptr, AttributeLayout attributes = AttributeLayout::Raw);
+
+// The error of the compressed attribute layout against the raw one, voxel by voxel (readBlock of both):
+// colors in 8-bit units over the RGB channels, normals in degrees.
+struct AttributeError {
+  double colorRmse = 0.0, colorMax = 0.0;
+  double normalMeanDegrees = 0.0, normalMaxDegrees = 0.0;
+  std::uint64_t voxels = 0;
+};
+AttributeError attributeError(const BlockView& raw, const BlockView& compressed);
 
 }  // namespace svo::tools::bench

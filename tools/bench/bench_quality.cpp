@@ -78,6 +78,34 @@ std::vector<int> parseLevels(const std::string& text) {
   return levels;
 }
 
+// The settings swept at one depth and contour cut: level of detail and beam, with contours and (for the
+// first cut only: cube renders ignore contours) without; and with contours and the beam, each level of
+// detail with compressed attributes and with the post-process filter.
+std::vector<Setting> settingsOf(int levels, float cut, bool firstCut, const LevelScene& level,
+                                const std::vector<float>& filterRadii) {
+  std::vector<Setting> settings;
+  for (const bool contours : {true, false}) {
+    if (!contours && !firstCut) continue;
+    for (const float lod : kLodSweep)
+      for (const int beam : kBeamSweep)
+        settings.push_back({levels, contours ? cut : 0.0f, lod, contours, beam});
+  }
+  for (const float lod : kLodSweep) {
+    const Setting plain{levels, cut, lod, true, kBeamSweep[0]};
+    if (level.compressed) {
+      Setting compressed = plain;
+      compressed.attributes = AttributeLayout::Compressed;
+      settings.push_back(compressed);
+    }
+    for (const float radius : filterRadii) {
+      Setting filtered = plain;
+      filtered.filterRadius = radius;
+      settings.push_back(filtered);
+    }
+  }
+  return settings;
+}
+
 // Every setting of every swept depth and contour cut, timed and compared with the reference.
 std::vector<Measured> measureSettings(const QualityArgs& args, const Mesh& mesh,
                                       const std::vector<int>& levelList, const Camera& camera,
@@ -93,24 +121,24 @@ std::vector<Measured> measureSettings(const QualityArgs& args, const Mesh& mesh,
       buildLevel(mesh, build, args.out, true, level);
       const BlockView root = level.scene->root();
       const double finestVoxel = scene.size / double(std::int64_t(1) << levels);
-      for (const bool contours : {true, false}) {
-        // Cube renders ignore contours: one cut's are every cut's.
-        if (!contours && cut != args.contourCuts.front()) continue;
-        for (const float lod : kLodSweep)
-          for (const int beam : kBeamSweep) {
-            Measured m;
-            m.setting = {levels, contours ? cut : 0.0f, lod, contours, beam};
-            m.buildSeconds = level.buildSeconds, m.storeBytes = level.storeBytes;
-            RenderOptions options = base;
-            options.lodPixels = lod;
-            options.cast.contours = contours;
-            options.beamTile = beam;
-            Frame frame;
-            m.seconds = timeRuns(args.runs, [&] { frame = render(root, scene, camera, options); }).median;
-            m.image = imageOf(std::move(frame));
-            compare(reference, m.image, finestVoxel, m);
-            all.push_back(std::move(m));
-          }
+      for (const Setting& setting :
+           settingsOf(levels, cut, cut == args.contourCuts.front(), level, args.filterRadii)) {
+        Measured m;
+        m.setting = setting;
+        m.buildSeconds = level.buildSeconds, m.storeBytes = level.storeBytes;
+        RenderOptions options = base;
+        options.lodPixels = setting.lod;
+        options.cast.contours = setting.contours;
+        options.beamTile = setting.beam;
+        options.filter = setting.filterRadius > 0.0f;
+        options.filterRadius = setting.filterRadius;
+        const BlockView from =
+            setting.attributes == AttributeLayout::Compressed ? level.compressed->root() : root;
+        Frame frame;
+        m.seconds = timeRuns(args.runs, [&] { frame = render(from, scene, camera, options); }).median;
+        m.image = imageOf(std::move(frame));
+        compare(reference, m.image, finestVoxel, m);
+        all.push_back(std::move(m));
       }
     }
   return all;
@@ -211,6 +239,56 @@ std::string writeBestAndWorst(const std::filesystem::path& out, const std::vecto
   return markdown;
 }
 
+// Each setting with a knob on (compressed attributes, the filter) against the same setting without it: the
+// change in PSNR and render time, printed and as the report's lines; the filter's frames before and after are
+// written as PNGs for each level of detail of the deepest level.
+std::string knobEffects(const std::filesystem::path& out, const std::vector<Measured>& all) {
+  const auto plainOf = [&](const Setting& s) -> const Measured* {
+    for (const Measured& m : all)
+      if (m.setting.levels == s.levels && m.setting.contourCut == s.contourCut && m.setting.lod == s.lod &&
+          m.setting.contours && m.setting.beam == s.beam && m.setting.attributes == AttributeLayout::Raw &&
+          m.setting.filterRadius == 0.0f)
+        return &m;
+    return nullptr;
+  };
+  const int deepest = std::max_element(all.begin(), all.end(), [](const Measured& a, const Measured& b) {
+                        return a.setting.levels < b.setting.levels;
+                      })->setting.levels;
+  Table table({"knob", "setting", "PSNR off dB", "PSNR on dB", "render off", "render on", "knob costs"});
+  std::string markdown =
+      "\n## Knobs against the same setting without them\n\n| knob | setting | PSNR off | PSNR on | render "
+      "off ms | "
+      "render on ms |\n|---|---|---|---|---|---|\n";
+  std::string images;
+  for (const Measured& m : all) {
+    const bool filter = m.setting.filterRadius > 0.0f;
+    const bool compressed = m.setting.attributes == AttributeLayout::Compressed;
+    if (!filter && !compressed) continue;
+    const Measured* plain = plainOf(m.setting);
+    if (!plain) continue;
+    const std::string knob =
+        filter ? fmt::format("post-process filter {}", m.setting.filterRadius) : "compressed attributes";
+    const std::string setting =
+        fmt::format("L{} lod {} cut {}", m.setting.levels, m.setting.lod, m.setting.contourCut);
+    table.addRow({knob, setting, fmt::format("{:.2f}", plain->psnr), fmt::format("{:.2f}", m.psnr),
+                  formatSeconds(plain->seconds), formatSeconds(m.seconds),
+                  fmt::format("{:+.1f} ms", 1e3 * (m.seconds - plain->seconds))});
+    markdown += fmt::format("| {} | {} | {:.2f} | {:.2f} | {:.2f} | {:.2f} |\n", knob, setting, plain->psnr,
+                            m.psnr, 1e3 * plain->seconds, 1e3 * m.seconds);
+    if (filter && m.setting.levels == deepest && m.setting.contourCut == all.front().setting.contourCut) {
+      const std::string before = fmt::format("lod{}-no-filter.png", m.setting.lod);
+      const std::string after = fmt::format("lod{}-filter{}.png", m.setting.lod, m.setting.filterRadius);
+      writePng(out / before, plain->image);
+      writePng(out / after, m.image);
+      images += fmt::format("- `{}` / `{}`: L{} lod {} without and with the filter of radius {}\n", before,
+                            after, m.setting.levels, m.setting.lod, m.setting.filterRadius);
+    }
+  }
+  printTitle("Knobs against the same setting without them");
+  table.print();
+  return markdown + (images.empty() ? "" : "\n" + images);
+}
+
 void runQualityBench(const QualityArgs& args) {
   requireRuns(args.runs);
   if (args.size < 16 || args.size > 8192)
@@ -253,6 +331,7 @@ void runQualityBench(const QualityArgs& args) {
   fmt::print("{}", goals);
   markdown += goals;
   plotErrors(out / "error-vs-time.png", all);
+  markdown += knobEffects(out, all);
   markdown += writeBestAndWorst(out, all, reference);
   markdown += "\n![error against time](error-vs-time.png)\n";
   writeTextFile(out / "quality.md", markdown);
@@ -273,6 +352,13 @@ void addQualityBench(CLI::App& bench) {
                   "--leaf-contour-min-reduction), comma-separated; --stream builds with the first")
       ->delimiter(',')
       ->check(CLI::Range(0.0f, 2.0f))
+      ->capture_default_str();
+  cmd->add_option(
+         "--filter-radius", args->filterRadii,
+         "post-process filter radii per voxel width to sweep at each level of detail (contours, beam), "
+         "comma-separated")
+      ->delimiter(',')
+      ->check(CLI::Range(0.05f, 8.0f))
       ->capture_default_str();
   cmd->add_option("--size", args->size, "image width and height")->capture_default_str();
   cmd->add_option("--runs", args->runs, "timed runs per setting; the median is reported")

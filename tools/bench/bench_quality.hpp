@@ -25,6 +25,7 @@ struct QualityArgs {
   std::string mesh;
   std::string levels = "8,9,10";
   std::vector<float> contourCuts{BuildOptions{}.leafContourMinReduction};
+  std::vector<float> filterRadii{kPostFilterRadiusPerVoxel};
   int size = 512;
   int runs = 3;
   std::string view = defaultViewText();
@@ -70,9 +71,13 @@ struct Setting {
   float lod = 1.0f;
   bool contours = true;
   int beam = 8;
+  AttributeLayout attributes = AttributeLayout::Raw;
+  float filterRadius = 0.0f;  // the post-process filter's (sec. 6.3) radius per voxel width; 0: off
   std::string family() const {
-    return fmt::format("{}, {}", contours ? fmt::format("contours cut {}", contourCut) : "cubes",
-                       beam ? "beam" : "no beam");
+    return fmt::format("{}, {}{}{}", contours ? fmt::format("contours cut {}", contourCut) : "cubes",
+                       beam ? "beam" : "no beam",
+                       attributes == AttributeLayout::Compressed ? ", compressed attributes" : "",
+                       filterRadius > 0.0f ? fmt::format(", filter {}", filterRadius) : "");
   }
   std::string name() const { return fmt::format("L{} lod {} {}", levels, lod, family()); }
 };
@@ -108,7 +113,8 @@ struct LevelScene {
   std::uint64_t storeBytes = 0;
   double buildSeconds = 0.0;  // voxelize + layout
   SceneTransform transform;
-  std::optional<WholeScene> scene;  // with its root: every depth, one block or paged
+  std::optional<WholeScene> scene;       // with its root: every depth, one block or paged
+  std::optional<WholeScene> compressed;  // the same with compressed attributes (when it has any)
   LevelScene() = default;
   LevelScene(const LevelScene&) = delete;
   ~LevelScene() {

@@ -130,9 +130,12 @@ void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesyst
   const BuildParameters parameters = storedParameters(build);
   writeStore(s.store, tree, s.transform, parameters);
   s.storeBytes = std::filesystem::file_size(s.store);
-  if (withRoot)
-    s.buildSeconds +=
-        timeSeconds([&] { s.scene.emplace(wholeSceneOf(tree, s.transform, parameters, s.store)); });
+  if (!withRoot) return;
+  s.buildSeconds +=
+      timeSeconds([&] { s.scene.emplace(wholeSceneOf(tree, s.transform, parameters, s.store)); });
+  if (tree.hasColors || tree.hasNormals)
+    s.compressed.emplace(
+        wholeSceneOf(tree, s.transform, parameters, s.store, nullptr, AttributeLayout::Compressed));
 }
 
 }  // namespace svo::tools::bench

@@ -15,6 +15,7 @@
 #include <spdlog/spdlog.h>
 
 #include "bench_raycast.hpp"
+#include "pager_flags.hpp"
 #include "plot.hpp"
 #include "svo/builder/gen.hpp"
 
@@ -42,9 +43,8 @@ std::string percent(std::uint64_t part, std::uint64_t whole) {
 }
 
 void printMemory(const SceneResult& scene) {
-  const LayoutStats& layout = scene.stats.layout;
   const double leaves = double(std::max<std::uint64_t>(scene.stats.leafVoxels, 1));
-  if (scene.paged) {
+  if (!scene.rawLayout || !scene.compressedLayout) {
     printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, paged)",
                            formatCount(scene.stats.leafVoxels)));
     fmt::print(
@@ -53,29 +53,46 @@ void printMemory(const SceneResult& scene) {
         double(scene.octreeBytes) / (1 << 20), double(scene.octreeBytes) / leaves);
     return;
   }
-  const bool hasColor = layout.colorValues > 0 || layout.inheritedColors > 0;
-  const double paperAttributes = (hasColor ? kPaperColorBytes : 0.0) + kPaperNormalBytes;
-  const double paperTotal = kPaperHierarchyBytes + kPaperContourBytes + paperAttributes;
-  printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, block {:.1f} MB)",
-                         formatCount(scene.stats.leafVoxels), double(scene.octreeBytes) / (1 << 20)));
-  Table table({"part", "ESVO B/voxel", "paper B/voxel", "ESVO/paper"});
-  const auto row = [&](std::string name, double bytes, double paper) {
-    table.addRow({std::move(name), fmt::format("{:.2f}", bytes / leaves), fmt::format("~{:.0f}", paper),
-                  fmt::format("{:.2f}x", bytes / leaves / paper)});
+  const LayoutStats &raw = *scene.rawLayout, &compressed = *scene.compressedLayout;
+  const bool hasColor = raw.colorBytes > 0;
+  // Paper Table 1 counts bytes per voxel of every level (sec. 5.6: a descriptor per four voxels).
+  const double voxels = double(std::max<std::uint64_t>(scene.voxels, 1));
+  const double paperTotal =
+      kPaperHierarchyBytes + kPaperContourBytes + (hasColor ? kPaperColorBytes : 0.0) + kPaperNormalBytes;
+  printTitle(
+      fmt::format("Octree memory ({} leaf voxels, {} voxels in all; one block: raw {:.1f} MB, "
+                  "compressed {:.1f} MB)",
+                  formatCount(scene.stats.leafVoxels), formatCount(scene.voxels),
+                  double(raw.totalBytes) / (1 << 20), double(compressed.totalBytes) / (1 << 20)));
+  Table table({"part", "raw B/leaf", "compressed B/leaf", "compressed B/voxel", "paper B/voxel"});
+  const auto row = [&](std::string name, double rawBytes, double compressedBytes, double paper) {
+    table.addRow({std::move(name), fmt::format("{:.2f}", rawBytes / leaves),
+                  fmt::format("{:.2f}", compressedBytes / leaves),
+                  fmt::format("{:.2f}", compressedBytes / voxels),
+                  paper > 0.0 ? fmt::format("~{:.0f}", paper) : std::string("-")});
   };
-  row("hierarchy (incl. far pointers, page headers)", double(layout.hierarchyBytes), kPaperHierarchyBytes);
-  row("contours", double(layout.contourBytes), kPaperContourBytes);
-  row(hasColor ? "attributes (color + normal, uncompressed)" : "attributes (normal only, uncompressed)",
-      double(layout.attributeBytes), paperAttributes);
-  row("total (incl. info section, padding)", double(layout.totalBytes), paperTotal);
+  row("hierarchy (incl. far pointers, page headers, links)", double(raw.hierarchyBytes),
+      double(compressed.hierarchyBytes), kPaperHierarchyBytes);
+  row("contours (pointer words and values)", double(raw.contourBytes), double(compressed.contourBytes),
+      kPaperContourBytes);
+  if (hasColor) row("colors", double(raw.colorBytes), double(compressed.colorBytes), kPaperColorBytes);
+  row("normals", double(raw.normalBytes), double(compressed.normalBytes), kPaperNormalBytes);
+  row("total (incl. info section, padding)", double(raw.totalBytes), double(compressed.totalBytes),
+      paperTotal);
   table.print();
+  const AttributeError& e = *scene.compressedError;
   fmt::print(
-      "attribute values stored: {} colors ({} inherited), {} normals ({} inherited); {} contours. Paper "
-      "Table 1: ~5 B/voxel with compressed attributes{}.\n",
-      formatCount(layout.colorValues), formatCount(layout.inheritedColors), formatCount(layout.normalValues),
-      formatCount(layout.inheritedNormals), formatCount(scene.stats.contours),
-      hasColor ? std::string()
-               : fmt::format("; this scene has no color, so ~{:.0f} is the comparable figure", paperTotal));
+      "raw: {} colors and {} normals stored, {} and {} inherited; compressed: {} units, {:.0f}% of their "
+      "halves "
+      "hold children, laid out in {}. Compressed against raw over {} voxels: color RMSE {:.2f}, max {:.0f} "
+      "(8-bit steps); normal mean {:.3f} deg, max {:.2f} deg. Paper Table 1: ~{:.0f} B per voxel of every "
+      "level "
+      "with compressed attributes{}.\n",
+      formatCount(raw.colorValues), formatCount(raw.normalValues), formatCount(raw.inheritedColors),
+      formatCount(raw.inheritedNormals), formatCount(compressed.units),
+      100.0 * double(compressed.unitHalvesUsed) / double(std::max<std::uint64_t>(2 * compressed.units, 1)),
+      formatSeconds(scene.compressSeconds), formatCount(e.voxels), e.colorRmse, e.colorMax,
+      e.normalMeanDegrees, e.normalMaxDegrees, paperTotal, hasColor ? "" : " (this scene has no color)");
 }
 
 void printScenes(const std::vector<SceneResult>& scenes) {
@@ -268,7 +285,7 @@ void runRaycastBench(const RaycastArgs& args) {
   }
   printScenes(scenes);
   printComparison(scenes, args);
-  if (scenes.size() == 1) printMemory(scenes.front());
+  for (const SceneResult& scene : scenes) printMemory(scene);
 }
 
 }  // namespace
@@ -313,6 +330,7 @@ void addRaycastBench(CLI::App& bench) {
   cmd->add_option("-o,--output", args->output, "folder for the scaling plot and --images")
       ->capture_default_str();
   cmd->add_flag("--images", args->images, "write each camera's ESVO and Embree frames as PNG");
+  addAttributeLayoutFlag(*cmd, args->attributes);
   cmd->callback([args] { runRaycastBench(*args); });
 }
 

@@ -26,10 +26,11 @@ struct RaycastArgs {
   std::vector<std::string> cameras{"whole", "close"};
   int width = 0, height = 0;  // 0: --size
   std::string device = "cpu";
-  std::string scaling;                    // triangle counts of the scaling sweep ("10k,100k,...")
-  std::string scalingKind = "terrain";    // the generated scene of the sweep
-  std::string output = "raycast-report";  // folder for the plot and images
-  bool images = false;                    // write each camera's ESVO and Embree images as PNG
+  std::string scaling;                                // triangle counts of the scaling sweep ("10k,100k,...")
+  std::string scalingKind = "terrain";                // the generated scene of the sweep
+  std::string output = "raycast-report";              // folder for the plot and images
+  bool images = false;                                // write each camera's ESVO and Embree images as PNG
+  AttributeLayout attributes = AttributeLayout::Raw;  // of the timed octree
 };
 
 // A method's timed frames: the median and spread of its runs and the last run's result.
@@ -58,6 +59,11 @@ struct SceneResult {
   BuildStats stats;
   std::size_t octreeBytes = 0;
   bool paged = false;
+  // Both attribute layouts of the octree where each fits one block: their parts, and what compression costs.
+  std::optional<LayoutStats> rawLayout, compressedLayout;
+  std::optional<AttributeError> compressedError;
+  double compressSeconds = 0.0;  // laying the compressed block out
+  std::uint64_t voxels = 0;      // every voxel below the root, every level
   double esvoBuildSeconds = 0.0, embreeBuildSeconds = 0.0;
   double finestVoxel = 0.0;  // world units
   std::vector<CameraRow> rows;

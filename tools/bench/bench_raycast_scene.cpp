@@ -173,8 +173,8 @@ Timed timeGpu(const WholeScene& scene, const Camera& camera, const RenderOptions
     caster.reserve(root.size());
     caster.upload(0, std::span<const std::byte>(root.base(), root.size()));
   }
-  const bool colors = root.attachment(AttachmentType::Color) != nullptr;
-  const bool normals = root.attachment(AttachmentType::Normal) != nullptr;
+  const bool colors = root.hasColors();
+  const bool normals = root.hasNormals();
   spdlog::info("ESVO on the GPU ({}): 1 warm-up + {} runs ...", name, runs);
   Timed timed;
   Frame frame;
@@ -213,6 +213,24 @@ void measureEsvo(const WholeScene& scene, const Camera& camera, const RenderOpti
   if (!imageStem.empty()) writePng(folder / (imageStem + "-embree.png"), reference);
 }
 
+// The octree in both attribute layouts, where each fits one block: bytes by part, and the compressed
+// values' error against the raw ones.
+void compareLayouts(const VoxelTree& tree, SceneResult& result) {
+  if (!tree.hasColors && !tree.hasNormals) return;
+  try {
+    LayoutStats raw, compressed;
+    LayoutOptions options;
+    const Block rawBlock = layoutBlock(tree, options, &raw);
+    options.attributes = AttributeLayout::Compressed;
+    Block compressedBlock;
+    result.compressSeconds = timeSeconds([&] { compressedBlock = layoutBlock(tree, options, &compressed); });
+    result.compressedError = attributeError(rawBlock.view(), compressedBlock.view());
+    result.rawLayout = raw, result.compressedLayout = compressed;
+  } catch (const BlockTooLarge&) {
+    spdlog::info("{}: the octree exceeds one block in a layout: no comparison of the layouts", result.name);
+  }
+}
+
 }  // namespace
 
 SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastArgs& args,
@@ -228,13 +246,17 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
   // Where the octree exceeds one block it is paged whole from a scratch store, removed however this ends.
   const ScratchPath scratch("svo-bench-raycast.svo");
   std::optional<WholeScene> scene;
+  VoxelTree tree;
   result.esvoBuildSeconds = timeSeconds([&] {
-    const VoxelTree tree = voxelize(mesh, transform, buildOptions, &result.stats);
-    scene.emplace(
-        wholeSceneOf(tree, transform, storedParameters(buildOptions), scratch.path(), &result.stats.layout));
+    tree = voxelize(mesh, transform, buildOptions, &result.stats);
+    scene.emplace(wholeSceneOf(tree, transform, storedParameters(buildOptions), scratch.path(),
+                               &result.stats.layout, args.attributes));
   });
   result.octreeBytes = scene->bytes();
   result.paged = scene->isPaged();
+  result.voxels = tree.voxels.size() - 1;
+  compareLayouts(tree, result);
+  tree = VoxelTree();
   result.finestVoxel = transform.size / double(std::int64_t(1) << args.levels);
 
 #ifdef SVO_BENCH_PEERS

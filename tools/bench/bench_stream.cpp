@@ -207,7 +207,8 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
       r.requests.push_back(double(http->stats().requests));
       r.retries.push_back(double(http->stats().retries));
     }
-    if (const auto* stream = dynamic_cast<const ViewStreamSource*>(source.get())) r.stream.push_back(stream->stats());
+    if (const auto* stream = dynamic_cast<const ViewStreamSource*>(source.get()))
+      r.stream.push_back(stream->stats());
     if (run == 0)
       for (const auto& [t, frame] : frames)
         r.errorCurve.points.push_back(
@@ -328,12 +329,13 @@ void runStreamBench(StreamArgs args) {
       requestLines.push_back(
           closeUp.stream.front().declined
               ? formatBytes(budget) + ": the server has no view stream (range requests only)"
-              : fmt::format("{}: view stream: {:.0f} slices pushed ({:.0f} fetched from them), {:.0f} read by "
-                            "range, {:.0f} views sent",
-                            formatBytes(budget), median([](const StreamStats& s) { return s.pushed; }),
-                            median([](const StreamStats& s) { return s.usedPushed; }),
-                            median([](const StreamStats& s) { return s.pulled; }),
-                            median([](const StreamStats& s) { return s.viewsSent; })));
+              : fmt::format(
+                    "{}: view stream: {:.0f} slices pushed ({:.0f} fetched from them), {:.0f} read by "
+                    "range, {:.0f} views sent",
+                    formatBytes(budget), median([](const StreamStats& s) { return s.pushed; }),
+                    median([](const StreamStats& s) { return s.usedPushed; }),
+                    median([](const StreamStats& s) { return s.pulled; }),
+                    median([](const StreamStats& s) { return s.viewsSent; })));
     }
   }
   const std::filesystem::path plotPath = std::filesystem::path(args.output) / "error_vs_time.png";
@@ -341,8 +343,8 @@ void runStreamBench(StreamArgs args) {
                         "seconds since the first frame", "RMSE (linear RGB)", 1000, 700);
   printTitle(
       "svo bench stream " + input +
-      (link ? " through " + linkDescription(args.linkDelayMs, args.linkRate) : "") +
-      " (" + std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
+      (link ? " through " + linkDescription(args.linkDelayMs, args.linkRate) : "") + " (" +
+      std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
       std::to_string(args.runs) + " runs, " +
       fmt::format("{} fetch and {} decode threads at nice {}, {} decoding during frames",
                   pagerOptionsOf(args, 0).fetchThreads, args.pager.decodeThreads, args.pager.workerNice,
@@ -404,6 +406,7 @@ void addStreamBench(CLI::App& bench) {
       ->check(CLI::Range(0.01, 64.0))
       ->capture_default_str();
   addPagerThreadFlags(*cmd, args->pager);
+  addAttributeLayoutFlag(*cmd, args->pager.attributes);
   cmd->add_option("--background-load", args->backgroundLoad,
                   "busy threads at normal priority running beside the bench: streaming with other programs "
                   "on the cores")

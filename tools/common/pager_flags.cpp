@@ -3,6 +3,9 @@
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
 
+#include <map>
+#include <string>
+
 #include "remote.hpp"
 
 namespace svo::tools {
@@ -29,6 +32,18 @@ void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options) {
                  "end)")
       ->check(CLI::Range(0, 64))
       ->capture_default_str();
+}
+
+void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout) {
+  const std::map<std::string, AttributeLayout> names{
+      {nameOf(AttributeLayout::Raw), AttributeLayout::Raw},
+      {nameOf(AttributeLayout::Compressed), AttributeLayout::Compressed}};
+  cmd.add_option(
+         "--attributes", layout,
+         "colors and normals in memory: raw (32-bit values, children inherit equal ones; sec. 5.4) or "
+         "compressed (units of 16 child slots, about a byte per color and two per normal; sec. 5.5)")
+      ->transform(CLI::CheckedTransformer(names, CLI::ignore_case))
+      ->default_str(nameOf(layout));
 }
 
 int resolvedFetchThreads(int flag, const std::string& locator) {

@@ -17,5 +17,8 @@ namespace svo::tools {
 void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options);
 // `flag` when the command line set it, else fetchThreadsFor(locator): more for a URL than for a file.
 int resolvedFetchThreads(int flag, const std::string& locator);
+// Adds --attributes raw|compressed: how the octree's blocks (the pool's, or the one block of a store read
+// whole) hold colors and normals.
+void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout);
 
 }  // namespace svo::tools

@@ -68,6 +68,8 @@ void addRenderFlags(CLI::App& cmd, RenderOptions& options, bool& noContours) {
       ->check(CLI::Range(0, 64))
       ->capture_default_str();
   cmd.add_flag("--no-contours", noContours, "ignore contours: cube voxels");
+  cmd.add_flag("--filter", options.filter,
+               "post-process filter (sec. 6.3): blur the blocks of voxels wider than a pixel");
   cmd.add_option("--threads", options.threads, "render threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
 }

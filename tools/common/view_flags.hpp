@@ -29,7 +29,7 @@ std::optional<Camera> explicitCamera(const CameraFlags& flags);
 Camera cameraOf(const CameraFlags& flags, const SceneTransform& scene);
 glm::dvec3 viewDirectionOf(const CameraFlags& flags);
 
-// Adds --lod-pixels, --beam-tile, --threads (bound to `options`) and --no-contours.
+// Adds --lod-pixels, --beam-tile, --filter, --threads (bound to `options`) and --no-contours.
 void addRenderFlags(CLI::App& cmd, RenderOptions& options, bool& noContours);
 // On `--device gpu` the beam pass is off unless --beam-tile was given: on llvmpipe it costs 1.8x in a
 // close-up and saves nothing in a whole view (`svo render --device gpu --beam-tile 0|8`, 1280x720); no real

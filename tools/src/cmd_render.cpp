@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include "commands.hpp"
@@ -179,10 +180,12 @@ void renderWhole(const RenderArgs& args, const Octree& octree) {
                : render(octree, camera, options);
   writeFrame(args.out, frame, args.aux);
   std::printf(
-      "wrote %s (%dx%d), read whole as one block of %s: %.3f s, %.2f Mrays/s, %.1f iterations/ray%s\n",
+      "wrote %s (%dx%d), read whole as one block of %s: %.3f s, %.2f Mrays/s, %.1f iterations/ray%s%s\n",
       args.out.c_str(), frame.width, frame.height, formatBytes(octree.block.bytes().size()).c_str(),
       frame.seconds, frame.mraysPerSecond(), frame.meanIterations,
-      args.gpu ? (" on " + args.gpu->renderer()).c_str() : "");
+      args.gpu ? (" on " + args.gpu->renderer()).c_str() : "",
+      options.filter ? fmt::format(", of which the filter {:.1f} ms", frame.filterSeconds * 1e3).c_str()
+                     : "");
 }
 
 void checkImageOutput(const RenderArgs& args) {
@@ -213,7 +216,7 @@ void renderDefault(const RenderArgs& args) {
     }
     if (why.empty() && args.pathFile.empty()) {
       try {
-        return renderWhole(args, readOctree(store));
+        return renderWhole(args, readOctree(store, args.pager.attributes));
       } catch (const BlockTooLarge&) {
         why = "the octree is too large for one block";
       }
@@ -255,6 +258,7 @@ void addRenderCommand(CLI::App& app) {
       ->transform(CLI::AsSizeValue(false))
       ->capture_default_str();
   addPagerThreadFlags(*cmd, args->pager);
+  addAttributeLayoutFlag(*cmd, args->pager.attributes);
   cmd->add_option("--timeout", args->timeout, "when streaming: seconds a view may take to converge")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();

@@ -12,8 +12,8 @@
 #include <cstdio>
 #include <fstream>
 #include <random>
-#include <thread>
 #include <set>
+#include <thread>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -22,6 +22,7 @@
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
+#include "pager_flags.hpp"
 #include "plot.hpp"
 #include "remote.hpp"
 #include "report.hpp"
@@ -42,6 +43,7 @@ struct StressArgs {
   float lodPixels = 1.0f;
   double timeout = 120.0;
   double minutes = 0.0;  // soak: repeat the sequences this long
+  AttributeLayout attributes = AttributeLayout::Raw;
 };
 
 // Field of view of the stress cameras, degrees.
@@ -256,6 +258,7 @@ PagerOptions pagerOptionsFor(std::size_t budget, const StressArgs& args) {
   PagerOptions options;
   options.budgetBytes = budget;
   options.fetchThreads = fetchThreadsFor(args.input);
+  options.attributes = args.attributes;
   return options;
 }
 
@@ -412,6 +415,7 @@ void addStressCommand(CLI::App& app) {
   cmd->add_option("--minutes", args->minutes,
                   "soak: repeat the sequences this long, recording the resident set (must stay flat)")
       ->check(CLI::PositiveNumber);
+  addAttributeLayoutFlag(*cmd, args->attributes);
   cmd->add_option("-o,--output", args->output, "with --minutes: folder for soak.csv and soak_rss.png")
       ->capture_default_str();
   cmd->callback([args] { args->minutes > 0.0 ? runSoak(*args) : runStress(*args); });

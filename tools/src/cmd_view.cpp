@@ -81,6 +81,7 @@ void runView(const ViewArgs& args, bool sizeGiven, std::chrono::steady_clock::ti
   options.render = args.render;
   options.settings.lodPixels = args.render.lodPixels;
   options.settings.contours = !args.noContours;
+  options.settings.filter = args.render.filter;
   options.settings.falseColor = falseColorOf(args.colors);
   options.settings.overlay = !args.noOverlay;
   options.camera = explicitCamera(args.camera);
@@ -119,6 +120,7 @@ void addViewCommand(CLI::App& app) {
                   "the block pool in bytes (64M, 1G; default: half the available memory)")
       ->transform(CLI::AsSizeValue(false));
   addPagerThreadFlags(*cmd, args->pager);
+  addAttributeLayoutFlag(*cmd, args->pager.attributes);
   cmd->add_option("--colors", args->colors,
                   "shaded, 'octree level', 'iterations per pixel' or 'resident vs wanted'")
       ->capture_default_str();

@@ -192,6 +192,8 @@ Frame GpuCaster::render(std::uint32_t rootSlot, bool hasColors, bool hasNormals,
     if (hits) hits->voxel[i] = o.hitSlot, hits->scale[i] = std::uint8_t(o.scaleIterations & 255u);
   }
   glUnmapNamedBuffer(pixels_);
+  // The filter runs on the CPU over the frame read back.
+  if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations) / double(pixels);
   return frame;
@@ -201,8 +203,8 @@ Frame renderBlock(GpuCaster& caster, const BlockView& block, const SceneTransfor
                   const Camera& camera, const RenderOptions& options, GpuHits* hits) {
   caster.reserve(block.size());
   caster.upload(0, std::span<const std::byte>(block.base(), block.size()));
-  return caster.render(block.info().rootSlot, block.attachment(AttachmentType::Color) != nullptr,
-                       block.attachment(AttachmentType::Normal) != nullptr, scene, camera, options, hits);
+  return caster.render(block.info().rootSlot, block.hasColors(), block.hasNormals(), scene, camera, options,
+                       hits);
 }
 
 }  // namespace svo::gpu

@@ -31,9 +31,8 @@ std::uint64_t GpuPool::sync() {
 Frame GpuPool::render(const Camera& camera, const RenderOptions& options, GpuHits* hits) {
   sync();
   const BlockView trunk = pager_.trunk();
-  return caster_.render(rootSlot_, trunk.attachment(AttachmentType::Color) != nullptr,
-                        trunk.attachment(AttachmentType::Normal) != nullptr, pager_.transform(), camera,
-                        options, hits);
+  return caster_.render(rootSlot_, trunk.hasColors(), trunk.hasNormals(), pager_.transform(), camera, options,
+                        hits);
 }
 
 }  // namespace svo::gpu

@@ -1,6 +1,8 @@
 #include "paging/region_loader.hpp"
 
+#include <algorithm>
 #include <cassert>
+#include <cstring>
 #include <ctime>
 #include <map>
 #include <optional>
@@ -43,16 +45,56 @@ int slotToward(const glm::ivec3& coord, int shift) {
   return childSlot(coord >> shift);
 }
 
-std::uint32_t rootValue(const BlockView& block, AttachmentType type) {
-  const AttachmentEntry* e = block.attachment(type);
-  return e ? e->rootValue : 0;
+// The root voxel's values as a block records them (either attribute layout).
+std::pair<std::uint32_t, std::uint32_t> rootValues(const BlockView& block) {
+  const auto value = [&](AttachmentType raw, AttachmentType units) {
+    const AttachmentEntry* e = block.attachment(raw) ? block.attachment(raw) : block.attachment(units);
+    return e ? e->rootValue : 0u;
+  };
+  return {value(AttachmentType::Color, AttachmentType::ColorUnits),
+          value(AttachmentType::Normal, AttachmentType::NormalUnits)};
 }
+
+// One descriptor's children's attribute values as its block holds them: uncompressed values (a child left
+// out inherits its parent's), or the compressed units decoded, except at the block's deepest level, whose
+// exact values the block keeps beside the units (they come in Morton order, one after another).
+class ChildValues {
+ public:
+  ChildValues(const ChildDescriptor* d, const ReadBack& readBack, bool frontier) : frontier_(frontier) {
+    if (!readBack.compressed) {
+      colors_ = BlockView::attributes(d, AttachmentType::Color);
+      normals_ = BlockView::attributes(d, AttachmentType::Normal);
+    } else {
+      colorUnit_ = BlockView::unit(d, AttachmentType::ColorUnits);
+      normalUnit_ = BlockView::unit(d, AttachmentType::NormalUnits);
+    }
+  }
+  void set(SliceVoxel& child, const SliceVoxel& parent, int slot, ReadBack& readBack) const {
+    if (frontier_) {
+      if (readBack.exactColors) child.color = readBack.exactColors[readBack.exactNext];
+      if (readBack.exactNormals) child.normal = latticeNormalBits(readBack.exactNormals[readBack.exactNext]);
+      ++readBack.exactNext;
+    } else if (readBack.compressed) {
+      if (colorUnit_) child.color = unitColor(colorUnit_->words, colorUnit_->half * 8 + slot);
+      if (normalUnit_) child.normal = unitNormal(normalUnit_->words, normalUnit_->half * 8 + slot);
+    } else {
+      child.color = colors_.at(slot).value_or(parent.color);
+      child.normal = normals_.at(slot).value_or(parent.normal);
+    }
+  }
+
+ private:
+  bool frontier_;
+  BlockView::Attributes colors_, normals_;
+  std::optional<BlockView::UnitHalf> colorUnit_, normalUnit_;
+};
 
 // The subtree below `start` as far as the blocks hold it, level by level in Morton order, through the
 // start's children in slots [firstSlot, lastSlot] only (a run's region; its siblings may be linked to other
 // blocks). `descriptor` is the start voxel's (nullptr when it has no children here). Stubs read as voxels
-// without children.
-VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& start,
+// without children. In the compressed layout each descriptor's units are carried to the new block as they
+// are: the values read back from them are lossy.
+VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& start, ReadBack& readBack,
                         std::uint8_t firstSlot = 0, std::uint8_t lastSlot = 7) {
   VoxelLevels levels{{start}};
   std::vector<const ChildDescriptor*> descriptors{descriptor};
@@ -60,6 +102,8 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
     std::vector<SliceVoxel> next;
     std::vector<const ChildDescriptor*> nextDescriptors;
     std::vector<SliceVoxel>& level = levels.back();
+    if (readBack.carried) readBack.carried->unitOf.emplace_back(level.size(), kNoCarriedUnit);
+    const bool frontier = readBack.startLevel + int(levels.size()) == readBack.frontierLevel;
     for (std::size_t i = 0; i < level.size(); ++i) {
       const ChildDescriptor* d = descriptors[i];
       if (!d || d->isStub()) continue;
@@ -69,8 +113,8 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
         for (int slot = 0; slot < 8; ++slot)
           if (slot < firstSlot || slot > lastSlot) mask &= std::uint8_t(~(1u << slot));
       parent.childMask = mask;
-      const BlockView::Attributes colors = BlockView::attributes(d, AttachmentType::Color);
-      const BlockView::Attributes normals = BlockView::attributes(d, AttachmentType::Normal);
+      if (readBack.carried) readBack.carried->carry(d, levels.size() - 1, i);
+      const ChildValues values(d, readBack, frontier);
       for (int slot = 0; slot < 8; ++slot) {
         if (!(mask >> slot & 1u)) continue;
         // Written in place: a voxel assembled aside and pushed back stalls on store forwarding.
@@ -78,8 +122,7 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
         c.coord = childCoord(parent.coord, slot);
         const std::optional<std::uint32_t> contour = BlockView::contour(d, slot);
         c.hasContour = contour.has_value(), c.contour = contour.value_or(0);
-        c.color = colors.at(slot).value_or(parent.color);
-        c.normal = normals.at(slot).value_or(parent.normal);
+        values.set(c, parent, slot, readBack);
         nextDescriptors.push_back((d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr);
       }
     }
@@ -103,8 +146,58 @@ WorkerCpu StageCounters::seconds() const {
           voxelsLaidOut.load(std::memory_order_relaxed)};
 }
 
-RegionLoader::RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex)
-    : source_(source), index_(source.index()), regions_(regions), poolMutex_(poolMutex) {}
+RegionLoader::RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex,
+                           AttributeLayout attributes)
+    : source_(source),
+      index_(source.index()),
+      regions_(regions),
+      poolMutex_(poolMutex),
+      attributes_(attributes) {}
+
+void CarriedLevels::carry(const ChildDescriptor* d, std::size_t level, std::size_t index) {
+  CarriedUnit unit;
+  if (const auto colors = BlockView::unit(d, AttachmentType::ColorUnits)) {
+    std::memcpy(unit.color.words.data(), colors->words, sizeof(unit.color.words));
+    unit.half = std::uint8_t(colors->half);
+  }
+  if (const auto normals = BlockView::unit(d, AttachmentType::NormalUnits)) {
+    std::memcpy(unit.normal.words.data(), normals->words, sizeof(unit.normal.words));
+    unit.half = std::uint8_t(normals->half);
+  }
+  unitOf[level][index] = std::uint32_t(units.size());
+  units.push_back(unit);
+}
+
+void RegionLoader::keepForDeepening(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
+                                    const std::vector<std::size_t>& levelStart, std::uint32_t residentAfter,
+                                    VoxelTree& tree, BuiltBlock& out) const {
+  tree.carriedUnits = std::move(carried.units);
+  tree.carriedUnitOf.assign(tree.voxels.size(), kNoCarriedUnit);
+  for (std::size_t l = 0; l < carried.unitOf.size(); ++l)
+    std::copy(carried.unitOf[l].begin(), carried.unitOf[l].end(),
+              tree.carriedUnitOf.begin() + std::ptrdiff_t(levelStart[l]));
+  // The deepest level's exact values, while a slice of this region or of a child region may be decoded on
+  // them; a region at the store's last level keeps none.
+  if (residentAfter == region.slices.size() && region.children.empty()) return;
+  const std::vector<SliceVoxel>& deepest = levels.back();
+  const StoreHeader& header = index_.header();
+  for (const SliceVoxel& v : deepest) {
+    if (header.hasColors) tree.exactColors.push_back(v.color);
+    if (header.hasNormals) tree.exactNormals.push_back(octNormalCodeOf(v.normal));
+  }
+  if (residentAfter != region.slices.size()) return;
+  // Where each child region's voxels begin among them: its first sub-cube's corner, in Morton order.
+  const int deepestLevel = region.cubeLevel + int(levels.size()) - 1;
+  for (const std::uint32_t child : region.children) {
+    const Region& c = regions_[child];
+    const auto [coords, level] = entryVoxels(c.cubeLevel, c.cubeCoord, c.firstSlot, c.lastSlot);
+    const glm::ivec3 corner = coords.front() << (deepestLevel - level);
+    const auto it =
+        std::lower_bound(deepest.begin(), deepest.end(), corner,
+                         [](const SliceVoxel& v, const glm::ivec3& k) { return mortonLess(v.coord, k); });
+    out.childFrontier[child] = std::uint32_t(it - deepest.begin());
+  }
+}
 
 FetchedChain RegionLoader::fetch(const LoadRequest& request) {
   const StageClock clock(cpu_.read);
@@ -126,13 +219,32 @@ FetchedChain RegionLoader::fetch(const LoadRequest& request) {
   return out;
 }
 
-VoxelLevels RegionLoader::residentLevels(const Region& region) const {
+ReadBack RegionLoader::readBack(const Region& region, int startLevel, std::uint32_t exactFirst,
+                                CarriedLevels* carried) const {
+  ReadBack r;
+  r.compressed = attributes_ == AttributeLayout::Compressed;
+  r.startLevel = startLevel;
+  if (!r.compressed) return r;
+  r.carried = carried;
+  r.frontierLevel = index_.slices()[region.slices[region.resident - 1]].voxelLevel;
+  const BlockView view = regions_.view(region);
+  const StoreHeader& header = index_.header();
+  const AttachmentEntry* colors = view.attachment(AttachmentType::ExactColors);
+  const AttachmentEntry* normals = view.attachment(AttachmentType::ExactNormals);
+  if ((header.hasColors && !colors) || (header.hasNormals && !normals))
+    throw std::runtime_error("its block kept no exact values to decode the next level on");
+  if (colors) r.exactColors = view.words(*colors) + exactFirst;
+  if (normals) r.exactNormals = reinterpret_cast<const std::uint16_t*>(view.words(*normals)) + exactFirst;
+  return r;
+}
+
+VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& carried) const {
   if (region.resident > 0) {
     // Deepen: the region's own block, more levels.
-    const BlockView view = regions_.view(region);
+    const auto [color, normal] = rootValues(regions_.view(region));
+    ReadBack back = readBack(region, region.cubeLevel, 0, &carried);
     return readSubtree(regions_.descriptorAt(region, region.rootSlot),
-                       {region.cubeCoord, 0, false, 0, rootValue(view, AttachmentType::Color),
-                        rootValue(view, AttachmentType::Normal)});
+                       {region.cubeCoord, 0, false, 0, color, normal}, back);
   }
   if (region.parent < 0) {
     const StoreHeader& header = index_.header();
@@ -140,13 +252,11 @@ VoxelLevels RegionLoader::residentLevels(const Region& region) const {
   }
   // A new region: its cube's voxel and subtree from the parent region's block.
   const Region& parent = regions_[std::uint32_t(region.parent)];
-  const BlockView view = regions_.view(parent);
-  SliceVoxel voxel{parent.cubeCoord,
-                   0,
-                   false,
-                   0,
-                   rootValue(view, AttachmentType::Color),
-                   rootValue(view, AttachmentType::Normal)};
+  const auto first = parent.childFrontier.find(regions_.indexOf(region));
+  ReadBack back =
+      readBack(parent, region.cubeLevel, first == parent.childFrontier.end() ? 0 : first->second, &carried);
+  const auto [color, normal] = rootValues(regions_.view(parent));
+  SliceVoxel voxel{parent.cubeCoord, 0, false, 0, color, normal};
   const ChildDescriptor* d = regions_.descriptorAt(parent, parent.rootSlot);
   for (int level = parent.cubeLevel + 1; level <= region.cubeLevel; ++level) {
     const int slot = slotToward(region.cubeCoord, region.cubeLevel - level);
@@ -156,15 +266,17 @@ VoxelLevels RegionLoader::residentLevels(const Region& region) const {
     // Its contour too: the store predicts its children's contours from it.
     const std::optional<std::uint32_t> contour = BlockView::contour(d, slot);
     voxel.hasContour = contour.has_value(), voxel.contour = contour.value_or(0);
-    if (auto v = BlockView::attribute(d, slot, AttachmentType::Color)) voxel.color = *v;
-    if (auto v = BlockView::attribute(d, slot, AttachmentType::Normal)) voxel.normal = *v;
+    const SliceVoxel above = voxel;
+    // The cube's voxel at the parent's deepest level is the first of the exact values its subtree starts at.
+    ReadBack one = back;
+    ChildValues(d, one, level == back.frontierLevel).set(voxel, above, slot, one);
     d = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
   }
-  return readSubtree(d, voxel, region.firstSlot, region.lastSlot);
+  return readSubtree(d, voxel, back, region.firstSlot, region.lastSlot);
 }
 
-void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, std::uint32_t resident,
-                          BuiltBlock& out) {
+void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
+                          std::uint32_t resident, BuiltBlock& out) {
   const StoreHeader& header = index_.header();
   VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
   cpu_.voxelsLaidOut.fetch_add(tree.voxels.size(), std::memory_order_relaxed);
@@ -205,9 +317,12 @@ void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, std::
     if (const auto record = recordAt(std::size_t(level - region.cubeLevel), coord);
         record && tree.voxels[*record].childMask != 0)
       entryRecords.push_back({coord, *record});
+  if (attributes_ == AttributeLayout::Compressed)
+    keepForDeepening(region, levels, std::move(carried), levelStart, resident + out.added, tree, out);
   std::vector<std::uint32_t> slotOf;
   LayoutOptions layout;
   layout.inheritEqualOnly = true;  // decoded slices: the store already decided what inherits
+  layout.attributes = attributes_;
   out.block = layoutBlock(tree, layout, nullptr, &slotOf);
   out.rootSlot = out.block.view().info().rootSlot;
   for (const auto& [coord, record] : entryRecords) out.entries.push_back({coord, slotOf[record]});
@@ -260,8 +375,9 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   if (region.resident == 0 && region.parent >= 0 && !regions_[std::uint32_t(region.parent)].complete())
     return out;  // stale
   VoxelLevels levels;
+  CarriedLevels carried;
   try {
-    levels = residentLevels(region);
+    levels = residentLevels(region, carried);
   } catch (const std::exception& e) {
     fail(request.slice, e.what());
     return out;
@@ -290,7 +406,7 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   pause();
   clock.enter(cpu_.layout);
   try {
-    layOut(region, levels, resident, out);
+    layOut(region, levels, std::move(carried), resident, out);
   } catch (const std::exception& e) {
     fail(region.slices[first + out.added - 1], e.what());
     out.added = 0;

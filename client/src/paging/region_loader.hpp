@@ -33,10 +33,31 @@ struct StageCounters {
   WorkerCpu seconds() const;
 };
 
+// The compressed layout's units of the descriptors read back from a block, to lay them out again unchanged:
+// decoding and encoding again would drift, and would differ from the whole octree's units.
+struct CarriedLevels {
+  std::vector<CarriedUnit> units;
+  std::vector<std::vector<std::uint32_t>> unitOf;  // per level read, per voxel: into units, or kNoCarriedUnit
+  void carry(const ChildDescriptor* d, std::size_t level, std::size_t index);
+};
+
+// How to read a block back beyond its descriptors. In the compressed layout the units are lossy, so the
+// values of the block's deepest level, which the next slice is decoded on, come from its exact attachments.
+struct ReadBack {
+  bool compressed = false;
+  int startLevel = 0;                          // the level of the voxel the read starts at
+  int frontierLevel = -1;                      // the block's deepest level
+  const std::uint32_t* exactColors = nullptr;  // the first exact value the read takes
+  const std::uint16_t* exactNormals = nullptr;
+  std::size_t exactNext = 0;  // exact values taken so far
+  CarriedLevels* carried = nullptr;
+};
+
 class RegionLoader {
  public:
   // Workers read the pool under `poolMutex` shared; commits write it exclusively.
-  RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex);
+  RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex,
+               AttributeLayout attributes);
 
   // The request's slices from the source (I/O).
   FetchedChain fetch(const LoadRequest& request);
@@ -50,15 +71,24 @@ class RegionLoader {
 
  private:
   // The region's voxels as far as the pool holds them, level by level: the levels to deepen.
-  VoxelLevels residentLevels(const Region& region) const;
+  VoxelLevels residentLevels(const Region& region, CarriedLevels& carried) const;
+  ReadBack readBack(const Region& region, int startLevel, std::uint32_t exactFirst,
+                    CarriedLevels* carried) const;
   // Lays the decoded levels out as the region's block, with the slots of its entry voxels and, when the
   // region is complete, of its child regions' entry voxels.
-  void layOut(const Region& region, const VoxelLevels& levels, std::uint32_t resident, BuiltBlock& out);
+  void layOut(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
+              std::uint32_t resident, BuiltBlock& out);
+  // The compressed layout: the units carried from the pool, and the exact values of the deepest level (and
+  // where each child region's begin) while another slice may be decoded on them.
+  void keepForDeepening(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
+                        const std::vector<std::size_t>& levelStart, std::uint32_t residentAfter,
+                        VoxelTree& tree, BuiltBlock& out) const;
 
   const SliceSource& source_;
   const StoreIndex& index_;
   RegionTable& regions_;  // read only, but for prefaulting the pool's free pages
   std::shared_mutex& poolMutex_;
+  const AttributeLayout attributes_;
   std::mutex prefaultMutex_;  // one worker at a time prefaults the pool (BlockPool::prefault)
   std::atomic<std::uint64_t> bytesRead_{0};
   StageCounters cpu_;

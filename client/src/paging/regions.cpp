@@ -155,6 +155,7 @@ void RegionTable::install(BuiltBlock& built) {
   region.rootSlot = built.rootSlot;
   region.entries = std::move(built.entries);
   region.childSlots = std::move(built.childSlots);
+  region.childFrontier = std::move(built.childFrontier);
   region.unlinked.clear();
   region.resident += built.added;
   ++region.version;

@@ -32,10 +32,12 @@ struct Region {
   std::vector<std::uint32_t> children;
   std::uint32_t resident = 0;  // slices resident: a prefix of `slices`
   BlockPool::BlockId block = 0;
-  std::size_t blockBytes = 0;                         // its block's size (the pool holds it in whole pages)
-  std::uint32_t rootSlot = 0;                         // the cube's voxel in its block
-  EntrySlots entries;                                 // its entry voxels that have children, in its block
-  std::map<std::uint32_t, EntrySlots> childSlots;     // child region -> its entry voxels in this block
+  std::size_t blockBytes = 0;                      // its block's size (the pool holds it in whole pages)
+  std::uint32_t rootSlot = 0;                      // the cube's voxel in its block
+  EntrySlots entries;                              // its entry voxels that have children, in its block
+  std::map<std::uint32_t, EntrySlots> childSlots;  // child region -> its entry voxels in this block
+  // Compressed layout: child region -> the first of its voxels among this block's exact values.
+  std::map<std::uint32_t, std::uint32_t> childFrontier;
   std::map<std::uint32_t, ChildDescriptor> unlinked;  // slot -> descriptor before a link replaced it
   std::uint64_t version = 0;                          // bumped by every commit or eviction
   double priority = 0.0;                              // highest view priority of its resident slices
@@ -53,6 +55,7 @@ struct BuiltBlock {
   std::uint32_t rootSlot = 0;
   EntrySlots entries;
   std::map<std::uint32_t, EntrySlots> childSlots;
+  std::map<std::uint32_t, std::uint32_t> childFrontier;
   std::uint32_t failedSlice = SliceInfo::kNoSlice;
   std::string error;
   bool transient = false;  // failedSlice's source failed for a reason that may pass: ask again later
@@ -72,6 +75,7 @@ class RegionTable {
 
   std::uint32_t size() const { return std::uint32_t(regions_.size()); }
   Region& operator[](std::uint32_t region) { return regions_[region]; }
+  std::uint32_t indexOf(const Region& region) const { return std::uint32_t(&region - regions_.data()); }
   const Region& operator[](std::uint32_t region) const { return regions_[region]; }
   std::uint32_t regionOf(std::uint32_t slice) const { return regionOf_[slice]; }
   std::uint32_t indexInRegion(std::uint32_t slice) const { return indexInRegion_[slice]; }

@@ -28,6 +28,7 @@ constexpr std::array kBindings{
     Binding{"P", GLFW_KEY_P, Action::Screenshot, "save a screenshot (PNG)"},
     Binding{"F1", GLFW_KEY_F1, Action::ToggleOverlay, "show or hide the overlay"},
     Binding{"C", GLFW_KEY_C, Action::ToggleContours, "contours on or off"},
+    Binding{"B", GLFW_KEY_B, Action::ToggleFilter, "post-process blur filter on or off"},
     Binding{"1", GLFW_KEY_1, Action::Shaded, "shaded"},
     Binding{"2", GLFW_KEY_2, Action::FalseColorLevel, "false color: octree level"},
     Binding{"3", GLFW_KEY_3, Action::FalseColorIterations, "false color: iterations per pixel"},

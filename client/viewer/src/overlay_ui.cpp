@@ -37,6 +37,7 @@ bool drawSettings(const OverlayStats& stats, ViewSettings& settings, int& budget
   }
   changed |= ImGui::SliderFloat("LOD pixels", &settings.lodPixels, 0.0f, kMaxLodPixels, "%.2f");
   changed |= ImGui::Checkbox("contours (C)", &settings.contours);
+  changed |= ImGui::Checkbox("filter (B)", &settings.filter);
   int mode = int(settings.falseColor);
   const char* names[] = {nameOf(FalseColor::Shaded), nameOf(FalseColor::OctreeLevel),
                          nameOf(FalseColor::Iterations), nameOf(FalseColor::Detail)};

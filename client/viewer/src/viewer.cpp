@@ -206,6 +206,9 @@ void Viewer::press(Action action) {
     case Action::ToggleContours:
       settings_.contours = !settings_.contours, frameCurrent_ = false;
       break;
+    case Action::ToggleFilter:
+      settings_.filter = !settings_.filter, frameCurrent_ = false;
+      break;
     case Action::Shaded:
       settings_.falseColor = FalseColor::Shaded, frameCurrent_ = false;
       break;
@@ -253,6 +256,7 @@ void Viewer::renderFrame(Clock::time_point now, bool moving) {
   RenderOptions options = options_.render;
   options.lodPixels = settings_.lodPixels;
   options.cast.contours = settings_.contours && pager_->index().header().parameters.contours;
+  options.filter = settings_.filter;
   options.diagnostics =
       settings_.falseColor == FalseColor::Iterations || settings_.falseColor == FalseColor::Detail;
 

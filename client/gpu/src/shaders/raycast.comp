@@ -39,7 +39,7 @@ layout(std140, binding = 2) uniform Params {
 const int kScaleMax = 23;
 const float kMinDirection = 1.0 / 8388608.0;
 const float kParallelContour = 1e-20;
-const uint kColor = 1u, kNormal = 2u;
+const uint kColor = 1u, kNormal = 2u, kColorUnits = 3u, kNormalUnits = 4u;
 const uint kSlotsPerPage = 1024u;
 const float kAmbient = 0.15, kDiffuse = 0.75, kSpecular = 0.25, kShininess = 32.0;
 const float kNeutralGreyAlbedo = 0.8;
@@ -284,12 +284,78 @@ Hit castRay(vec3 o, vec3 d, float tStart, float footprintSlope, bool contours) {
   return hit;
 }
 
+// Sec. 5.5: the first word of the unit holding the children of the descriptor at `slot` in attachment `type`
+// (kColorUnits or kNormalUnits, `unitWords` words per pair of slots) and the half they take (pairHalf); false
+// when the block has no such attachment (the raw layout).
+bool unitOf(uint slot, uint type, uint unitWords, out uint start, out uint pairHalf) {
+  uint info = infoWord(slot);
+  int slotsPointer = int(words[info + 1u]);
+  uint attachments = words[info + 5u];
+  uint index = uint(int(slot) - (int(info) + slotsPointer) / 2);
+  for (uint a = 0u; a < attachments; ++a) {
+    uint entry = info + 6u + 4u * a;
+    if (words[entry] != type) continue;
+    start = uint(int(info) + int(words[entry + 1u])) + index / 2u * unitWords;
+    pairHalf = index & 1u;
+    return true;
+  }
+  return false;
+}
+
+// attribute_units.cpp's decodeColorUnit: RGB565 endpoints widened by bit replication, thirds in integers.
+uint paletteChannel(uint word0, uint shift, uint bits, uint index) {
+  uint mask = (1u << bits) - 1u;
+  uint qa = (word0 >> shift) & mask, qb = (word0 >> (16u + shift)) & mask;
+  uint a = bits == 5u ? (qa << 3) | (qa >> 2) : (qa << 2) | (qa >> 4);
+  uint b = bits == 5u ? (qb << 3) | (qb >> 2) : (qb << 2) | (qb >> 4);
+  return index == 0u ? a : index == 1u ? b : index == 2u ? (2u * a + b + 1u) / 3u : (a + 2u * b + 1u) / 3u;
+}
+vec3 unitColor(uint start, uint unitSlot) {
+  uint index = (words[start + 1u] >> (2u * unitSlot)) & 3u;
+  uint c = words[start];
+  return vec3(float(paletteChannel(c, 11u, 5u, index)), float(paletteChannel(c, 5u, 6u, index)),
+              float(paletteChannel(c, 0u, 5u, index))) / 255.0;
+}
+
+// attribute_units.cpp's decodeNormalUnit, in its order of float operations.
+vec3 axisVector(uint bits) {
+  float scale = ldexp(1.0, int((bits >> 12) & 15u) - 16);
+  return vec3(float(int(bits << 28) >> 28), float(int(bits << 24) >> 28), float(int(bits << 20) >> 28)) * scale;
+}
+vec3 unitNormal(uint start, uint unitSlot) {
+  const float selectorValue[4] = float[4](-1.0, -1.0 / 3.0, 1.0 / 3.0, 1.0);
+  uint selector = (words[start + 2u + unitSlot / 8u] >> (4u * (unitSlot % 8u))) & 15u;
+  uint face = words[start] >> 29;
+  int axis = (face >> 1) < 2u ? int(face >> 1) : 2;
+  float u = float((words[start] >> 14) & 32767u) / 32767.0 * 2.0 - 1.0;
+  float v = float(words[start] & 16383u) / 16383.0 * 2.0 - 1.0;
+  float w = (face & 1u) != 0u ? -1.0 : 1.0;
+  vec3 nb = axis == 0 ? vec3(w, u, v) : axis == 1 ? vec3(u, w, v) : vec3(u, v, w);
+  precise vec3 n = nb + selectorValue[selector & 3u] * axisVector(words[start + 1u] & 65535u) +
+                   selectorValue[selector >> 2] * axisVector(words[start + 1u] >> 16);
+  float length2 = dot(n, n);
+  if (!(length2 > 0.0) || isinf(length2) || isnan(length2)) return normalize(nb);
+  return normalize(n);
+}
+
 uint hitAttribute(Hit hit, uint type) {
   uint value;
   if (ownAttribute(hit.parent, hit.childSlot, type, value)) return value;
   for (int s = hit.scale + 1; s < kScaleMax; ++s)
     if (ownAttribute(pathParent[s], pathSlot[s], type, value)) return value;
   return rootValue(P.rootSlot, type);
+}
+
+vec3 hitColor(Hit hit) {
+  uint start, pairHalf;
+  if (unitOf(hit.parent, kColorUnits, 2u, start, pairHalf)) return unitColor(start, pairHalf * 8u + hit.childSlot);
+  return decodeColor(hitAttribute(hit, kColor));
+}
+vec3 hitNormal(Hit hit) {
+  uint start, pairHalf;
+  if (unitOf(hit.parent, kNormalUnits, 4u, start, pairHalf))
+    return unitNormal(start, pairHalf * 8u + hit.childSlot);
+  return decodeNormal(hitAttribute(hit, kNormal));
 }
 
 // The renderer's estimateNormal: the nearest cube face, or the contour slab when nearer.
@@ -476,8 +542,8 @@ void main() {
   out_.scaleIterations = uint(min(hit.iterations, 65535)) << 16;
   if (hit.hit) {
     vec3 viewDirection = normalize(direction);
-    vec3 albedo = (P.flags & 2u) != 0u ? decodeColor(hitAttribute(hit, kColor)) : vec3(kNeutralGreyAlbedo);
-    vec3 n = (P.flags & 4u) != 0u ? decodeNormal(hitAttribute(hit, kNormal)) : estimateNormal(hit, contours);
+    vec3 albedo = (P.flags & 2u) != 0u ? hitColor(hit) : vec3(kNeutralGreyAlbedo);
+    vec3 n = (P.flags & 4u) != 0u ? hitNormal(hit) : estimateNormal(hit, contours);
     out_.color = vec4(shadePhong(albedo, n, viewDirection, P.light.xyz), 1.0);
     out_.depth = hit.t;
     out_.voxelPixels = float(double(ldexp(1.0, hit.scale - kScaleMax)) * P.sceneSize /

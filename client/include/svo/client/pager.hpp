@@ -1,5 +1,5 @@
-// The paging client (paper sec. 7; docs/architecture.md): streams a store's slices into a block pool of a fixed budget
-// while frames are ray cast from what is resident.
+// The paging client (paper sec. 7; docs/architecture.md): streams a store's slices into a block pool of a
+// fixed budget while frames are ray cast from what is resident.
 //
 // A *region* is what one slice covers (a cube, or a packed run of its sub-cubes: store_types.hpp) with its
 // chain of slices (one per level until it splits). Each resident region is one block in the pool holding the
@@ -63,6 +63,9 @@ struct PagerOptions {
   // a restarted server is used again within seconds, and a dead one costs a few requests a second.
   double sourceRetrySeconds = 1.0;
   double sourceRetryMaxSeconds = 10.0;
+  // How the pool's blocks hold colors and normals (block.hpp): compressed units take about a third of the
+  // bytes of uncompressed values on colored scenes, and cost encoding time as slices load.
+  AttributeLayout attributes = AttributeLayout::Raw;
 };
 
 // What one update() did. Counts are slices.
@@ -190,7 +193,8 @@ class Pager {
   // The slice that refines the voxel pixel (x, y) of `frame` stopped at, when wider than `lodPixels` and the
   // store has one.
   std::optional<std::uint32_t> refiningSlice(const Frame& frame, const Camera& camera,
-                                             const Camera::Basis& basis, int x, int y, double lodPixels) const;
+                                             const Camera::Basis& basis, int x, int y,
+                                             double lodPixels) const;
 
   std::shared_ptr<const SliceSource> source_;
   PagerOptions options_;
@@ -203,7 +207,8 @@ class Pager {
   std::unique_ptr<paging::LoadWorkers> workers_;  // last: its threads stop first
   std::vector<std::string> errors_;
   bool sourceFailing_ = false;
-  bool mirrored_ = false;  // takePoolChanges was called: the pool tracks written pages  // a fetch failed for a reason that may pass, and nothing has loaded since
+  bool mirrored_ = false;  // takePoolChanges was called: the pool tracks written pages  // a fetch failed for
+                           // a reason that may pass, and nothing has loaded since
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0, lastDeferred_ = 0;
 };
 

@@ -57,7 +57,12 @@ inline constexpr int kPacketLanes = 8;
 void castPacket(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
                 CastHit* hits);
 
-// Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4).
+// Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4): the raw
+// layout's value.
 std::uint32_t hitAttribute(const BlockView& block, const CastHit& hit, AttachmentType type);
+// The hit voxel's color (linear RGB in [0, 1]) and unit normal in either attribute layout: the raw value, or
+// its slot of the unit in the hit's parent descriptor (sec. 5.5).
+glm::vec3 hitColor(const BlockView& block, const CastHit& hit);
+glm::vec3 hitNormal(const BlockView& block, const CastHit& hit);
 
 }  // namespace svo

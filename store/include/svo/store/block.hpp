@@ -8,8 +8,9 @@
 //              consecutive slots; a far slot holds an int32 slot offset from itself to a child run.
 //   info       BlockInfo followed by attachmentCount AttachmentEntry records.
 //   contours   uint32 contour values; a descriptor's contour pointer counts words from the descriptor.
-//   attachment per type: one AttributeLookup per slot (parallel to the slot array, gaps included), then
-//              the uint32 values; value pointers count words from the attachment start.
+//   attachment per type, uncompressed: one AttributeLookup per slot (parallel to the slot array, gaps
+//              included), then the uint32 values; value pointers count words from the attachment start.
+//              Compressed: one unit per pair of slots (slot s in unit s / 2, half s % 2), no lookups.
 #pragma once
 
 #include <cstddef>
@@ -20,6 +21,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "svo/store/attribute_units.hpp"
 #include "svo/store/format.hpp"
 
 namespace svo {
@@ -36,7 +38,7 @@ struct AttachmentEntry {
   AttachmentType type;
   std::int32_t pointer;      // words from the info section to the attachment start (lookup array)
   std::uint32_t rootValue;   // the root voxel's own value: what a chain of inheriting voxels ends at
-  std::uint32_t valueCount;  // values after the lookup array
+  std::uint32_t valueCount;  // values after the lookup array; units; exact values
 };
 inline constexpr std::uint32_t kBlockInfoMagic = 0x4f464e49;  // "INFO"
 
@@ -59,6 +61,12 @@ class AlignedBytes {
   std::size_t size_ = 0;
 };
 
+// How a block lays out colors and normals: uncompressed behind lookup entries, children inheriting their
+// parent's value where it is left out (sec. 5.4), or compressed units of two sibling descriptors' children
+// (sec. 5.5).
+enum class AttributeLayout : std::uint8_t { Raw, Compressed };
+const char* nameOf(AttributeLayout layout);  // "raw", "compressed"
+
 // Read-only view of a block at an 8 KB-aligned address. All lookups go through relative pointers only.
 class BlockView {
  public:
@@ -75,6 +83,11 @@ class BlockView {
   const ChildDescriptor* slots() const { return reinterpret_cast<const ChildDescriptor*>(base_); }
   const ChildDescriptor* root() const { return slots() + info_->rootSlot; }
   const AttachmentEntry* attachment(AttachmentType type) const;
+  // An attachment's first word (its lookup array, units or exact values).
+  const std::uint32_t* words(const AttachmentEntry& entry) const {
+    return reinterpret_cast<const std::uint32_t*>(reinterpret_cast<const std::byte*>(info_) +
+                                                  std::ptrdiff_t(entry.pointer) * 4);
+  }
 
   // Descriptor of the non-leaf child `slot` of `parent` (follows the near or far pointer, and a link).
   static const ChildDescriptor* child(const ChildDescriptor* parent, int slot);
@@ -96,6 +109,17 @@ class BlockView {
   static Attributes attributes(const ChildDescriptor* parent, AttachmentType type);
   static const BlockInfo& infoOf(const ChildDescriptor* descriptor);
 
+  // Compressed layout: the unit holding `parent`'s children (ColorUnits or NormalUnits) and the half its
+  // slots take in it, through page header and info section as Fig. 8; nullopt without that attachment.
+  struct UnitHalf {
+    const std::uint32_t* words;
+    int half;  // the children's unit slots are half * 8 + child slot
+  };
+  static std::optional<UnitHalf> unit(const ChildDescriptor* parent, AttachmentType type);
+  AttributeLayout attributeLayout() const;
+  bool hasColors() const;
+  bool hasNormals() const;
+
  private:
   const std::byte* base_ = nullptr;
   std::size_t size_ = 0;
@@ -116,10 +140,31 @@ struct VoxelRecord {
   std::uint32_t color = 0;   // ABGR
   std::uint32_t normal = 0;  // cube-point encoding
 };
+// A compressed descriptor's units as a block holds them, to be laid out again unchanged.
+struct CarriedUnit {
+  ColorUnit color;
+  NormalUnit normal;
+  std::uint8_t half = 0;  // the descriptor's half of the units
+};
+inline constexpr std::uint32_t kNoCarriedUnit = 0xFFFFFFFFu;
+
 struct VoxelTree {
   std::vector<VoxelRecord> voxels;
   bool hasColors = false;
   bool hasNormals = false;
+
+  // Compressed layouts only; each vector is empty or has one entry per voxel.
+  // The store slice that adds each voxel's children (StoreReader::loadTree): siblings share units only where
+  // their children come from one slice, as a block pool's regions hold them.
+  std::vector<std::uint32_t> childSlice;
+  // Units a pool block already holds (the pager deepening a region): index into carriedUnits, or
+  // kNoCarriedUnit for a descriptor whose units are encoded from its children's values.
+  std::vector<std::uint32_t> carriedUnitOf;
+  std::vector<CarriedUnit> carriedUnits;
+  // The deepest level's exact values in Morton order (ExactColors, ExactNormals attachments): a pool block
+  // keeps them while another slice may be decoded on them, since its units are lossy.
+  std::vector<std::uint32_t> exactColors;
+  std::vector<std::uint16_t> exactNormals;  // octahedral lattice codes (format.hpp)
 };
 
 struct LayoutOptions {
@@ -133,6 +178,7 @@ struct LayoutOptions {
   // exactly where its value equals its parent's, as the store decided. The same blocks as the tolerances
   // give for a store written with them, without testing every voxel against them (the pager).
   bool inheritEqualOnly = false;
+  AttributeLayout attributes = AttributeLayout::Raw;
 };
 
 // Sec. 5.4: whether a child's attribute value is left out and inherited from its parent's effective value.
@@ -162,6 +208,10 @@ struct LayoutStats {
   std::uint64_t contourWords = 0, colorValues = 0, normalValues = 0, inheritedColors = 0,
                 inheritedNormals = 0;
   std::uint64_t hierarchyBytes = 0, contourBytes = 0, attributeBytes = 0, totalBytes = 0;
+  // Compressed layout: unit pairs, their halves that hold children, the slots linked to a descriptor laid
+  // out apart so that siblings from different slices do not share units, and the exact values kept.
+  std::uint64_t units = 0, unitHalvesUsed = 0, linkSlots = 0, exactBytes = 0;
+  std::uint64_t colorBytes = 0, normalBytes = 0;  // attributeBytes by attribute (units or lookups + values)
 };
 
 class Block {
@@ -182,13 +232,20 @@ struct BlockTooLarge : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// Lays a voxel tree out as one block (depth-first child runs, far pointers where a run is out of reach).
-// `descriptorSlot`, when given, receives each voxel's descriptor slot (0 for leaves). Throws BlockTooLarge.
+// Lays a voxel tree out as one block (depth-first child runs, far pointers where a run is out of reach), its
+// attributes as options.attributes says. `descriptorSlot`, when given, receives each voxel's descriptor slot
+// (0 for leaves; the descriptor itself, not a link to it). Throws BlockTooLarge.
 Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, LayoutStats* stats = nullptr,
                   std::vector<std::uint32_t>* descriptorSlot = nullptr);
 
+// A compressed unit's slot in the uncompressed encodings (what reading a block back gives): ABGR, and the
+// cube encoding of the decoded normal.
+std::uint32_t unitColor(const std::uint32_t* words, int unitSlot);
+std::uint32_t unitNormal(const std::uint32_t* words, int unitSlot);
+
 // Inverse of layoutBlock up to inheritance: walks the block and rebuilds the voxel records with every
-// attribute resolved (inherited values filled in). Used by tests and tools.
+// attribute resolved (inherited values filled in; compressed units decoded: colors as ABGR, normals in the
+// cube encoding). Used by tests and tools.
 VoxelTree readBlock(const BlockView& block);
 
 }  // namespace svo

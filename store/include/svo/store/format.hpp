@@ -38,10 +38,11 @@ struct ChildDescriptor {
   constexpr std::uint32_t contourPointer() const { return contour >> 8; }
   constexpr std::uint8_t contourMask() const { return std::uint8_t(contour); }
 
-  // Paging (the client's block pool, docs/architecture.md): a descriptor with an empty valid mask never describes real
-  // children. Without the far bit it is a *stub*: the voxel has children that are not resident, and it
-  // renders as a leaf. With the far bit it is a *link*: the voxel's descriptor lives in another block,
-  // `contour` slots away (signed), which keeps contour and attribute lookups inside that block.
+  // Paging (the client's block pool, docs/architecture.md): a descriptor with an empty valid mask never
+  // describes real children. Without the far bit it is a *stub*: the voxel has children that are not
+  // resident, and it renders as a leaf. With the far bit it is a *link*: the voxel's descriptor lives in
+  // another block, `contour` slots away (signed), which keeps contour and attribute lookups inside that
+  // block.
   constexpr bool isStub() const { return validMask() == 0 && !far(); }
   constexpr bool isLink() const { return validMask() == 0 && far(); }
   constexpr std::int32_t linkOffset() const { return std::int32_t(contour); }
@@ -175,7 +176,18 @@ struct AttributeLookup {
 };
 
 // ---------------------------------------------------------------------------------------------------------
-// Attachment types listed in a block's info section. A scene stores only the types it has.
-enum class AttachmentType : std::uint32_t { Color = 1, Normal = 2 };
+// Attachment types listed in a block's info section. A scene stores only the types it has, in one of two
+// layouts (block.hpp, AttributeLayout): uncompressed values behind lookup entries (sec. 5.4), or compressed
+// units indexed by descriptor slot (sec. 5.5, attribute_units.hpp). A block pool's region that more slices
+// may deepen also keeps its deepest level's exact values, which the next slice is decoded on (the renderer
+// never reads them).
+enum class AttachmentType : std::uint32_t {
+  Color = 1,
+  Normal = 2,
+  ColorUnits = 3,    // kColorUnitWords per pair of slots
+  NormalUnits = 4,   // kNormalUnitWords per pair of slots
+  ExactColors = 5,   // ABGR words, the deepest level in Morton order
+  ExactNormals = 6,  // 16-bit lattice codes (two per word), the deepest level in Morton order
+};
 
 }  // namespace svo

@@ -21,6 +21,7 @@ enum class Action {
   Screenshot,
   ToggleOverlay,
   ToggleContours,
+  ToggleFilter,
   Shaded,
   FalseColorLevel,
   FalseColorIterations,

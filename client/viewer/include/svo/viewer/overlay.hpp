@@ -18,6 +18,7 @@ struct ViewSettings {
   std::size_t budgetBytes = 0;  // a change reopens the pool at the new size
   float lodPixels = 1.0f;
   bool contours = true;
+  bool filter = false;  // the post-process filter (sec. 6.3)
   FalseColor falseColor = FalseColor::Shaded;
   bool overlay = true;
 };

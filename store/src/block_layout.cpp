@@ -1,0 +1,531 @@
+// Block layout (block.hpp): a slot plan (depth-first child runs, far pointers, a page header every 8 KB; in
+// the compressed layout every run starts on a unit's first half, and siblings whose children come from
+// different slices are laid out apart behind links), then the descriptors, contours and attachments of
+// either attribute layout.
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <bit>
+#include <cassert>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <stdexcept>
+#include <string>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <glm/geometric.hpp>
+
+#include "svo/store/block.hpp"
+
+namespace svo {
+namespace {
+
+bool isPageHeaderSlot(std::uint64_t slot) {
+  return slot % kSlotsPerPage == 0;
+}
+
+}  // namespace
+
+InheritanceRule::InheritanceRule(const LayoutOptions& options)
+    : colorSteps_(options.colorInheritSteps),
+      normalCos_(std::cos(options.normalInheritDegrees * 3.14159265f / 180.0f)),
+      equalOnly_(options.inheritEqualOnly) {}
+
+bool InheritanceRule::color(std::uint32_t a, std::uint32_t b) const {
+  if (equalOnly_) return a == b;
+  for (int shift = 0; shift < 32; shift += 8)
+    if (std::abs(int((a >> shift) & 255u) - int((b >> shift) & 255u)) > colorSteps_) return false;
+  return true;
+}
+InheritanceRule::ParentNormal InheritanceRule::parentNormal(std::uint32_t parentEffective) const {
+  if (equalOnly_) return {parentEffective, glm::vec3(0.0f), 0.0f};  // normal() compares the bits alone
+  const glm::vec3 q = normalDirection(parentEffective);
+  return {parentEffective, q, glm::dot(q, q)};
+}
+bool InheritanceRule::normal(std::uint32_t a, const ParentNormal& parent) const {
+  if (a == parent.bits) return true;
+  if (equalOnly_) return false;
+  // The angle's cosine against the threshold without normalizing either: one square root, not two
+  // normalizations (this test runs per voxel in every layout).
+  const glm::vec3 p = normalDirection(a);
+  return glm::dot(p, parent.direction) >= normalCos_ * std::sqrt(glm::dot(p, p) * parent.lengthSquared);
+}
+
+const char* nameOf(AttributeLayout layout) {
+  return layout == AttributeLayout::Compressed ? "compressed" : "raw";
+}
+
+namespace {
+
+struct SlotPlan {
+  std::vector<std::uint32_t> slotOf;     // voxel -> its descriptor slot (non-leaf voxels)
+  std::vector<std::uint32_t> runOf;      // voxel -> first slot of its non-leaf children's run
+  std::vector<std::uint32_t> farSlotOf;  // voxel -> its far slot, or 0
+  std::vector<std::uint32_t> linkOf;     // voxel laid out apart -> the link to it in its parent's run, or 0
+  std::uint32_t slotCount = 0;
+  std::uint32_t linkSlots = 0;
+};
+
+// What the compressed layout asks of the slot plan: runs whose descriptors pair into units as their children
+// allow, the root's half, the slices that siblings' children come from (siblings from different slices do not
+// share units), and the units carried from a block (siblings share one only where they shared it there).
+struct UnitPlacement {
+  bool compressed = false;
+  const VoxelTree* tree = nullptr;
+  int rootHalf = 1;  // slot 1 (after the first page header), or slot 2 for a carried unit's first half
+
+  const CarriedUnit* carried(std::uint32_t v) const {
+    if (tree->carriedUnitOf.empty() || tree->carriedUnitOf[v] == kNoCarriedUnit) return nullptr;
+    return &tree->carriedUnits[tree->carriedUnitOf[v]];
+  }
+  // Whether sibling `b` may take the second half of the unit whose first half sibling `a` takes.
+  bool mayShare(std::uint32_t a, std::uint32_t b) const {
+    if (!tree->childSlice.empty() && tree->childSlice[a] != tree->childSlice[b]) return false;
+    const CarriedUnit *x = carried(a), *y = carried(b);
+    if (!x || !y) return !x && !y;
+    return y->half == 1 && x->color == y->color && x->normal == y->normal;
+  }
+  // The half a run must start `v` on: its carried unit's, else the first.
+  int startHalf(std::uint32_t v) const {
+    const CarriedUnit* c = carried(v);
+    return c ? c->half : 0;
+  }
+};
+
+// Siblings [begin, end) that go in one run starting on half `half` of a unit.
+struct Segment {
+  std::uint32_t begin, end;
+  int half;
+};
+
+// One layout pass for a given set of far voxels. A voxel's far flag is read once, when its parent's run is
+// reserved, before the voxel's own run is: so the pass marks the voxels whose run it puts out of reach as it
+// goes, without changing its own outcome, and the caller repeats it until it marks none.
+class SlotPlanner {
+ public:
+  SlotPlanner(const VoxelTree& tree, std::vector<std::uint8_t>& needsFar, std::uint32_t maxNearPointer,
+              const UnitPlacement& units)
+      : tree_(tree), needsFar_(needsFar), maxNearPointer_(maxNearPointer), units_(units) {}
+
+  SlotPlan plan() {
+    const std::size_t n = tree_.voxels.size();
+    plan_.slotOf.assign(n, 0);
+    plan_.runOf.assign(n, 0);
+    plan_.farSlotOf.assign(n, 0);
+    plan_.linkOf.assign(units_.compressed ? n : 0, 0);
+    next_ = units_.compressed && units_.rootHalf == 0 ? 2 : 1;  // slot 0 is the first page header
+    plan_.slotOf[0] = next_++;
+    lastUsed_ = next_;
+    place(0);
+    plan_.slotCount = next_;
+    return std::move(plan_);
+  }
+  // Voxels this pass found out of reach, now marked far.
+  std::uint32_t newlyFar() const { return newlyFar_; }
+
+ private:
+  bool isNonLeaf(std::uint32_t v) const { return tree_.voxels[v].childMask != 0 || tree_.voxels[v].stub; }
+
+  // Reserves `count` consecutive slots inside one page (a run must not straddle a page header). With `half`
+  // 0 or 1 the run starts on that half of a unit, and a run starting on a second half follows an empty slot,
+  // so that its first descriptor has its unit to itself.
+  std::uint32_t reserve(std::uint32_t count, int half = -1) {
+    for (;;) {
+      const std::uint32_t pageEnd = (next_ / kSlotsPerPage + 1) * kSlotsPerPage;
+      if (isPageHeaderSlot(next_) || (half >= 0 && int(next_ % 2) != half) ||
+          (half == 1 && !isPageHeaderSlot(next_ - 1) && next_ - 1 < lastUsed_)) {
+        ++next_;
+      } else if (next_ + count > pageEnd) {
+        next_ = pageEnd;  // the rest of the page stays empty; the next page's header comes first
+      } else {
+        break;
+      }
+    }
+    const std::uint32_t first = next_;
+    next_ += count;
+    lastUsed_ = next_;
+    return first;
+  }
+
+  // Descriptors at `first`.. for children[begin, end), then their far slots.
+  void placeRun(const std::uint32_t* children, std::uint32_t begin, std::uint32_t end, std::uint32_t first) {
+    std::uint32_t farSlot = first + (end - begin);
+    for (std::uint32_t k = begin; k < end; ++k) {
+      plan_.slotOf[children[k]] = first + (k - begin);
+      if (needsFar_[children[k]]) plan_.farSlotOf[children[k]] = farSlot++;
+    }
+  }
+  std::uint32_t farCount(const std::uint32_t* children, std::uint32_t begin, std::uint32_t end) const {
+    std::uint32_t count = 0;
+    for (std::uint32_t k = begin; k < end; ++k) count += needsFar_[children[k]];
+    return count;
+  }
+  // The compressed layout's runs of siblings: a new one wherever the next sibling cannot take the next slot's
+  // half of a unit.
+  std::vector<Segment> segmentsOf(const std::uint32_t* children, std::uint32_t count) const {
+    std::vector<Segment> segments{{0, 1, units_.startHalf(children[0])}};
+    for (std::uint32_t k = 1; k < count; ++k) {
+      Segment& s = segments.back();
+      const int half = (s.half + int(k - s.begin)) % 2;
+      const bool fits =
+          half == 0 ? units_.startHalf(children[k]) == 0 : units_.mayShare(children[k - 1], children[k]);
+      if (fits) {
+        s.end = k + 1;
+      } else {
+        segments.push_back({k, k + 1, units_.startHalf(children[k])});
+      }
+    }
+    return segments;
+  }
+
+  // Depth first: the run of v's non-leaf children (followed by their far slots), then each child's subtree.
+  // In the compressed layout, where the children need more than one run to pair into units as they must, the
+  // run holds links and each segment follows in a run of its own.
+  void place(std::uint32_t v) {
+    const VoxelRecord& r = tree_.voxels[v];
+    std::uint32_t children[8], count = 0;
+    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c)
+      if (isNonLeaf(c)) children[count++] = c;
+    if (count == 0) return;
+    std::uint32_t first;
+    if (!units_.compressed) {
+      first = reserve(count + farCount(children, 0, count));
+      placeRun(children, 0, count, first);
+    } else if (const std::vector<Segment> segments = segmentsOf(children, count); segments.size() == 1) {
+      first = reserve(count + farCount(children, 0, count), segments[0].half);
+      placeRun(children, 0, count, first);
+    } else {
+      first = reserve(count);
+      for (std::uint32_t k = 0; k < count; ++k) plan_.linkOf[children[k]] = first + k;
+      plan_.linkSlots += count;
+      for (const Segment& s : segments)
+        placeRun(children, s.begin, s.end,
+                 reserve(s.end - s.begin + farCount(children, s.begin, s.end), s.half));
+    }
+    plan_.runOf[v] = first;
+    if (!needsFar_[v] && first - plan_.slotOf[v] > maxNearPointer_) needsFar_[v] = 1, ++newlyFar_;
+    for (std::uint32_t k = 0; k < count; ++k) place(children[k]);
+  }
+
+  const VoxelTree& tree_;
+  std::vector<std::uint8_t>& needsFar_;
+  const std::uint32_t maxNearPointer_;
+  const UnitPlacement units_;
+  SlotPlan plan_;
+  std::uint32_t next_ = 0, lastUsed_ = 0, newlyFar_ = 0;
+};
+
+// Far pointers: lay out, mark every voxel whose run is out of reach, repeat until nothing changes. The marked
+// set only grows, so this ends; in practice after one or two extra passes.
+SlotPlan planSlots(const VoxelTree& tree, const LayoutOptions& options, const UnitPlacement& units,
+                   std::uint64_t& farVoxels) {
+  std::vector<std::uint8_t> needsFar(tree.voxels.size(), 0);
+  farVoxels = 0;
+  for (;;) {
+    SlotPlanner planner(tree, needsFar, options.maxNearPointer, units);
+    SlotPlan plan = planner.plan();
+    if (planner.newlyFar() == 0) return plan;
+    farVoxels += planner.newlyFar();
+  }
+}
+
+// Per non-leaf voxel, breadth first from the root (so each child's effective, possibly inherited, value is
+// known from its parent's): its children's contours and, in the raw layout, which children keep a value of
+// their own. What the descriptors need is kept per queue entry, so the passes after this one read the voxels
+// with children in queue order and skip the leaves (three in four voxels).
+struct Queued {
+  std::uint32_t voxel, color, normal;  // the voxel and its effective values
+};
+struct Entry {
+  std::uint32_t contourFirst, colorFirst, normalFirst;
+  std::uint8_t contourMask, colorMask, normalMask, leafMask;
+};
+struct Collected {
+  std::vector<Queued> queue;
+  std::vector<Entry> entries;
+  std::vector<std::uint32_t> contours, colors, normals;
+};
+
+Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutStats& stats) {
+  const std::size_t n = tree.voxels.size();
+  const bool raw = options.attributes == AttributeLayout::Raw;
+  const bool colors = raw && tree.hasColors, normals = raw && tree.hasNormals;
+  const InheritanceRule inherits(options);
+  Collected out;
+  out.queue.reserve(n / 2 + 1), out.entries.reserve(n / 2 + 1);
+  out.contours.reserve(n), out.colors.reserve(colors ? n : 0), out.normals.reserve(normals ? n : 0);
+  out.queue.push_back({0, tree.voxels[0].color, tree.voxels[0].normal});
+  for (std::size_t qi = 0; qi < out.queue.size(); ++qi) {
+    const Queued parent = out.queue[qi];
+    const VoxelRecord& r = tree.voxels[parent.voxel];
+    Entry& e =
+        out.entries.emplace_back(Entry{std::uint32_t(out.contours.size()), std::uint32_t(out.colors.size()),
+                                       std::uint32_t(out.normals.size()), 0, 0, 0, 0});
+    const InheritanceRule::ParentNormal parentNormal =
+        normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
+    // Set bits only, and only voxels with children queued.
+    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
+      const std::uint8_t bit = std::uint8_t(mask & (0u - mask));
+      const VoxelRecord& child = tree.voxels[c];
+      if (child.hasContour) out.contours.push_back(child.contour), e.contourMask |= bit;
+      std::uint32_t color = parent.color, normal = parent.normal;
+      if (colors) {
+        if (inherits.color(child.color, color)) {
+          ++stats.inheritedColors;
+        } else {
+          out.colors.push_back(child.color), e.colorMask |= bit;
+          color = child.color;
+        }
+      }
+      if (normals) {
+        if (inherits.normal(child.normal, parentNormal)) {
+          ++stats.inheritedNormals;
+        } else {
+          out.normals.push_back(child.normal), e.normalMask |= bit;
+          normal = child.normal;
+        }
+      }
+      if (child.childMask != 0) {
+        out.queue.push_back({c, color, normal});
+      } else if (child.stub) {
+        ++stats.descriptorSlots;  // all-zero stub descriptor and lookup entries (format.hpp)
+      } else {
+        e.leafMask |= bit;
+      }
+    }
+  }
+  return out;
+}
+
+// Where each section starts, in bytes from the block's start: slots | info + directory | contours |
+// attachments (raw: lookup array + values per type; compressed: units per type, then exact values).
+struct Sections {
+  std::size_t info = 0, contours = 0, color = 0, normal = 0, exactColors = 0, exactNormals = 0, end = 0;
+  std::uint32_t attachmentCount = 0;
+  std::uint32_t units = 0;  // compressed: pairs of slots
+};
+
+Sections sections(const VoxelTree& tree, const LayoutOptions& options, std::uint32_t slotCount,
+                  const Collected& c) {
+  Sections s;
+  const bool compressed = options.attributes == AttributeLayout::Compressed;
+  s.units = compressed ? (slotCount + 1) / 2 : 0;
+  s.attachmentCount = std::uint32_t(tree.hasColors) + std::uint32_t(tree.hasNormals) +
+                      std::uint32_t(!tree.exactColors.empty()) + std::uint32_t(!tree.exactNormals.empty());
+  s.info = std::size_t(slotCount) * kSlotBytes;
+  s.contours = s.info + sizeof(BlockInfo) + s.attachmentCount * sizeof(AttachmentEntry);
+  std::size_t cursor = s.contours + c.contours.size() * 4;
+  s.color = cursor;
+  if (tree.hasColors)
+    cursor += compressed ? std::size_t(s.units) * kColorUnitWords * 4
+                         : (std::size_t(slotCount) + c.colors.size()) * 4;
+  s.normal = cursor;
+  if (tree.hasNormals)
+    cursor += compressed ? std::size_t(s.units) * kNormalUnitWords * 4
+                         : (std::size_t(slotCount) + c.normals.size()) * 4;
+  s.exactColors = cursor;
+  cursor += tree.exactColors.size() * 4;
+  s.exactNormals = cursor;
+  cursor += (tree.exactNormals.size() + 1) / 2 * 4;
+  s.end = cursor;
+  if (cursor > std::size_t(INT32_MAX) * 4 ||
+      slotCount + std::max(c.colors.size(), c.normals.size()) > kMaxWordPointer)
+    throw BlockTooLarge("octree too large for one block (" + std::to_string(cursor >> 20) +
+                        " MiB; its pointers reach 2^24 words): stream it through a block pool");
+  return s;
+}
+
+// The compressed layout's units: per pair of slots, the children of the descriptors in its two halves;
+// carried units as they were, the others encoded from the children's values. Units are independent, so they
+// are encoded in parallel.
+void writeUnits(const VoxelTree& tree, const SlotPlan& plan, const std::vector<Queued>& queue,
+                const Sections& s, std::byte* base, LayoutStats& stats) {
+  constexpr std::uint32_t kNone = 0xFFFFFFFFu;
+  std::vector<std::uint32_t> owner(std::size_t(s.units) * 2, kNone);
+  for (const Queued& q : queue) owner[plan.slotOf[q.voxel]] = q.voxel;
+  auto* colorWords = reinterpret_cast<std::uint32_t*>(base + s.color);
+  auto* normalWords = reinterpret_cast<std::uint32_t*>(base + s.normal);
+  std::atomic<std::uint64_t> used{0};
+  tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, s.units, 256), [&](const auto& range) {
+    std::uint64_t halves = 0;
+    for (std::uint32_t u = range.begin(); u != range.end(); ++u) {
+      const std::uint32_t a = owner[2 * std::size_t(u)], b = owner[2 * std::size_t(u) + 1];
+      if (a == kNone && b == kNone) continue;
+      halves += std::uint64_t(a != kNone) + std::uint64_t(b != kNone);
+      const auto carried = [&](std::uint32_t v) {
+        return v != kNone && !tree.carriedUnitOf.empty() && tree.carriedUnitOf[v] != kNoCarriedUnit
+                   ? &tree.carriedUnits[tree.carriedUnitOf[v]]
+                   : nullptr;
+      };
+      const CarriedUnit* kept = carried(a) ? carried(a) : carried(b);
+      if (kept) {
+        // Siblings read back from one unit land in one unit again (the pairing depends on the tree alone).
+        assert(!carried(a) || !carried(b) ||
+               (carried(a)->color == carried(b)->color && carried(a)->normal == carried(b)->normal));
+        assert((a == kNone || carried(a) || tree.voxels[a].childMask == 0) &&
+               (b == kNone || carried(b) || tree.voxels[b].childMask == 0));
+        if (tree.hasColors)
+          std::memcpy(colorWords + std::size_t(u) * kColorUnitWords, kept->color.words.data(), 8);
+        if (tree.hasNormals)
+          std::memcpy(normalWords + std::size_t(u) * kNormalUnitWords, kept->normal.words.data(), 16);
+        continue;
+      }
+      std::array<std::uint32_t, kUnitSlots> colors{};
+      std::array<glm::vec3, kUnitSlots> normals{};
+      std::uint16_t usedSlots = 0;
+      for (int half = 0; half < 2; ++half) {
+        const std::uint32_t v = half == 0 ? a : b;
+        if (v == kNone) continue;
+        const VoxelRecord& r = tree.voxels[v];
+        for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
+          const int slot = half * 8 + std::countr_zero(mask);
+          usedSlots |= std::uint16_t(1u << slot);
+          colors[slot] = tree.voxels[c].color;
+          normals[slot] = normalDirection(tree.voxels[c].normal);
+        }
+      }
+      if (tree.hasColors) {
+        const ColorUnit unit = encodeColorUnit(colors, usedSlots);
+        std::memcpy(colorWords + std::size_t(u) * kColorUnitWords, unit.words.data(), 8);
+      }
+      if (tree.hasNormals) {
+        const NormalUnit unit = encodeNormalUnit(normals, usedSlots);
+        std::memcpy(normalWords + std::size_t(u) * kNormalUnitWords, unit.words.data(), 16);
+      }
+    }
+    used.fetch_add(halves, std::memory_order_relaxed);
+  });
+  stats.units = s.units;
+  stats.unitHalvesUsed = used.load();
+}
+
+}  // namespace
+
+Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutStats* statsOut,
+                  std::vector<std::uint32_t>* descriptorSlot) {
+  if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
+    throw std::invalid_argument("layoutBlock: the tree has no voxels below the root");
+  // A run of 8 descriptors followed by up to 8 far slots must stay in reach of its own descriptors.
+  if (options.maxNearPointer < 16 || options.maxNearPointer > kMaxNearPointer)
+    throw std::invalid_argument("layoutBlock: maxNearPointer must be in [16, 32767]");
+  const std::size_t n = tree.voxels.size();
+  const bool compressed = options.attributes == AttributeLayout::Compressed;
+  const auto sized = [n](const auto& v) { return v.empty() || v.size() == n; };
+  if (!sized(tree.childSlice) || !sized(tree.carriedUnitOf))
+    throw std::invalid_argument("layoutBlock: childSlice and carriedUnitOf need one entry per voxel");
+  if (!compressed && (!tree.carriedUnitOf.empty() || !tree.exactColors.empty() || !tree.exactNormals.empty()))
+    throw std::invalid_argument("layoutBlock: carried units and exact values need the compressed layout");
+
+  UnitPlacement units;
+  units.compressed = compressed;
+  units.tree = &tree;
+  if (compressed && units.carried(0)) units.rootHalf = units.carried(0)->half;
+  std::uint64_t farVoxels = 0;
+  SlotPlan plan = planSlots(tree, options, units, farVoxels);
+  LayoutStats stats;
+  const Collected c = collect(tree, options, stats);
+  const std::uint32_t slotCount = plan.slotCount;
+  const Sections s = sections(tree, options, slotCount, c);
+
+  AlignedBytes bytes(s.end);
+  std::byte* base = bytes.data();
+  auto* slots = reinterpret_cast<ChildDescriptor*>(base);
+  for (std::uint32_t page = 0; std::size_t(page) * kSlotsPerPage < slotCount; ++page)
+    *reinterpret_cast<std::int32_t*>(base + std::size_t(page) * kPageBytes) =
+        std::int32_t((s.info - std::size_t(page) * kPageBytes) / 4);
+
+  auto* info = reinterpret_cast<BlockInfo*>(base + s.info);
+  *info = BlockInfo{kBlockInfoMagic, -std::int32_t(s.info / 4),        slotCount,
+                    plan.slotOf[0],  std::uint32_t(c.contours.size()), s.attachmentCount};
+  auto* directory = reinterpret_cast<AttachmentEntry*>(info + 1);
+  if (!c.contours.empty()) std::memcpy(base + s.contours, c.contours.data(), c.contours.size() * 4);
+  auto* colorWords = reinterpret_cast<std::uint32_t*>(base + s.color);
+  auto* normalWords = reinterpret_cast<std::uint32_t*>(base + s.normal);
+  const auto words = [&](std::size_t offset) { return std::int32_t((offset - s.info) / 4); };
+  if (tree.hasColors) {
+    *directory++ = {compressed ? AttachmentType::ColorUnits : AttachmentType::Color, words(s.color),
+                    tree.voxels[0].color, std::uint32_t(compressed ? s.units : c.colors.size())};
+    if (!c.colors.empty()) std::memcpy(colorWords + slotCount, c.colors.data(), c.colors.size() * 4);
+  }
+  if (tree.hasNormals) {
+    *directory++ = {compressed ? AttachmentType::NormalUnits : AttachmentType::Normal, words(s.normal),
+                    tree.voxels[0].normal, std::uint32_t(compressed ? s.units : c.normals.size())};
+    if (!c.normals.empty()) std::memcpy(normalWords + slotCount, c.normals.data(), c.normals.size() * 4);
+  }
+  if (!tree.exactColors.empty()) {
+    *directory++ = {AttachmentType::ExactColors, words(s.exactColors), 0,
+                    std::uint32_t(tree.exactColors.size())};
+    std::memcpy(base + s.exactColors, tree.exactColors.data(), tree.exactColors.size() * 4);
+  }
+  if (!tree.exactNormals.empty()) {
+    *directory++ = {AttachmentType::ExactNormals, words(s.exactNormals), 0,
+                    std::uint32_t(tree.exactNormals.size())};
+    std::memcpy(base + s.exactNormals, tree.exactNormals.data(), tree.exactNormals.size() * 2);
+  }
+
+  for (std::size_t qi = 0; qi < c.queue.size(); ++qi) {
+    const std::uint32_t v = c.queue[qi].voxel;
+    const VoxelRecord& r = tree.voxels[v];
+    const std::uint32_t slot = plan.slotOf[v];
+    const Entry& e = c.entries[qi];
+    std::uint32_t pointer = 0;
+    bool far = false;
+    if (plan.runOf[v] != 0) {
+      if (plan.farSlotOf[v] != 0) {
+        far = true;
+        pointer = plan.farSlotOf[v] - slot;
+        *reinterpret_cast<std::int32_t*>(&slots[plan.farSlotOf[v]]) =
+            std::int32_t(plan.runOf[v] - plan.farSlotOf[v]);
+      } else {
+        pointer = plan.runOf[v] - slot;
+      }
+      assert(pointer <= options.maxNearPointer);
+    }
+    std::uint32_t contourPointer = 0;
+    if (e.contourMask) {
+      const std::size_t contourWords =
+          (s.contours + std::size_t(e.contourFirst) * 4 - std::size_t(slot) * kSlotBytes) / 4;
+      if (contourWords > kMaxWordPointer)
+        throw BlockTooLarge(
+            "octree too large for one block (a contour pointer is out of 24-bit reach): stream it through "
+            "a block pool");
+      contourPointer = std::uint32_t(contourWords);
+    }
+    slots[slot] = ChildDescriptor::make(pointer, far, r.childMask, e.leafMask, contourPointer, e.contourMask);
+    if (!compressed && tree.hasColors)
+      colorWords[slot] = AttributeLookup::make(slotCount + e.colorFirst, e.colorMask).bits;
+    if (!compressed && tree.hasNormals)
+      normalWords[slot] = AttributeLookup::make(slotCount + e.normalFirst, e.normalMask).bits;
+    ++stats.descriptorSlots;
+  }
+  for (std::size_t v = 0; v < plan.linkOf.size(); ++v)
+    if (plan.linkOf[v] != 0)
+      slots[plan.linkOf[v]] =
+          ChildDescriptor::link(std::int32_t(plan.slotOf[v]) - std::int32_t(plan.linkOf[v]));
+  if (compressed) writeUnits(tree, plan, c.queue, s, base, stats);
+
+  stats.farSlots = farVoxels;
+  stats.linkSlots = plan.linkSlots;
+  stats.pageHeaderSlots = (slotCount + kSlotsPerPage - 1) / kSlotsPerPage;
+  stats.paddingSlots =
+      slotCount - stats.descriptorSlots - stats.farSlots - stats.pageHeaderSlots - stats.linkSlots;
+  stats.contourWords = c.contours.size();
+  stats.colorValues = c.colors.size();
+  stats.normalValues = c.normals.size();
+  // As the paper counts (sec. 5.6): a slot's first word is hierarchy, its second (contour pointer and mask)
+  // belongs to the contours with the contour values.
+  stats.hierarchyBytes = std::uint64_t(slotCount) * 4;
+  stats.contourBytes = std::uint64_t(slotCount) * 4 + c.contours.size() * 4;
+  stats.colorBytes = tree.hasColors ? s.normal - s.color : 0;
+  stats.normalBytes = tree.hasNormals ? s.exactColors - s.normal : 0;
+  stats.attributeBytes = stats.colorBytes + stats.normalBytes;
+  stats.exactBytes = s.end - s.exactColors;
+  stats.totalBytes = bytes.size();
+  if (statsOut) *statsOut = stats;
+  if (descriptorSlot) *descriptorSlot = std::move(plan.slotOf);
+  return Block(std::move(bytes));
+}
+
+}  // namespace svo
