@@ -6,7 +6,7 @@
 //    one 1, within the bounds each test derives;
 //  - a store the builder wrote (contours, colors, runs): N through its slices equals the count over its tree;
 //  - a store with a bad slice fails with the slice named;
-//  - `svo inspect --dimensions`: tables, plot and JSON agreeing with the library;
+//  - `svo inspect --dimensions` and `svo bench dimensions`: tables, plots and JSON agreeing with the library;
 //    bad input (missing or corrupt store, bad flags) gives one line on stderr, a non-zero exit and no report.
 #include <gtest/gtest.h>
 
@@ -384,6 +384,31 @@ TEST(DimensionsCli, Inspect) {
   const SvoRun onFile = svo(good + "--dimensions -o " + store.string(), dir.path());
   EXPECT_EQ(onFile.exit, 2) << onFile.err;
   EXPECT_NE(onFile.err.find("is not a folder"), std::string::npos) << onFile.err;
+}
+
+TEST(DimensionsCli, Bench) {
+  const svotest::TempDir dir;
+  const std::filesystem::path store = dir.path() / "plane.svo", out = dir.path() / "check";
+  writeVoxelStore(store, tiltedPlane(6), 6);
+  const SvoRun r =
+      svo("bench dimensions " + store.string() + " --size 64 --steps 2 -o " + out.string(), dir.path());
+  ASSERT_EQ(r.exit, 0) << r.err;
+  EXPECT_NE(r.out.find("doubling the distance"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("doubling the image size"), std::string::npos) << r.out;
+  // Two panels, each with the base view and two doublings per line.
+  EXPECT_EQ(plottedPoints(out / "dimensions_check.png", "predicted"), 6u);
+  EXPECT_EQ(plottedPoints(out / "dimensions_check.png", "loaded (view)"), 6u);
+
+  const std::filesystem::path none = dir.path() / "none";
+  expectCleanFailure(
+      svo("bench dimensions " + store.string() + " --size 16 --steps 2 -o " + none.string(), dir.path()),
+      "--size", none);
+  expectCleanFailure(
+      svo("bench dimensions " + (dir.path() / "missing.svo").string() + " -o " + none.string(), dir.path()),
+      "missing.svo", none);
+  expectCleanFailure(
+      svo("bench dimensions " + corruptCopy(store, dir.path()).string() + " -o " + none.string(), dir.path()),
+      "checksum", none);
 }
 
 }  // namespace
