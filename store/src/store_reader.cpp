@@ -157,20 +157,19 @@ SliceBytes StoreReader::readSlice(std::uint32_t slice) const {
   return unpackSlice(*index_, slice, compressed);
 }
 
-std::uint64_t StoreReader::verify(const std::function<void(double)>& progress, std::uint64_t* leaves) const {
+void StoreReader::walk(const SliceVisit& enter, const SliceVisit& leave) const {
   const StoreIndex& index = *index_;
   const std::vector<SliceInfo>& slices = index.slices();
   const std::span<const std::uint32_t> roots = index.rootSlices();
   if (roots.size() != 1) index.fail(std::to_string(roots.size()) + " slices start the hierarchy (one must)");
-  std::uint64_t voxels = 1, leafVoxels = 0, visited = 0;
-  // Depth first: a slice's voxels stay decoded while the slices below it are checked.
+  std::size_t visited = 0;
+  // Depth first: a slice's voxels stay decoded while the slices below it are walked.
   const auto visit = [&](auto&& self, std::uint32_t id, std::span<SliceVoxel> parents) -> void {
     const SliceInfo& s = slices[id];
     std::vector<SliceVoxel> decoded;
     decodeSlice(id, readSlice(id), parents, decoded);
-    voxels += decoded.size();
     ++visited;
-    if (progress) progress(double(visited) / double(slices.size()));
+    if (enter) enter(id, parents, decoded);
     std::vector<std::uint8_t> covered(decoded.size(), 0);
     for (const std::uint32_t child : index.childSlices(id)) {
       const SliceInfo& c = slices[child];
@@ -178,14 +177,27 @@ std::uint64_t StoreReader::verify(const std::function<void(double)>& progress, s
         throw index.sliceError(child, "its sub-cubes do not lie one level below its parent slice's");
       self(self, child, claimParents(index, child, decoded, covered));
     }
-    // Every slice below has set its parents' child masks by now.
-    leafVoxels += std::uint64_t(
-        std::count_if(decoded.begin(), decoded.end(), [](const SliceVoxel& v) { return v.childMask == 0; }));
+    if (leave) leave(id, parents, decoded);
   };
   SliceVoxel root = rootVoxel(index.header());
   visit(visit, roots[0], std::span<SliceVoxel>(&root, 1));
   if (visited != slices.size())
     index.fail(std::to_string(slices.size() - visited) + " slices are not reachable from the first");
+}
+
+std::uint64_t StoreReader::verify(const std::function<void(double)>& progress, std::uint64_t* leaves) const {
+  std::uint64_t voxels = 1, leafVoxels = 0, visited = 0;
+  const double total = double(slices().size());
+  walk(
+      [&](std::uint32_t, std::span<const SliceVoxel>, std::span<const SliceVoxel> decoded) {
+        voxels += decoded.size();
+        if (progress) progress(double(++visited) / total);
+      },
+      [&](std::uint32_t, std::span<const SliceVoxel>, std::span<const SliceVoxel> decoded) {
+        // Every slice below has set its parents' child masks by now.
+        leafVoxels += std::uint64_t(std::count_if(decoded.begin(), decoded.end(),
+                                                  [](const SliceVoxel& v) { return v.childMask == 0; }));
+      });
   if (leaves) *leaves = leafVoxels;
   return voxels;
 }

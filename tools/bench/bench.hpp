@@ -5,8 +5,8 @@
 
 namespace svo::tools {
 
-// Registers `svo bench raycast`, `build`, `accel`, `stability`, `quality`, `store`, `stream` and `serve` on
-// `bench`.
+// Registers `svo bench raycast`, `build`, `accel`, `stability`, `quality`, `store`, `stream`, `serve` and
+// `dimensions` on `bench`.
 void addBenchCommands(CLI::App& bench);
 
 }  // namespace svo::tools

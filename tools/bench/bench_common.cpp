@@ -31,6 +31,7 @@ void addBenchCommands(CLI::App& bench) {
   bench::addStoreBench(bench);
   bench::addStreamBench(bench);
   bench::addServeBench(bench);
+  bench::addDimensionBench(bench);
 }
 
 }  // namespace svo::tools

@@ -11,9 +11,10 @@
 
 namespace svo::tools {
 
-Camera closeUp(const BlockView& root, const SceneTransform& scene, int size, double distance) {
+Camera closeUp(const BlockView& root, const SceneTransform& scene, int size, double distance,
+               glm::dvec3 viewDirection) {
   // Aim at the surface the centre pixel of a framing view sees, and stand a few percent of the scene away.
-  const Camera framing = Camera::framing(scene, kDefaultViewDirection, size, size);
+  const Camera framing = Camera::framing(scene, viewDirection, size, size);
   RenderOptions options;
   options.lodPixels = 1.0f;
   const Frame frame = render(root, scene, framing, options);

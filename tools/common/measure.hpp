@@ -11,9 +11,10 @@
 
 namespace svo::tools {
 
-// A close-up of the surface the centre pixel of a framing view of `root` sees, from `distance` times the
-// scene size away (a few percent: a view that needs the finest levels).
-Camera closeUp(const BlockView& root, const SceneTransform& scene, int size, double distance);
+// A close-up of the surface the centre pixel of a framing view of `root` along `viewDirection` sees, from
+// `distance` times the scene size away (a few percent: a view that needs the finest levels).
+Camera closeUp(const BlockView& root, const SceneTransform& scene, int size, double distance,
+               glm::dvec3 viewDirection = kDefaultViewDirection);
 
 // Error of a frame against the converged frame of the same camera: RMSE of linear RGB over all pixels and the
 // share of pixels that one hits and the other misses.

@@ -1,6 +1,6 @@
 // `svo verify STORE` and `svo inspect STORE`: every checksum and structural invariant of a slice store, and
-// what it holds per level (slices, voxels, branching, bytes per voxel per part, slice sizes). STORE is a file
-// or an http(s):// URL of one.
+// what it holds per level (slices, voxels, branching, bytes per voxel per part, slice sizes), or with
+// --dimensions its dimensional analysis (paper sec. 4). STORE is a file or an http(s):// URL of one.
 #include <unistd.h>
 
 #include <algorithm>
@@ -13,17 +13,26 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.hpp"
+#include "dimensions_report.hpp"
 #include "progress.hpp"
 #include "remote.hpp"
 #include "store_stats.hpp"
 #include "svo/client/locator.hpp"
+#include "svo/store/dimensions.hpp"
 #include "svo/store/store_reader.hpp"
+#include "usage.hpp"
 
 namespace svo::tools {
 namespace {
 
 // Slice size histogram buckets: powers of two of raw bytes, from 2^kFirstBucket up.
 constexpr int kFirstBucket = 6;
+// The predicted base view of --dimensions: 1024 pixels (a common window) resolving the level 3 above the
+// finest, so that 3 of the image size doublings still find finer levels in the store.
+constexpr double kDefaultViewPixels = 1024.0;
+constexpr int kViewLevelsAboveFinest = 3;
+// Doublings of distance and image size predicted: 2x to 16x.
+constexpr int kDefaultPredictionSteps = 4;
 
 double per(std::uint64_t bytes, std::uint64_t voxels) {
   return voxels ? double(bytes) / double(voxels) : 0.0;
@@ -93,6 +102,50 @@ void inspect(const std::string& path, const std::string& token, bool json) {
                std::string(std::size_t(40.0 * double(count) / double(most) + 0.5), '#'));
 }
 
+struct DimensionArgs {
+  std::string output = "dimensions-report";
+  int viewLevel = -1;  // -1: kViewLevelsAboveFinest above the finest level
+  double viewPixels = kDefaultViewPixels;
+  int steps = kDefaultPredictionSteps;
+};
+
+void inspectDimensions(const std::string& path, const std::string& token, bool json,
+                       const DimensionArgs& args) {
+  // The folder is made once the store has been read, but a path that cannot become one fails first.
+  const std::filesystem::path output = args.output;
+  if (std::filesystem::exists(output) && !std::filesystem::is_directory(output))
+    throw UsageError(output.string() + ": is not a folder");
+  if (!std::filesystem::exists(output)) checkWritableOutput(output);
+  const StoreReader reader(openByteSource(path, remoteOptions(token)));
+  std::unique_ptr<ProgressBar> bar = ::isatty(2) ? std::make_unique<ProgressBar>("dimensions") : nullptr;
+  const VoxelDimensions dims = measureDimensions(reader, [&bar](double f) {
+    if (bar) bar->update(f);
+  });
+  bar.reset();
+  const int finest = dims.finestLevel();
+  const int level = args.viewLevel < 0 ? std::max(1, finest - kViewLevelsAboveFinest) : args.viewLevel;
+  if (level < 1 || level > finest)
+    throw UsageError(fmt::format("--view-level {}: the store's levels are 1 to {}", level, finest));
+  const std::vector<double> weights = decodedBytesPerVoxel(reader.index(), finest);
+  const ViewLevels base = viewLevels(level, args.viewPixels, 1.0);
+  const std::vector<PredictedView> views = predictViews(dims, weights, base, args.steps);
+  std::filesystem::create_directories(output);
+  const std::filesystem::path png = writeDimensionsPlot(output, dims);
+  if (json) {
+    nlohmann::json j = dimensionsJson(dims, views);
+    j["file"] = path;
+    j["plot"] = png.string();
+    std::printf("%s\n", j.dump(2).c_str());
+    return;
+  }
+  fmt::print("{}: dimensional analysis (paper sec. 4), {} levels\n", path, finest);
+  printDimensions(dims);
+  printPrediction(views,
+                  fmt::format("a view {:g} pixels wide resolving level {} at distance d (1-pixel voxels)",
+                              args.viewPixels, level));
+  fmt::print("wrote {}\n", png.string());
+}
+
 }  // namespace
 
 void addStoreCommands(CLI::App& app) {
@@ -120,7 +173,8 @@ void addStoreCommands(CLI::App& app) {
   {
     struct Args {
       std::string path, token;
-      bool json = false;
+      bool json = false, dimensions = false;
+      DimensionArgs dims;
     };
     auto args = std::make_shared<Args>();
     auto* cmd =
@@ -128,7 +182,33 @@ void addStoreCommands(CLI::App& app) {
     cmd->add_option("store", args->path, "the .svo store: a file, or its http(s):// URL")->required();
     cmd->add_flag("--json", args->json, "print JSON instead of a table");
     addTokenOption(cmd, args->token);
-    cmd->callback([args] { inspect(args->path, args->token, args->json); });
+    auto* dims = cmd->add_flag("--dimensions", args->dimensions,
+                               "dimensional analysis (paper sec. 4): N(c, L), D_local, D_global, D_scale per "
+                               "cube and voxel level, a plot, and how a view's data grows with its distance "
+                               "and image size");
+    cmd->add_option("-o,--output", args->dims.output, "--dimensions: folder for dimensions.png")
+        ->needs(dims)
+        ->capture_default_str();
+    cmd->add_option("--view-level", args->dims.viewLevel,
+                    "--dimensions: the voxel level the predicted base view resolves (default: 3 above the "
+                    "finest)")
+        ->needs(dims)
+        ->check(CLI::Range(1, 30));
+    cmd->add_option("--view-pixels", args->dims.viewPixels, "--dimensions: the base view's image size")
+        ->needs(dims)
+        ->check(CLI::Range(1.0, 65536.0))
+        ->capture_default_str();
+    cmd->add_option("--steps", args->dims.steps,
+                    "--dimensions: doublings of the base view's distance and of its image size")
+        ->needs(dims)
+        ->check(CLI::Range(1, 16))
+        ->capture_default_str();
+    cmd->callback([args] {
+      if (args->dimensions)
+        inspectDimensions(args->path, args->token, args->json, args->dims);
+      else
+        inspect(args->path, args->token, args->json);
+    });
   }
 }
 

@@ -68,8 +68,14 @@ class StoreReader {
   // Reads, checks and decodes every slice onto its parents, depth first over the slice hierarchy (one chain
   // of slices in memory at a time, so any size of store): checksums, heads against the directory, sections,
   // each slice's cube within its parent slice's cube one level down, no two slices over one parent voxel,
-  // every slice reachable from the root. Throws like loadTree; returns the voxels counted, and the leaf
-  // voxels (no children) in `leaves` when given.
+  // every slice reachable from the root. Throws like loadTree. Calls `enter` with each slice's new voxels
+  // (Morton order) once decoded, and `leave` with its parents and voxels once every slice below it has been
+  // walked (their child masks then set). The first slice's parent is the root voxel.
+  using SliceVisit = std::function<void(std::uint32_t slice, std::span<const SliceVoxel> parents,
+                                        std::span<const SliceVoxel> voxels)>;
+  void walk(const SliceVisit& enter, const SliceVisit& leave) const;
+  // walk checking everything: returns the voxels counted, and the leaf voxels (no children) in `leaves`
+  // when given.
   std::uint64_t verify(const std::function<void(double)>& progress = nullptr,
                        std::uint64_t* leaves = nullptr) const;
 
