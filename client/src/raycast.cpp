@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 
 #include "ray_setup.hpp"
 
@@ -142,20 +141,14 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
 }
 
 glm::vec3 hitColor(const BlockView& block, const CastHit& hit) {
-  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::ColorUnits)) {
-    ColorUnit words;
-    std::memcpy(words.words.data(), unit->words, sizeof(words.words));
-    return glm::vec3(decodeColor(decodeColorUnit(words, unit->half * 8 + hit.childSlot)));
-  }
+  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::ColorUnits))
+    return glm::vec3(decodeColor(unit->color(hit.childSlot)));
   return glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)));
 }
 
 glm::vec3 hitNormal(const BlockView& block, const CastHit& hit) {
-  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::NormalUnits)) {
-    NormalUnit words;
-    std::memcpy(words.words.data(), unit->words, sizeof(words.words));
-    return decodeNormalUnit(words, unit->half * 8 + hit.childSlot);
-  }
+  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::NormalUnits))
+    return unit->normal(hit.childSlot);
   return decodeNormal(hitAttribute(block, hit, AttachmentType::Normal));
 }
 

@@ -246,9 +246,9 @@ BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), siz
       default:
         corrupt("unknown attachment type");
     }
-    const bool unitCount =
+    const bool isUnits =
         entries[a].type == AttachmentType::ColorUnits || entries[a].type == AttachmentType::NormalUnits;
-    if (unitCount && count != units) corrupt("unit count does not match the slots");
+    if (isUnits && count != units) corrupt("unit count does not match the slots");
     if (begin < std::int64_t(directoryEnd) || std::uint64_t(begin) + words * 4 > size)
       corrupt("attachment runs past the end");
   }
@@ -270,15 +270,15 @@ BlockView BlockView::unchecked(const std::byte* data, std::size_t size) {
 Block::Block(AlignedBytes bytes)
     : bytes_(std::move(bytes)), view_(BlockView::unchecked(bytes_.data(), bytes_.size())) {}
 
-std::uint32_t unitColor(const std::uint32_t* words, int unitSlot) {
+std::uint32_t BlockView::UnitHalf::color(int childSlot) const {
   ColorUnit unit;
   std::memcpy(unit.words.data(), words, sizeof(unit.words));
-  return decodeColorUnit(unit, unitSlot);
+  return decodeColorUnit(unit, half * 8 + childSlot);
 }
-std::uint32_t unitNormal(const std::uint32_t* words, int unitSlot) {
+glm::vec3 BlockView::UnitHalf::normal(int childSlot) const {
   NormalUnit unit;
   std::memcpy(unit.words.data(), words, sizeof(unit.words));
-  return encodeNormal(decodeNormalUnit(unit, unitSlot));
+  return decodeNormalUnit(unit, half * 8 + childSlot);
 }
 
 VoxelTree readBlock(const BlockView& block) {
@@ -311,10 +311,10 @@ VoxelTree readBlock(const BlockView& block) {
       if (!(d->validMask() >> slot & 1u)) continue;
       VoxelRecord c;
       if (auto contour = BlockView::contour(d, slot)) c.hasContour = true, c.contour = *contour;
-      c.color = colorUnit ? unitColor(colorUnit->words, colorUnit->half * 8 + slot)
-                          : colors.at(slot).value_or(parent.color);
-      c.normal = normalUnit ? unitNormal(normalUnit->words, normalUnit->half * 8 + slot)
-                            : normals.at(slot).value_or(parent.normal);
+      // Read back in the uncompressed encodings: ABGR, and the cube encoding of the decoded normal.
+      c.color = colorUnit ? colorUnit->color(slot) : colors.at(slot).value_or(parent.color);
+      c.normal =
+          normalUnit ? encodeNormal(normalUnit->normal(slot)) : normals.at(slot).value_or(parent.normal);
       tree.voxels.push_back(c);
       descriptorOf.push_back((d->leafMask() >> slot & 1u) ? nullptr : BlockView::child(d, slot));
     }

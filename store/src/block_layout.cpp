@@ -68,6 +68,12 @@ struct SlotPlan {
   std::uint32_t linkSlots = 0;
 };
 
+// The units voxel `v` carries from a block, or nullptr.
+const CarriedUnit* carriedUnitOf(const VoxelTree& tree, std::uint32_t v) {
+  if (tree.carriedUnitOf.empty() || tree.carriedUnitOf[v] == kNoCarriedUnit) return nullptr;
+  return &tree.carriedUnits[tree.carriedUnitOf[v]];
+}
+
 // What the compressed layout asks of the slot plan: runs whose descriptors pair into units as their children
 // allow, the root's half, the slices that siblings' children come from (siblings from different slices do not
 // share units), and the units carried from a block (siblings share one only where they shared it there).
@@ -76,10 +82,7 @@ struct UnitPlacement {
   const VoxelTree* tree = nullptr;
   int rootHalf = 1;  // slot 1 (after the first page header), or slot 2 for a carried unit's first half
 
-  const CarriedUnit* carried(std::uint32_t v) const {
-    if (tree->carriedUnitOf.empty() || tree->carriedUnitOf[v] == kNoCarriedUnit) return nullptr;
-    return &tree->carriedUnits[tree->carriedUnitOf[v]];
-  }
+  const CarriedUnit* carried(std::uint32_t v) const { return carriedUnitOf(*tree, v); }
   // Whether sibling `b` may take the second half of the unit whose first half sibling `a` takes.
   bool mayShare(std::uint32_t a, std::uint32_t b) const {
     if (!tree->childSlice.empty() && tree->childSlice[a] != tree->childSlice[b]) return false;
@@ -354,11 +357,7 @@ void writeUnits(const VoxelTree& tree, const SlotPlan& plan, const std::vector<Q
       const std::uint32_t a = owner[2 * std::size_t(u)], b = owner[2 * std::size_t(u) + 1];
       if (a == kNone && b == kNone) continue;
       halves += std::uint64_t(a != kNone) + std::uint64_t(b != kNone);
-      const auto carried = [&](std::uint32_t v) {
-        return v != kNone && !tree.carriedUnitOf.empty() && tree.carriedUnitOf[v] != kNoCarriedUnit
-                   ? &tree.carriedUnits[tree.carriedUnitOf[v]]
-                   : nullptr;
-      };
+      const auto carried = [&](std::uint32_t v) { return v != kNone ? carriedUnitOf(tree, v) : nullptr; };
       const CarriedUnit* kept = carried(a) ? carried(a) : carried(b);
       if (kept) {
         // Siblings read back from one unit land in one unit again (the pairing depends on the tree alone).

@@ -214,17 +214,24 @@ void measureEsvo(const WholeScene& scene, const Camera& camera, const RenderOpti
 }
 
 // The octree in both attribute layouts, where each fits one block: bytes by part, and the compressed
-// values' error against the raw ones.
-void compareLayouts(const VoxelTree& tree, SceneResult& result) {
+// values' error against the raw ones. The timed scene's block is reused when it is the raw one.
+void compareLayouts(const VoxelTree& tree, const WholeScene& scene, AttributeLayout timed,
+                    SceneResult& result) {
   if (!tree.hasColors && !tree.hasNormals) return;
   try {
     LayoutStats raw, compressed;
+    std::optional<Block> rawBlock;
+    if (timed == AttributeLayout::Raw && scene.octree()) {
+      raw = result.stats.layout;
+    } else {
+      rawBlock.emplace(layoutBlock(tree, {}, &raw));
+    }
     LayoutOptions options;
-    const Block rawBlock = layoutBlock(tree, options, &raw);
     options.attributes = AttributeLayout::Compressed;
     Block compressedBlock;
     result.compressSeconds = timeSeconds([&] { compressedBlock = layoutBlock(tree, options, &compressed); });
-    result.compressedError = attributeError(rawBlock.view(), compressedBlock.view());
+    result.compressedError =
+        attributeError(rawBlock ? rawBlock->view() : scene.octree()->block.view(), compressedBlock.view());
     result.rawLayout = raw, result.compressedLayout = compressed;
   } catch (const BlockTooLarge&) {
     spdlog::info("{}: the octree exceeds one block in a layout: no comparison of the layouts", result.name);
@@ -255,7 +262,7 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
   result.octreeBytes = scene->bytes();
   result.paged = scene->isPaged();
   result.voxels = tree.voxels.size() - 1;
-  compareLayouts(tree, result);
+  compareLayouts(tree, *scene, args.attributes, result);
   tree = VoxelTree();
   result.finestVoxel = transform.size / double(std::int64_t(1) << args.levels);
 

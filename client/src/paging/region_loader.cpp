@@ -75,8 +75,8 @@ class ChildValues {
       if (readBack.exactNormals) child.normal = latticeNormalBits(readBack.exactNormals[readBack.exactNext]);
       ++readBack.exactNext;
     } else if (readBack.compressed) {
-      if (colorUnit_) child.color = unitColor(colorUnit_->words, colorUnit_->half * 8 + slot);
-      if (normalUnit_) child.normal = unitNormal(normalUnit_->words, normalUnit_->half * 8 + slot);
+      if (colorUnit_) child.color = colorUnit_->color(slot);
+      if (normalUnit_) child.normal = encodeNormal(normalUnit_->normal(slot));
     } else {
       child.color = colors_.at(slot).value_or(parent.color);
       child.normal = normals_.at(slot).value_or(parent.normal);

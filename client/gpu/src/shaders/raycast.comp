@@ -111,15 +111,16 @@ float contourThickness(uint bits) { return float(bits & 127u) * (3.0 / 127.0); }
 vec3 decodeColor(uint abgr) {
   return vec3(float(abgr & 255u), float((abgr >> 8) & 255u), float((abgr >> 16) & 255u)) / 255.0;
 }
-vec3 decodeNormal(uint bits) {
+// The cube-point encoding's point on the unit cube (format.hpp's normalDirection).
+vec3 cubePoint(uint bits) {
   uint face = bits >> 29;
   int axis = (face >> 1) < 2u ? int(face >> 1) : 2;
   float u = float((bits >> 14) & 32767u) / 32767.0 * 2.0 - 1.0;
   float v = float(bits & 16383u) / 16383.0 * 2.0 - 1.0;
   float w = (face & 1u) != 0u ? -1.0 : 1.0;
-  vec3 n = axis == 0 ? vec3(w, u, v) : axis == 1 ? vec3(u, w, v) : vec3(u, v, w);
-  return normalize(n);
+  return axis == 0 ? vec3(w, u, v) : axis == 1 ? vec3(u, w, v) : vec3(u, v, w);
 }
+vec3 decodeNormal(uint bits) { return normalize(cubePoint(bits)); }
 
 struct Hit {
   bool hit, leaf;
@@ -325,12 +326,7 @@ vec3 axisVector(uint bits) {
 vec3 unitNormal(uint start, uint unitSlot) {
   const float selectorValue[4] = float[4](-1.0, -1.0 / 3.0, 1.0 / 3.0, 1.0);
   uint selector = (words[start + 2u + unitSlot / 8u] >> (4u * (unitSlot % 8u))) & 15u;
-  uint face = words[start] >> 29;
-  int axis = (face >> 1) < 2u ? int(face >> 1) : 2;
-  float u = float((words[start] >> 14) & 32767u) / 32767.0 * 2.0 - 1.0;
-  float v = float(words[start] & 16383u) / 16383.0 * 2.0 - 1.0;
-  float w = (face & 1u) != 0u ? -1.0 : 1.0;
-  vec3 nb = axis == 0 ? vec3(w, u, v) : axis == 1 ? vec3(u, w, v) : vec3(u, v, w);
+  vec3 nb = cubePoint(words[start]);
   precise vec3 n = nb + selectorValue[selector & 3u] * axisVector(words[start + 1u] & 65535u) +
                    selectorValue[selector >> 2] * axisVector(words[start + 1u] >> 16);
   float length2 = dot(n, n);

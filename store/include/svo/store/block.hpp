@@ -113,7 +113,9 @@ class BlockView {
   // slots take in it, through page header and info section as Fig. 8; nullopt without that attachment.
   struct UnitHalf {
     const std::uint32_t* words;
-    int half;  // the children's unit slots are half * 8 + child slot
+    int half;                                  // the children's unit slots are half * 8 + child slot
+    std::uint32_t color(int childSlot) const;  // ABGR, alpha 255 (a ColorUnits unit)
+    glm::vec3 normal(int childSlot) const;     // unit length (a NormalUnits unit)
   };
   static std::optional<UnitHalf> unit(const ChildDescriptor* parent, AttachmentType type);
   AttributeLayout attributeLayout() const;
@@ -237,11 +239,6 @@ struct BlockTooLarge : std::runtime_error {
 // (0 for leaves; the descriptor itself, not a link to it). Throws BlockTooLarge.
 Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, LayoutStats* stats = nullptr,
                   std::vector<std::uint32_t>* descriptorSlot = nullptr);
-
-// A compressed unit's slot in the uncompressed encodings (what reading a block back gives): ABGR, and the
-// cube encoding of the decoded normal.
-std::uint32_t unitColor(const std::uint32_t* words, int unitSlot);
-std::uint32_t unitNormal(const std::uint32_t* words, int unitSlot);
 
 // Inverse of layoutBlock up to inheritance: walks the block and rebuilds the voxel records with every
 // attribute resolved (inherited values filled in; compressed units decoded: colors as ABGR, normals in the
