@@ -1,4 +1,5 @@
-// `svo build MESH -o out.svo --levels N`: mesh -> octree -> .svo, with progress and a size summary.
+// `svo build MESH -o out.svo --levels N`: mesh (or OpenVDB volume) -> octree -> .svo, with progress and a
+// size summary.
 
 #include <algorithm>
 #include <chrono>
@@ -17,6 +18,7 @@
 #include "measure.hpp"
 #include "progress.hpp"
 #include "svo/builder/build.hpp"
+#include "svo/builder/volume.hpp"
 #include "text_file.hpp"
 
 namespace svo::tools {
@@ -32,6 +34,8 @@ struct BuildArgs {
   std::uint64_t memory = 0;
   int cellLevel = 0;
   bool resume = false;
+  VolumeImportOptions volume;  // a .vdb input
+  bool levelsGiven = false;    // --levels on the command line (a voxel mask brings its own)
 };
 
 double secondsSince(std::chrono::steady_clock::time_point start) {
@@ -120,6 +124,31 @@ void buildInCore(const BuildArgs& args, std::unique_ptr<TriangleSource> source, 
   outcome.phases["write"] = secondsSince(phaseStart);
 }
 
+// A voxel mask (.vdb) laid out voxel for voxel: its own depth, no contours. Returns whether it has colors.
+bool buildFromVoxels(const BuildArgs& args, StoreWriteOptions storeOptions, BuildOutcome& outcome) {
+  auto phaseStart = std::chrono::steady_clock::now();
+  const VoxelVolume volume = loadVolumeVoxels(args.mesh, args.volume);
+  outcome.phases["load"] = secondsSince(phaseStart);
+  if (args.levelsGiven && volume.parameters.levels != args.options.levels)
+    throw UsageError(
+        fmt::format("{}: the voxel mask's voxels make {} levels, not --levels {} (masks are not "
+                    "resampled)",
+                    args.mesh, volume.parameters.levels, args.options.levels));
+  spdlog::info("{}: {} voxels of level {} (a voxel mask)", args.mesh, volume.leafVoxels,
+               volume.parameters.levels);
+  addTreeStats(volume.tree, 0, outcome.stats);
+  // The grid's values as they are: a child inherits only a value equal to its parent's.
+  storeOptions.inheritance.inheritEqualOnly = true;
+  phaseStart = std::chrono::steady_clock::now();
+  {
+    ProgressBar bar("write");
+    storeOptions.progress = [&bar](double f) { bar.update(f); };
+    outcome.slices = writeStore(args.out, volume.tree, volume.transform, volume.parameters, storeOptions);
+  }
+  outcome.phases["write"] = secondsSince(phaseStart);
+  return volume.tree.hasColors;
+}
+
 // The report: phases, voxels and slices per level, bytes per leaf voxel on disk and decoded by part; and
 // its summary on the terminal.
 void writeBuildReport(const BuildArgs& args, const std::filesystem::path& reportPath, std::uint64_t triangles,
@@ -187,8 +216,22 @@ void runBuild(const BuildArgs& args) {
   storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
   storeOptions.inheritance = options.layout;
   BuildOutcome outcome;
-  // Both paths open the input as a source: binary PLY streams from the file, other formats load whole.
-  std::unique_ptr<TriangleSource> source = openTriangleSource(args.mesh);
+  // Both paths open the input as a source: binary PLY streams from the file, other formats load whole; a
+  // level set or fog volume is meshed first, a voxel mask needs no voxelizing.
+  std::optional<Mesh> volumeSurface;
+  std::unique_ptr<TriangleSource> source;
+  if (isVolumeFile(args.mesh)) {
+    if (chooseVolumeGrid(args.mesh, args.volume).kind == VolumeGridKind::Voxels) {
+      const bool hasColors = buildFromVoxels(args, storeOptions, outcome);
+      writeBuildReport(args, reportPath, 0, hasColors, int(outcome.stats.voxelsPerLevel.size()) - 1,
+                       secondsSince(start), outcome);
+      return;
+    }
+    volumeSurface = loadVolumeSurface(args.mesh, args.volume);
+    source = meshTriangleSource(*volumeSurface, "meshed volume");
+  } else {
+    source = openTriangleSource(args.mesh);
+  }
   outcome.phases["load"] = secondsSince(start);
   const std::size_t dropped = source->droppedDegenerate();
   spdlog::info("{}: {} triangles ({}){}", args.mesh, source->triangleCount(), source->format(),
@@ -207,9 +250,10 @@ void runBuild(const BuildArgs& args) {
 
 void addBuildCommand(CLI::App& app) {
   auto args = std::make_shared<BuildArgs>();
-  auto* cmd = app.add_subcommand(
-      "build", "voxelize a mesh (OBJ, PLY, STL, glTF/GLB, DAE, FBX, DRC) into a .svo octree");
-  cmd->add_option("mesh", args->mesh, "input mesh")->required();
+  auto* cmd = app.add_subcommand("build",
+                                 "voxelize a mesh (OBJ, PLY, STL, glTF/GLB, DAE, FBX, DRC) or an OpenVDB "
+                                 "volume (.vdb) into a .svo octree");
+  cmd->add_option("mesh", args->mesh, "input mesh, or an OpenVDB volume (.vdb)")->required();
   cmd->add_option("-o,--output", args->out, "output .svo file")->required();
   cmd->add_option("--levels", args->options.levels, "octree depth: finest voxels are 2^-levels of the scene")
       ->check(CLI::Range(1, kMaxLevels))
@@ -251,7 +295,19 @@ void addBuildCommand(CLI::App& app) {
   cmd->add_flag("--resume", args->resume,
                 "out of core: keep the cells an interrupted build of the same input and options left in "
                 "OUTPUT.build");
-  cmd->callback([args] { runBuild(*args); });
+  cmd->add_option("--grid", args->volume.grid,
+                  ".vdb: the grid to build (a level set, fog volume or mask; default: the file's only one)");
+  cmd->add_option("--color-grid", args->volume.colorGrid,
+                  ".vdb: vec3 grid of linear RGB colors (default: one named color or Cd, if present)");
+  cmd->add_option("--normal-grid", args->volume.normalGrid,
+                  ".vdb masks: vec3 grid of normals (default: one named normal or N, if present)");
+  cmd->add_option("--density-threshold", args->volume.densityThreshold,
+                  ".vdb fog volumes: voxels of at least this density are occupied")
+      ->capture_default_str();
+  cmd->callback([args, cmd] {
+    args->levelsGiven = cmd->count("--levels") > 0;
+    runBuild(*args);
+  });
 }
 
 }  // namespace svo::tools

@@ -14,5 +14,6 @@ void addGenCommand(CLI::App& app);     // cmd_gen.cpp: `svo gen`
 void addStressCommand(CLI::App& app);  // cmd_stress.cpp: `svo stress`
 void addServeCommand(CLI::App& app);   // cmd_serve.cpp: `svo serve`
 void addViewCommand(CLI::App& app);    // cmd_view.cpp: `svo view`
+void addExportCommand(CLI::App& app);  // cmd_export.cpp: `svo export`
 
 }  // namespace svo::tools

@@ -19,6 +19,7 @@ int main(int argc, char** argv) {
   svo::tools::addStressCommand(app);
   svo::tools::addServeCommand(app);
   svo::tools::addViewCommand(app);
+  svo::tools::addExportCommand(app);
   auto* bench = app.add_subcommand("bench", "benchmarks against peers measured in the same run");
   bench->require_subcommand(1);
   svo::tools::addBenchCommands(*bench);

@@ -1,0 +1,400 @@
+// OpenVDB in and out (builder/volume.hpp). Export: a store's level as a mask grid holds exactly the voxels a
+// walk over the decoded octree's records finds at that level, with their colors and normals, read back with
+// OpenVDB's own reader; import of that mask rebuilds a store with the same voxels, attributes and scene
+// cube (mesh -> svo -> vdb -> svo). A level-set sphere and a fog-volume sphere made by OpenVDB build to
+// voxels on the analytic sphere (radius R, and R less the fog threshold's depth) with outward normals and the
+// color grid's color. Bad files and ambiguous or unusable grids are one clear error naming the file; through
+// the `svo` command (under AddressSanitizer when the suite has that build), a non-zero exit and nothing
+// written.
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <random>
+#include <set>
+#include <sstream>
+#include <tuple>
+
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
+#include <openvdb/tools/LevelSetUtil.h>
+#include <glm/geometric.hpp>
+
+#include "command_helpers.hpp"
+#include "reference.hpp"
+#include "svo/builder/build.hpp"
+#include "svo/builder/volume.hpp"
+#include "svo/store/store_reader.hpp"
+#include "svo/store/store_writer.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+using Key = std::tuple<int, int, int>;
+struct Values {
+  std::uint32_t color = 0, normal = 0;
+};
+
+// The level's voxels of a decoded tree by walking its records from the root (a leaf above the level covers
+// its whole cube there).
+std::map<Key, Values> levelVoxels(const svo::VoxelTree& tree, int level) {
+  std::map<Key, Values> out;
+  struct Item {
+    std::uint32_t index;
+    glm::ivec3 coord;
+    int depth;
+  };
+  std::vector<Item> stack{{0, glm::ivec3(0), 0}};
+  while (!stack.empty()) {
+    const Item item = stack.back();
+    stack.pop_back();
+    const svo::VoxelRecord& r = tree.voxels[item.index];
+    if (item.depth == level || r.childMask == 0) {
+      const int side = 1 << (level - item.depth);
+      for (int z = 0; z < side; ++z)
+        for (int y = 0; y < side; ++y)
+          for (int x = 0; x < side; ++x) {
+            const glm::ivec3 c = item.coord * side + glm::ivec3(x, y, z);
+            out[{c.x, c.y, c.z}] = {r.color, r.normal};
+          }
+      continue;
+    }
+    int rank = 0;
+    for (int slot = 0; slot < 8; ++slot)
+      if (r.childMask >> slot & 1)
+        stack.push_back(
+            {r.firstChild + std::uint32_t(rank++), svo::childCoord(item.coord, slot), item.depth + 1});
+  }
+  return out;
+}
+
+template <class Grid>
+typename Grid::Ptr readGrid(const fs::path& path, const std::string& name) {
+  openvdb::io::File file(path.string());
+  file.open();
+  auto grid = openvdb::gridPtrCast<Grid>(file.readGrid(name));
+  file.close();
+  return grid;
+}
+
+void writeGrids(const fs::path& path, const openvdb::GridPtrVec& grids) {
+  openvdb::io::File file(path.string());
+  file.write(grids);
+  file.close();
+}
+
+// Runs `f` and returns the message it throws (empty when it does not throw).
+template <class F>
+std::string errorOf(F&& f) {
+  try {
+    f();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return {};
+}
+
+class Volume : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { openvdb::initialize(); }
+  svotest::TempDir dir;
+};
+
+TEST_F(Volume, ExportedMaskHoldsTheLevelsVoxelsAndImportRebuildsThem) {
+  const fs::path store = dir.path() / "scene.svo";
+  svotest::writeSphereAndBoxStore(store);
+  const svo::StoreReader reader(store);
+  const svo::VoxelTree tree = reader.loadTree();
+  const svo::SceneTransform& scene = reader.header().transform;
+  for (const int level : {5, reader.header().parameters.levels}) {
+    SCOPED_TRACE(level);
+    const std::map<Key, Values> expected = levelVoxels(tree, level);
+    const fs::path vdb = dir.path() / "scene.vdb";
+    const svo::VolumeExportReport report = svo::exportVolume(reader, vdb, {level, false, nullptr});
+    EXPECT_EQ(report.voxels, expected.size());
+
+    // OpenVDB reads it back: one voxel per voxel of the level, in the scene's world frame.
+    const auto occupancy = readGrid<openvdb::MaskGrid>(vdb, "occupancy");
+    const auto colors = readGrid<openvdb::Vec3SGrid>(vdb, "color");
+    const auto normals = readGrid<openvdb::Vec3SGrid>(vdb, "normal");
+    ASSERT_TRUE(occupancy && colors && normals);
+    EXPECT_EQ(occupancy->activeVoxelCount(), openvdb::Index64(expected.size()));
+    const double width = scene.size / double(1 << level);
+    EXPECT_NEAR(occupancy->voxelSize()[0], width, 1e-12 * scene.size);
+    const auto colorAt = colors->getConstAccessor();
+    const auto normalAt = normals->getConstAccessor();
+    const auto occupied = occupancy->getConstAccessor();
+    for (const auto& [key, values] : expected) {
+      const openvdb::Coord ijk(std::get<0>(key), std::get<1>(key), std::get<2>(key));
+      ASSERT_TRUE(occupied.isValueOn(ijk));
+      const openvdb::Vec3d centre = occupancy->indexToWorld(ijk);
+      const glm::dvec3 want = scene.origin + (glm::dvec3(ijk.x(), ijk.y(), ijk.z()) + 0.5) * width;
+      EXPECT_LT((centre - openvdb::Vec3d(want.x, want.y, want.z)).length(), 1e-9 * scene.size);
+      const glm::vec4 c = svo::decodeColor(values.color);
+      EXPECT_EQ(colorAt.getValue(ijk), openvdb::Vec3s(c.r, c.g, c.b));
+      const glm::vec3 n = svo::decodeNormal(values.normal);
+      EXPECT_EQ(normalAt.getValue(ijk), openvdb::Vec3s(n.x, n.y, n.z));
+    }
+
+    // svo build reads the mask back voxel for voxel: same voxels, same values, same scene cube.
+    const svo::VoxelVolume volume = svo::loadVolumeVoxels(vdb, {});
+    EXPECT_EQ(volume.parameters.levels, level);
+    EXPECT_LT(glm::length(volume.transform.origin - scene.origin), 1e-9 * scene.size);
+    EXPECT_NEAR(volume.transform.size, scene.size, 1e-9 * scene.size);
+    const fs::path rebuilt = dir.path() / "rebuilt.svo";
+    svo::StoreWriteOptions exact;  // as svo build writes a mask: no value rounded to its parent's
+    exact.inheritance.inheritEqualOnly = true;
+    svo::writeStore(rebuilt, volume.tree, volume.transform, volume.parameters, exact);
+    const std::map<Key, Values> back = levelVoxels(svo::StoreReader(rebuilt).loadTree(), level);
+    ASSERT_EQ(back.size(), expected.size());
+    for (const auto& [key, values] : expected) {
+      const auto found = back.find(key);
+      ASSERT_NE(found, back.end());
+      EXPECT_EQ(found->second.color, values.color);
+      EXPECT_EQ(found->second.normal, values.normal);
+    }
+  }
+}
+
+// An OpenVDB level-set sphere far from the origin, with a vec3 color grid beside it.
+struct SphereFile {
+  glm::dvec3 centre{1000.25, -40.5, 7.0};
+  double radius = 1.0, voxelSize = 0.04;
+  glm::vec3 color{0.2f, 0.6f, 0.9f};
+};
+openvdb::FloatGrid::Ptr sphereGrid(const SphereFile& s) {
+  auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+      float(s.radius), openvdb::Vec3f(float(s.centre.x), float(s.centre.y), float(s.centre.z)),
+      float(s.voxelSize));
+  grid->setName("sphere");
+  return grid;
+}
+openvdb::Vec3SGrid::Ptr colorGrid(const openvdb::FloatGrid& shape, glm::vec3 color, const char* name) {
+  auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(color.x, color.y, color.z));
+  grid->setTransform(shape.transform().copy());
+  grid->topologyUnion(shape);
+  grid->tree().setValueOn(openvdb::Coord(0), openvdb::Vec3s(color.x, color.y, color.z));
+  grid->setName(name);
+  return grid;
+}
+
+// Builds the file's surface at `levels` and checks every leaf voxel against a sphere of `radius`.
+void expectSphere(const fs::path& vdb, const svo::VolumeImportOptions& options, const SphereFile& s,
+                  double radius, bool colored) {
+  const svo::Mesh mesh = svo::loadVolumeSurface(vdb, options);
+  ASSERT_FALSE(mesh.triangles.empty());
+  svo::BuildOptions build;
+  build.levels = 7;
+  const svo::SceneTransform transform = svo::fitSceneCube(mesh);
+  const svo::VoxelTree tree = svo::voxelize(mesh, transform, build);
+  const std::map<Key, Values> leaves = levelVoxels(tree, build.levels);
+  const double width = transform.size / double(1 << build.levels);
+  // The meshed surface lies within a grid voxel of the sphere; a voxel it crosses, within a half diagonal.
+  const double tolerance = s.voxelSize + 0.5 * std::sqrt(3.0) * width;
+  ASSERT_GT(leaves.size(), 1000u);
+  for (const auto& [key, values] : leaves) {
+    const glm::dvec3 centre =
+        transform.origin + (glm::dvec3(std::get<0>(key), std::get<1>(key), std::get<2>(key)) + 0.5) * width;
+    const glm::dvec3 radial = centre - s.centre;
+    ASSERT_NEAR(glm::length(radial), radius, tolerance);
+    // Outward: the meshing faces the polygons away from the inside.
+    EXPECT_GT(glm::dot(glm::dvec3(svo::decodeNormal(values.normal)), glm::normalize(radial)), 0.9);
+    if (colored) {
+      const glm::vec4 c = svo::decodeColor(values.color);
+      EXPECT_NEAR(c.r, s.color.r, 1.5 / 255) << "color";
+      EXPECT_NEAR(c.b, s.color.b, 1.5 / 255) << "color";
+    }
+  }
+  // Nothing missing: points spread over the sphere fall in or next to a leaf voxel.
+  std::mt19937 random(7);
+  std::normal_distribution<double> gauss;
+  for (int i = 0; i < 200; ++i) {
+    const glm::dvec3 onSphere =
+        s.centre + radius * glm::normalize(glm::dvec3(gauss(random), gauss(random), gauss(random)));
+    const glm::ivec3 cell(glm::floor((onSphere - transform.origin) / width));
+    bool near = false;
+    for (int dz = -1; dz <= 1 && !near; ++dz)
+      for (int dy = -1; dy <= 1 && !near; ++dy)
+        for (int dx = -1; dx <= 1 && !near; ++dx)
+          near = leaves.count({cell.x + dx, cell.y + dy, cell.z + dz}) > 0;
+    EXPECT_TRUE(near) << "no voxel near " << onSphere.x << ", " << onSphere.y << ", " << onSphere.z;
+  }
+}
+
+TEST_F(Volume, LevelSetSphereBuildsOnItsZeroCrossingWithOutwardNormalsAndGridColors) {
+  const SphereFile s;
+  const auto sphere = sphereGrid(s);
+  const fs::path vdb = dir.path() / "sphere.vdb";
+  writeGrids(vdb, {sphere, colorGrid(*sphere, s.color, "Cd")});
+  expectSphere(vdb, {}, s, s.radius, true);
+  const svo::VolumeGridInfo chosen = svo::chooseVolumeGrid(vdb, {});
+  EXPECT_EQ(chosen.name, "sphere");
+  EXPECT_EQ(chosen.kind, svo::VolumeGridKind::LevelSet);
+}
+
+TEST_F(Volume, FogVolumeBuildsOnItsDensityThreshold) {
+  const SphereFile s;
+  const auto fog = sphereGrid(s);
+  // Density rises linearly from 0 at the zero crossing to 1 a narrow band (3 voxels) inside.
+  openvdb::tools::sdfToFogVolume(*fog);
+  ASSERT_EQ(fog->getGridClass(), openvdb::GRID_FOG_VOLUME);
+  const fs::path vdb = dir.path() / "fog.vdb";
+  writeGrids(vdb, {fog});
+  const double bandWidth = 3.0 * s.voxelSize;
+  svo::VolumeImportOptions options;
+  options.densityThreshold = 0.5f;
+  expectSphere(vdb, options, s, s.radius - 0.5 * bandWidth, false);
+  EXPECT_EQ(svo::chooseVolumeGrid(vdb, {}).kind, svo::VolumeGridKind::FogVolume);
+}
+
+TEST_F(Volume, BadFilesAndGridsAreOneClearError) {
+  const fs::path text = dir.file("mesh.vdb", "solid nothing\n");
+  EXPECT_NE(errorOf([&] { svo::listVolumeGrids(text); }).find("mesh.vdb: not a readable OpenVDB file"),
+            std::string::npos);
+  EXPECT_NE(errorOf([&] { svo::listVolumeGrids(dir.path() / "missing.vdb"); }).find("no such file"),
+            std::string::npos);
+
+  const fs::path empty = dir.path() / "empty.vdb";
+  writeGrids(empty, {});
+  EXPECT_NE(errorOf([&] { svo::loadVolumeSurface(empty, {}); }).find("no level set, fog volume or mask grid"),
+            std::string::npos);
+
+  // An integer grid is listed but not built from.
+  auto ints = openvdb::Int32Grid::create(0);
+  ints->setName("labels");
+  ints->tree().setValueOn(openvdb::Coord(1, 2, 3), 7);
+  const SphereFile s;
+  auto a = sphereGrid(s), b = sphereGrid(s);
+  b->setName("other");
+  const fs::path several = dir.path() / "several.vdb";
+  writeGrids(several, {ints, a, b});
+  const std::string ambiguous = errorOf([&] { svo::loadVolumeSurface(several, {}); });
+  EXPECT_NE(ambiguous.find("several grids to build from (--grid NAME picks one)"), std::string::npos)
+      << ambiguous;
+  EXPECT_NE(ambiguous.find("'sphere'"), std::string::npos) << ambiguous;
+  EXPECT_NE(ambiguous.find("'other'"), std::string::npos) << ambiguous;
+  svo::VolumeImportOptions pick;
+  pick.grid = "labels";
+  EXPECT_NE(errorOf([&] { svo::loadVolumeSurface(several, pick); }).find("grid 'labels' is a int32 grid"),
+            std::string::npos);
+  pick.grid = "nope";
+  EXPECT_NE(errorOf([&] { svo::loadVolumeSurface(several, pick); }).find("no grid named 'nope'"),
+            std::string::npos);
+  pick.grid = "other";
+  pick.colorGrid = "paint";
+  EXPECT_NE(errorOf([&] { svo::loadVolumeSurface(several, pick); }).find("no color grid named 'paint'"),
+            std::string::npos);
+
+  // A mask on a rotated transform is not cubic voxels of the scene's axes.
+  auto mask = openvdb::MaskGrid::create();
+  mask->tree().setValueOn(openvdb::Coord(0));
+  auto rotated = openvdb::math::Transform::createLinearTransform(0.5);
+  rotated->postRotate(0.3, openvdb::math::Z_AXIS);
+  mask->setTransform(rotated);
+  mask->setName("mask");
+  const fs::path turned = dir.path() / "turned.vdb";
+  writeGrids(turned, {mask});
+  EXPECT_NE(errorOf([&] { svo::loadVolumeVoxels(turned, {}); }).find("rotated, sheared or non-uniform"),
+            std::string::npos);
+
+  // A mask whose active tiles stand for more voxels than a store is written from.
+  auto huge = openvdb::MaskGrid::create();
+  huge->setName("huge");
+  huge->tree().fill(openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(2047)), true, true);
+  const fs::path tiles = dir.path() / "tiles.vdb";
+  writeGrids(tiles, {huge});
+  EXPECT_NE(
+      errorOf([&] { svo::loadVolumeVoxels(tiles, {}); }).find("more than the 1073741824 a mask may bring"),
+      std::string::npos);
+
+  // A level set with no zero crossing inside its band (all outside) has no surface.
+  auto far = openvdb::FloatGrid::create(0.3f);
+  far->setGridClass(openvdb::GRID_LEVEL_SET);
+  far->tree().setValueOn(openvdb::Coord(0), 0.1f);
+  const fs::path flat = dir.path() / "flat.vdb";
+  writeGrids(flat, {far});
+  EXPECT_NE(errorOf([&] { svo::loadVolumeSurface(flat, {}); }).find("has no surface"), std::string::npos);
+
+  // Export: a level outside the store's.
+  const fs::path store = dir.path() / "scene.svo";
+  svotest::writeSphereAndBoxStore(store);
+  const fs::path out = dir.path() / "out.vdb";
+  EXPECT_NE(errorOf([&] {
+              svo::exportVolume(svo::StoreReader(store), out, {9, false, nullptr});
+            }).find("level 9 is outside the store's levels 1..8"),
+            std::string::npos);
+  EXPECT_FALSE(fs::exists(out));
+}
+
+// `svo ARGS` with stderr apart: its exit status and what it printed there.
+struct CommandRun {
+  int exitCode = 0;
+  std::string err;
+};
+CommandRun svoCommand(const fs::path& dir, const std::string& args) {
+  const char* asan = std::getenv("SVO_ASAN_BINARY");
+  const std::string program = asan && *asan ? asan : SVO_BINARY;
+  const fs::path err = dir / "stderr.txt";
+  const std::string out =
+      svotest::runShell("(" + program + " " + args + " 2>" + err.string() + " >/dev/null)");
+  CommandRun run;
+  run.exitCode = std::atoi(out.substr(out.rfind("exit ") + 5).c_str());
+  std::ifstream in(err);
+  std::stringstream text;
+  text << in.rdbuf();
+  run.err = text.str();
+  return run;
+}
+
+void expectCleanFailure(const CommandRun& run, const std::string& needle, const fs::path& target) {
+  EXPECT_NE(run.exitCode, 0) << run.err;
+  EXPECT_LT(run.exitCode, 128) << "crashed: " << run.err;
+  EXPECT_NE(run.err.find(needle), std::string::npos) << run.err;
+  EXPECT_EQ(std::count(run.err.begin(), run.err.end(), '\n'), 1) << run.err;
+  EXPECT_FALSE(fs::exists(target)) << target;
+}
+
+TEST_F(Volume, CommandsExportBuildAndRefuseBadVolumes) {
+  const fs::path store = dir.path() / "scene.svo", vdb = dir.path() / "scene.vdb",
+                 back = dir.path() / "back.svo";
+  svotest::writeSphereAndBoxStore(store);
+  const std::string s = store.string(), v = vdb.string(), b = back.string();
+  CommandRun run = svoCommand(dir.path(), "export " + s + " -o " + v + " --level 6");
+  ASSERT_EQ(run.exitCode, 0) << run.err;
+  run = svoCommand(dir.path(), "build " + v + " -o " + b);
+  ASSERT_EQ(run.exitCode, 0) << run.err;
+  EXPECT_EQ(svoCommand(dir.path(), "verify " + b).exitCode, 0);
+  const std::map<Key, Values> original = levelVoxels(svo::StoreReader(store).loadTree(), 6);
+  const std::map<Key, Values> rebuilt = levelVoxels(svo::StoreReader(back).loadTree(), 6);
+  EXPECT_EQ(original.size(), rebuilt.size());
+  EXPECT_TRUE(std::equal(original.begin(), original.end(), rebuilt.begin(), rebuilt.end(),
+                         [](const auto& a, const auto& b) { return a.first == b.first; }));
+
+  const fs::path out = dir.path() / "out.svo";
+  expectCleanFailure(svoCommand(dir.path(), "build " + v + " -o " + out.string() + " --levels 9"),
+                     "the voxel mask's voxels make 6 levels, not --levels 9", out);
+  std::ifstream whole(vdb, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(whole)), std::istreambuf_iterator<char>());
+  for (const std::size_t keep : {std::size_t(0), std::size_t(40), bytes.size() / 2}) {
+    SCOPED_TRACE(keep);
+    const fs::path truncated = dir.file("truncated.vdb", bytes.substr(0, keep));
+    expectCleanFailure(svoCommand(dir.path(), "build " + truncated.string() + " -o " + out.string()),
+                       "truncated.vdb", out);
+  }
+  const fs::path text = dir.file("text.vdb", "ply\nformat ascii 1.0\n");
+  expectCleanFailure(svoCommand(dir.path(), "build " + text.string() + " -o " + out.string()),
+                     "text.vdb: not a readable OpenVDB file", out);
+  expectCleanFailure(svoCommand(dir.path(), "build " + v + " -o " + out.string() + " --grid color"),
+                     "grid 'color' is a vec3s grid", out);
+
+  const fs::path png = dir.path() / "scene.png";
+  expectCleanFailure(svoCommand(dir.path(), "export " + s + " -o " + png.string()), "must name a .vdb file",
+                     png);
+  const fs::path deep = dir.path() / "deep.vdb";
+  expectCleanFailure(svoCommand(dir.path(), "export " + s + " -o " + deep.string() + " --level 12"),
+                     "deeper than the store's 8 levels", deep);
+}
+
+}  // namespace
