@@ -397,4 +397,30 @@ TEST_F(Volume, CommandsExportBuildAndRefuseBadVolumes) {
                      "deeper than the store's 8 levels", deep);
 }
 
+// `svo bench volume` (the optimized build: the sanitized one has no peers) casts the same rays through the
+// octree and OpenVDB's level set: both hit the same pixels and agree on depth within a voxel.
+TEST_F(Volume, BenchCastsTheSameLevelSetAsOpenVdb) {
+  const fs::path sphere = dir.path() / "sphere.ply";
+  ASSERT_EQ(std::system((std::string(SVO_BINARY) + " gen sphere --triangles 2000 -o " + sphere.string() +
+                         " >/dev/null 2>&1")
+                            .c_str()),
+            0);
+  const std::string out = svotest::runShell(std::string(SVO_BINARY) + " bench volume " + sphere.string() +
+                                            " --levels 6 --size 48 --runs 1 --threads 1");
+  ASSERT_NE(out.find("exit 0"), std::string::npos) << out;
+  for (const char* row :
+       {"OpenVDB meshToLevelSet", "svo from the level set", "OpenVDB grid in memory", "svo octree in memory"})
+    EXPECT_NE(out.find(row), std::string::npos) << row << "\n" << out;
+  // The ray table's row: threads, two rates, ratio, two hit shares, then the one-sided hits and depths.
+  const std::size_t header = out.find("hit by one only");
+  ASSERT_NE(header, std::string::npos) << out;
+  std::istringstream rows(out.substr(out.find("\n1 ", header) + 1));
+  std::string threads, esvo, vdb, ratio, hitsEsvo, hitsVdb, oneOnly, median, medianUnit, tail;
+  rows >> threads >> esvo >> vdb >> ratio >> hitsEsvo >> hitsVdb >> oneOnly >> median >> medianUnit >> tail;
+  EXPECT_EQ(threads, "1") << out;
+  EXPECT_GT(std::stod(hitsEsvo), 10.0) << out;
+  EXPECT_LT(std::stod(oneOnly), 1.0) << out;  // percent of pixels
+  EXPECT_LT(std::stod(tail), 1.0) << out;     // voxels
+}
+
 }  // namespace

@@ -6,7 +6,7 @@
 namespace svo::tools {
 
 // Registers `svo bench raycast`, `build`, `accel`, `stability`, `quality`, `store`, `stream`, `serve` and
-// `dimensions` on `bench`.
+// `dimensions` and `volume` on `bench`.
 void addBenchCommands(CLI::App& bench);
 
 }  // namespace svo::tools

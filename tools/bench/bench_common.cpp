@@ -32,6 +32,7 @@ void addBenchCommands(CLI::App& bench) {
   bench::addStreamBench(bench);
   bench::addServeBench(bench);
   bench::addDimensionBench(bench);
+  bench::addVolumeBench(bench);
 }
 
 }  // namespace svo::tools

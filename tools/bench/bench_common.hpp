@@ -37,6 +37,7 @@ void addStoreBench(CLI::App& bench);      // bench_store.cpp
 void addStreamBench(CLI::App& bench);     // bench_stream.cpp
 void addServeBench(CLI::App& bench);      // bench_serve.cpp
 void addDimensionBench(CLI::App& bench);  // bench_dimensions.cpp
+void addVolumeBench(CLI::App& bench);     // bench_volume.cpp
 
 // ----- the OpenVDB peer of a build (bench_build.cpp; shared by `bench build` and `bench store`) ----------
 // OpenVDB's default narrow-band half width, in voxels (LEVEL_SET_HALF_WIDTH).
