@@ -363,6 +363,11 @@ TEST_F(Volume, CommandsExportBuildAndRefuseBadVolumes) {
   const std::string s = store.string(), v = vdb.string(), b = back.string();
   CommandRun run = svoCommand(dir.path(), "export " + s + " -o " + v + " --level 6");
   ASSERT_EQ(run.exitCode, 0) << run.err;
+  // OpenVDB's own tool lists what svo wrote.
+  const std::string listed = svotest::runShell("vdb_print " + v);
+  EXPECT_NE(listed.find("exit 0"), std::string::npos) << listed;
+  for (const char* grid : {"occupancy", "color", "normal"})
+    EXPECT_NE(listed.find(grid), std::string::npos) << listed;
   run = svoCommand(dir.path(), "build " + v + " -o " + b);
   ASSERT_EQ(run.exitCode, 0) << run.err;
   EXPECT_EQ(svoCommand(dir.path(), "verify " + b).exitCode, 0);
