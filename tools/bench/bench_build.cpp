@@ -18,6 +18,8 @@
 #ifdef SVO_BENCH_PEERS
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/MeshToVolume.h>
+
+#include "vdb_peer.hpp"
 #endif
 
 #include "bench_common.hpp"
@@ -35,25 +37,6 @@ struct BuildArgs {
 };
 
 #ifdef SVO_BENCH_PEERS
-// The same triangles as OpenVDB wants them: float points relative to the scene cube's corner, so that the
-// voxel grid lines up with the octree's and far-from-origin coordinates keep their precision.
-struct VdbMesh {
-  std::vector<openvdb::Vec3s> points;
-  std::vector<openvdb::Vec3I> triangles;
-};
-
-VdbMesh toVdbMesh(const Mesh& mesh, glm::dvec3 corner) {
-  VdbMesh out;
-  out.points.reserve(mesh.positions.size());
-  for (const glm::dvec3& p : mesh.positions) {
-    const glm::dvec3 q = p - corner;
-    out.points.emplace_back(float(q.x), float(q.y), float(q.z));
-  }
-  out.triangles.reserve(mesh.triangles.size());
-  for (const glm::uvec3& t : mesh.triangles) out.triangles.emplace_back(t.x, t.y, t.z);
-  return out;
-}
-
 LevelSetResult runOpenVdb(const VdbMesh& mesh, double voxelSize, int runs) {
   const openvdb::math::Transform::Ptr transform = openvdb::math::Transform::createLinearTransform(voxelSize);
   LevelSetResult result;

@@ -22,6 +22,8 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/tools/RayIntersector.h>
+
+#include "vdb_peer.hpp"
 #endif
 
 #include "bench_common.hpp"
@@ -97,15 +99,10 @@ Agreement compare(const std::vector<float>& a, const std::vector<float>& b, doub
 #ifdef SVO_BENCH_PEERS
 // OpenVDB's level set of the mesh, voxels of `voxelSize` lined up with the octree's cube at `corner`.
 openvdb::FloatGrid::Ptr levelSetOf(const Mesh& mesh, glm::dvec3 corner, double voxelSize) {
-  std::vector<openvdb::Vec3s> points;
-  std::vector<openvdb::Vec3I> triangles;
-  for (const glm::dvec3& p : mesh.positions) {
-    const glm::dvec3 q = p - corner;  // float keeps its precision near the corner
-    points.emplace_back(float(q.x), float(q.y), float(q.z));
-  }
-  for (const glm::uvec3& t : mesh.triangles) triangles.emplace_back(t.x, t.y, t.z);
+  const VdbMesh relative = toVdbMesh(mesh, corner);
   openvdb::FloatGrid::Ptr grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(
-      *openvdb::math::Transform::createLinearTransform(voxelSize), points, triangles, kLevelSetHalfWidth);
+      *openvdb::math::Transform::createLinearTransform(voxelSize), relative.points, relative.triangles,
+      kLevelSetHalfWidth);
   grid->transform().postTranslate(openvdb::Vec3d(corner.x, corner.y, corner.z));
   grid->setName("surface");
   return grid;
@@ -129,7 +126,8 @@ DepthFrame castOpenVdb(const openvdb::FloatGrid& grid, const Camera& camera, int
           // The overload with the hit point too: the one with the time alone reads it before the search.
           openvdb::Vec3d hit;
           double t = 0.0;
-          if (intersector.intersectsWS(ray, hit, t)) frame.depth[std::size_t(y) * camera.width + x] = float(t);
+          if (intersector.intersectsWS(ray, hit, t))
+            frame.depth[std::size_t(y) * camera.width + x] = float(t);
         }
     });
   });
@@ -162,16 +160,18 @@ void runVolumeBench(const VolumeArgs& args) {
   BuildOptions build;
   build.levels = args.levels;
   Octree fromVolume;
+  VoxelTree volumeTree;  // the last run's, written as the store
   const Summary volumeBuild = timeRuns(args.runs, [&] {
     const Mesh surface = loadVolumeSurface(vdbFile.path(), {});
     fromVolume.transform = fitSceneCube(surface);
-    fromVolume.block = layoutBlock(voxelize(surface, fromVolume.transform, build));
+    volumeTree = voxelize(surface, fromVolume.transform, build);
+    fromVolume.block = layoutBlock(volumeTree);
   });
   fromVolume.parameters = storedParameters(build);
   BuildStats stats;
   const Summary meshBuild = timeRuns(args.runs, [&] { layoutBlock(voxelize(mesh, cube, build, &stats)); });
-  const std::vector<SliceInfo> slices = writeStore(store.path(), readBlock(fromVolume.block.view()),
-                                                   fromVolume.transform, fromVolume.parameters);
+  const std::vector<SliceInfo> slices =
+      writeStore(store.path(), volumeTree, fromVolume.transform, fromVolume.parameters);
   std::uint64_t leaves = 0;
   for (const SliceInfo& s : slices)
     if (s.voxelLevel == args.levels) leaves += s.voxelCount;
