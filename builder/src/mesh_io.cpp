@@ -45,11 +45,20 @@ glm::vec4 displayToLinear(glm::vec4 c) {
   return glm::vec4(srgbToLinear(c.r), srgbToLinear(c.g), srgbToLinear(c.b), std::clamp(c.a, 0.0f, 1.0f));
 }
 
+// A file's extension in lower case (".ply"), by which the readers pick a format; triangle_source.cpp and
+// volume_io.cpp too.
+std::string lowerExtension(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
+}
+
 }  // namespace detail
 
 namespace {
 
 using detail::displayToLinear;
+using detail::lowerExtension;
 namespace fs = std::filesystem;
 
 // assimp's words for a file that parsed but holds nothing: those are empty meshes, not unknown formats.
@@ -67,12 +76,6 @@ constexpr std::size_t kGltfJsonScanBytes = 16u << 20;
   std::replace(line.begin(), line.end(), '\n', ' ');
   std::replace(line.begin(), line.end(), '\r', ' ');
   throw std::runtime_error(line);
-}
-
-std::string lowerExtension(const fs::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  return ext;
 }
 
 glm::vec4 clamp01(glm::vec4 c) {

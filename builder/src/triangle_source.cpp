@@ -29,6 +29,7 @@ namespace svo {
 
 namespace detail {  // mesh_io.cpp
 glm::vec4 displayToLinear(glm::vec4 c);
+std::string lowerExtension(const std::filesystem::path& path);
 }  // namespace detail
 
 namespace {
@@ -530,10 +531,7 @@ std::unique_ptr<TriangleSource> openTriangleSource(const fs::path& path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) fail(path, "no such file");
   if (!fs::is_regular_file(path, ec)) fail(path, "not a regular file");
-  std::string extension = path.extension().string();
-  std::transform(extension.begin(), extension.end(), extension.begin(),
-                 [](unsigned char c) { return char(std::tolower(c)); });
-  if (extension == ".ply") {
+  if (detail::lowerExtension(path) == ".ply") {
     File file(std::fopen(path.c_str(), "rb"));
     if (!file) fail(path, "cannot open");
     std::string header;

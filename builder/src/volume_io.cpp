@@ -21,6 +21,10 @@ namespace svo {
 
 namespace fs = std::filesystem;
 
+namespace detail {  // mesh_io.cpp
+std::string lowerExtension(const std::filesystem::path& path);
+}  // namespace detail
+
 namespace {
 
 // Attribute grids looked for by name when none is named (ours, then Houdini's).
@@ -170,10 +174,7 @@ const char* nameOf(VolumeGridKind kind) {
 }
 
 bool isVolumeFile(const fs::path& path) {
-  std::string extension = path.extension().string();
-  std::transform(extension.begin(), extension.end(), extension.begin(),
-                 [](unsigned char c) { return char(std::tolower(c)); });
-  return extension == ".vdb";
+  return detail::lowerExtension(path) == ".vdb";
 }
 
 namespace volume_file {
