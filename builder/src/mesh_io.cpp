@@ -25,6 +25,7 @@
 #include <assimp/Importer.hpp>
 #include <glm/common.hpp>
 
+#include "file_extension.hpp"
 #include "svo/builder/mesh.hpp"
 
 namespace svo {
@@ -43,14 +44,6 @@ float srgbToLinear(float c) {
 
 glm::vec4 displayToLinear(glm::vec4 c) {
   return glm::vec4(srgbToLinear(c.r), srgbToLinear(c.g), srgbToLinear(c.b), std::clamp(c.a, 0.0f, 1.0f));
-}
-
-// A file's extension in lower case (".ply"), by which the readers pick a format; triangle_source.cpp and
-// volume_io.cpp too.
-std::string lowerExtension(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-  return ext;
 }
 
 }  // namespace detail

@@ -22,6 +22,7 @@
 #include <glm/common.hpp>
 #include <glm/gtc/type_precision.hpp>
 
+#include "file_extension.hpp"
 #include "hasher.hpp"
 #include "svo/builder/mesh.hpp"
 
@@ -29,7 +30,6 @@ namespace svo {
 
 namespace detail {  // mesh_io.cpp
 glm::vec4 displayToLinear(glm::vec4 c);
-std::string lowerExtension(const std::filesystem::path& path);
 }  // namespace detail
 
 namespace {

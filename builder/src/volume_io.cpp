@@ -13,6 +13,7 @@
 #include <openvdb/tools/VolumeToMesh.h>
 #include <glm/geometric.hpp>
 
+#include "file_extension.hpp"
 #include "svo/builder/volume.hpp"
 #include "svo/store/format.hpp"
 #include "volume_file.hpp"
@@ -20,10 +21,6 @@
 namespace svo {
 
 namespace fs = std::filesystem;
-
-namespace detail {  // mesh_io.cpp
-std::string lowerExtension(const std::filesystem::path& path);
-}  // namespace detail
 
 namespace {
 
