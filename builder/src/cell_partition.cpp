@@ -38,14 +38,23 @@ const char* get(const char* in, T& value) {
 }  // namespace
 
 CellPartition::CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials)
-    : folder_(std::move(folder)), colors_(colors), uvs_(uvs), materials_(materials) {
+    : CellPartition(std::move(folder), colors, uvs, materials, true) {}
+
+CellPartition CellPartition::attach(std::filesystem::path folder, bool colors, bool uvs, bool materials) {
+  return CellPartition(std::move(folder), colors, uvs, materials, false);
+}
+
+CellPartition::CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials, bool owner)
+    : folder_(std::move(folder)), colors_(colors), uvs_(uvs), materials_(materials), owner_(owner) {
   recordBytes_ = sizeof(SourceTriangle::positions) + (colors ? sizeof(SourceTriangle::colors) : 0) +
                  (uvs ? sizeof(SourceTriangle::uvs) : 0) + (materials ? sizeof(SourceTriangle::material) : 0);
+  if (!owner_) return;
   std::filesystem::remove_all(folder_);
   std::filesystem::create_directories(folder_);
 }
 
 CellPartition::~CellPartition() {
+  if (!owner_) return;
   std::error_code ignored;
   std::filesystem::remove_all(folder_, ignored);
 }
@@ -56,11 +65,13 @@ std::filesystem::path CellPartition::fileOf(std::uint32_t cell) const {
 
 std::uint32_t CellPartition::addCell() {
   buffers_.emplace_back();
+  triangles_.push_back(0);
   return std::uint32_t(buffers_.size() - 1);
 }
 
 void CellPartition::append(std::uint32_t cell, const SourceTriangle& t) {
   std::vector<char>& b = buffers_[cell];
+  ++triangles_[cell];
   const std::size_t at = b.size();
   b.resize(at + recordBytes_);
   char* out = put(b.data() + at, t.positions);

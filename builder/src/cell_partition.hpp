@@ -12,8 +12,11 @@ namespace svo {
 
 class CellPartition {
  public:
-  // `folder` is created empty. Records hold positions, and vertex colors, UVs and materials when asked.
+  // `folder` is created empty (and removed with the partition). Records hold positions, and vertex colors,
+  // UVs and materials when asked.
   CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials);
+  // Another process's partition in a shared folder, to read its cells: neither created nor removed here.
+  static CellPartition attach(std::filesystem::path folder, bool colors, bool uvs, bool materials);
   CellPartition(const CellPartition&) = delete;
   CellPartition& operator=(const CellPartition&) = delete;
   ~CellPartition();  // removes the folder
@@ -25,13 +28,16 @@ class CellPartition {
   // A cell's triangles, in the order appended (flush() first). Thread-safe once appending is over.
   std::vector<SourceTriangle> read(std::uint32_t cell) const;
   void remove(std::uint32_t cell);  // frees the cell's disk space
+  std::uint64_t trianglesIn(std::uint32_t cell) const { return triangles_[cell]; }  // appended here
 
  private:
+  CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials, bool owner);
   std::filesystem::path fileOf(std::uint32_t cell) const;
   std::filesystem::path folder_;
-  bool colors_, uvs_, materials_;
+  bool colors_, uvs_, materials_, owner_;
   std::size_t recordBytes_;
   std::vector<std::vector<char>> buffers_;  // per cell, packed records not yet written
+  std::vector<std::uint64_t> triangles_;    // per cell
   std::size_t buffered_ = 0;
 };
 

@@ -1,11 +1,15 @@
 // The out-of-core voxelizer: two streaming passes over a triangle source build the levels above the cell
 // level; each cell is then voxelized from its binned triangles.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <exception>
+#include <mutex>
 #include <stdexcept>
 #include <string>
+#include <thread>
 
-#include "cell_partition.hpp"
+#include "cell_voxelizer.hpp"
 #include "voxelizer.hpp"
 
 namespace svo {
@@ -28,7 +32,7 @@ class CellVoxelizer {
         colors_(source.hasColor()),
         errorStop_(options.geometryError > 0.0f && options.contours) {}
 
-  VoxelTree run(const std::filesystem::path& scratch, int concurrency) {
+  VoxelTree run(const std::filesystem::path& scratch, const CellRunner& runner) {
     CellPartition partition(scratch, source_.hasVertexColors(), source_.hasUvs(),
                             source_.materials().size() > 1);
     partition_ = &partition;
@@ -71,25 +75,28 @@ class CellVoxelizer {
     // 3. Contours and stops top down, which hands each cell the slabs of its ancestors.
     decide(0, {});
     if (callbacks_.planned) callbacks_.planned(cells_.size());
-    // 4. The cells, `concurrency` at a time.
-    std::atomic<std::size_t> next{0};
-    std::mutex failedMutex;
-    std::exception_ptr failed;  // the first error stops the rest and is rethrown here
-    const auto work = [&] {
-      try {
-        for (std::size_t i; (i = next.fetch_add(1)) < cells_.size();) buildCell(cells_[i]);
-      } catch (...) {
-        std::lock_guard lock(failedMutex);
-        if (!failed) failed = std::current_exception();
-        next = cells_.size();
-      }
+    // 4. The cells an earlier run did not finish, largest first so that none is left to the end alone.
+    std::vector<std::size_t> cellOf;
+    for (std::size_t i = 0; i < cells_.size(); ++i)
+      if (!cells_[i].done) cellOf.push_back(i);
+    std::stable_sort(cellOf.begin(), cellOf.end(), [&](std::size_t a, std::size_t b) {
+      return partition.trianglesIn(cells_[a].bucket) > partition.trianglesIn(cells_[b].bucket);
+    });
+    CellJobs jobs;
+    jobs.cellLevel = cellLevel_;
+    for (const std::size_t i : cellOf)
+      jobs.tasks.push_back({cells_[i].coord, std::move(cells_[i].slabs), cells_[i].bucket,
+                            partition.trianglesIn(cells_[i].bucket)});
+    jobs.buildHere = [&](std::size_t t) {
+      CellRoot root;
+      VoxelTree tree = buildCell(source_, transform_, options_, cellLevel_, partition, jobs.tasks[t], root);
+      callbacks_.built(jobs.tasks[t].coord, std::move(tree), root);
+      return root;
     };
-    {
-      std::vector<std::jthread> workers;
-      for (int t = 1; t < std::max(1, concurrency); ++t) workers.emplace_back(work);
-      work();
-    }
-    if (failed) std::rethrow_exception(failed);
+    jobs.builtElsewhere = callbacks_.builtElsewhere;
+    const std::vector<CellRoot> roots = runner(jobs);
+    if (roots.size() != cellOf.size()) throw std::logic_error("voxelizeCells: a cell runner lost cells");
+    for (std::size_t k = 0; k < cellOf.size(); ++k) cells_[cellOf[k]].root = roots[k];
 
     // 5. The top's attributes from the cells' sums, bottom up in slot order as the in-core build adds them.
     VoxelTree tree;
@@ -224,37 +231,6 @@ class CellVoxelizer {
     return self;
   }
 
-  void buildCell(Cell& cell) const {
-    if (cell.done) return;
-    // The cell's triangles as a mesh of their own: three corners each, in input order.
-    Mesh mesh;
-    {
-      const std::vector<SourceTriangle> binned = partition_->read(cell.bucket);
-      mesh.positions.reserve(3 * binned.size());
-      mesh.triangles.reserve(binned.size());
-      if (source_.hasVertexColors()) mesh.colors.reserve(3 * binned.size());
-      if (source_.hasUvs()) mesh.uvs.reserve(3 * binned.size());
-      for (const SourceTriangle& s : binned) {
-        const std::uint32_t base = std::uint32_t(mesh.positions.size());
-        mesh.triangles.emplace_back(base, base + 1, base + 2);
-        mesh.positions.insert(mesh.positions.end(), s.positions.begin(), s.positions.end());
-        if (source_.hasVertexColors())
-          mesh.colors.insert(mesh.colors.end(), s.colors.begin(), s.colors.end());
-        if (source_.hasUvs()) mesh.uvs.insert(mesh.uvs.end(), s.uvs.begin(), s.uvs.end());
-        if (source_.materials().size() > 1) mesh.triangleMaterials.push_back(s.material);
-      }
-    }
-    partition_->remove(cell.bucket);
-    mesh.materials = source_.materials();
-    mesh.textures = source_.textures();
-    Aggregate sums;
-    VoxelTree tree =
-        Voxelizer(mesh, transform_, options_, colors_).runCell(cellLevel_, cell.coord, cell.slabs, sums);
-    mesh = Mesh{};
-    cell.root = {tree.voxels[0], {sums.weight, sums.color, sums.normal}};
-    callbacks_.built(cell.coord, std::move(tree), cell.root);
-  }
-
   // Writes top voxel `t` at out[self] and its children's records after it, depth first like buildInto;
   // cells become leaves carrying their roots' contour and attributes. Returns the voxel's sums.
   Aggregate assembleTop(std::size_t t, std::vector<VoxelRecord>& out, std::size_t self) const {
@@ -299,15 +275,75 @@ class CellVoxelizer {
 
 }  // namespace
 
+CellRunner localCellRunner(int concurrency) {
+  return [concurrency](const CellJobs& jobs) {
+    std::vector<CellRoot> roots(jobs.tasks.size());
+    std::atomic<std::size_t> next{0};
+    std::mutex failedMutex;
+    std::exception_ptr failed;  // the first error stops the rest and is rethrown here
+    const auto work = [&] {
+      try {
+        for (std::size_t i; (i = next.fetch_add(1)) < roots.size();) roots[i] = jobs.buildHere(i);
+      } catch (...) {
+        std::lock_guard lock(failedMutex);
+        if (!failed) failed = std::current_exception();
+        next = roots.size();
+      }
+    };
+    {
+      std::vector<std::jthread> workers;
+      for (int t = 1; t < std::max(1, concurrency); ++t) workers.emplace_back(work);
+      work();
+    }
+    if (failed) std::rethrow_exception(failed);
+    return roots;
+  };
+}
+
+VoxelTree buildCell(const TriangleSource& source, const SceneTransform& transform, const BuildOptions& options,
+                    int cellLevel, CellPartition& partition, const CellTask& task, CellRoot& root) {
+  // The cell's triangles as a mesh of their own: three corners each, in input order.
+  Mesh mesh;
+  {
+    const std::vector<SourceTriangle> binned = partition.read(task.bucket);
+    mesh.positions.reserve(3 * binned.size());
+    mesh.triangles.reserve(binned.size());
+    if (source.hasVertexColors()) mesh.colors.reserve(3 * binned.size());
+    if (source.hasUvs()) mesh.uvs.reserve(3 * binned.size());
+    for (const SourceTriangle& s : binned) {
+      const std::uint32_t base = std::uint32_t(mesh.positions.size());
+      mesh.triangles.emplace_back(base, base + 1, base + 2);
+      mesh.positions.insert(mesh.positions.end(), s.positions.begin(), s.positions.end());
+      if (source.hasVertexColors()) mesh.colors.insert(mesh.colors.end(), s.colors.begin(), s.colors.end());
+      if (source.hasUvs()) mesh.uvs.insert(mesh.uvs.end(), s.uvs.begin(), s.uvs.end());
+      if (source.materials().size() > 1) mesh.triangleMaterials.push_back(s.material);
+    }
+  }
+  partition.remove(task.bucket);
+  mesh.materials = source.materials();
+  mesh.textures = source.textures();
+  voxel::Aggregate sums;
+  VoxelTree tree =
+      voxel::Voxelizer(mesh, transform, options, source.hasColor()).runCell(cellLevel, task.coord, task.slabs, sums);
+  root = {tree.voxels[0], {sums.weight, sums.color, sums.normal}};
+  return tree;
+}
+
 VoxelTree voxelizeCells(const TriangleSource& source, const SceneTransform& transform,
                         const BuildOptions& options, int cellLevel, const CellCallbacks& callbacks,
                         int concurrency, const std::filesystem::path& scratch) {
+  return voxelizeCells(source, transform, options, cellLevel, callbacks, localCellRunner(concurrency), scratch);
+}
+
+VoxelTree voxelizeCells(const TriangleSource& source, const SceneTransform& transform,
+                        const BuildOptions& options, int cellLevel, const CellCallbacks& callbacks,
+                        const CellRunner& runner, const std::filesystem::path& scratch) {
   checkLevels(options);
   if (cellLevel < 1 || cellLevel >= options.levels)
     throw std::invalid_argument("cell level must be in [1, levels - 1] = [1, " +
                                 std::to_string(options.levels - 1) + "], got " + std::to_string(cellLevel));
   if (!callbacks.built) throw std::invalid_argument("voxelizeCells: no callback for built cells");
-  return CellVoxelizer(source, transform, options, cellLevel, callbacks).run(scratch, concurrency);
+  return CellVoxelizer(source, transform, options, cellLevel, callbacks).run(scratch, runner);
 }
 
 }  // namespace svo

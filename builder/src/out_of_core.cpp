@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstring>
 #include <fstream>
 #include <memory>
 #include <mutex>
@@ -17,11 +16,11 @@
 #include <string>
 #include <unordered_map>
 
-#include <zstd.h>
 #include <glm/geometric.hpp>
 #include <nlohmann/json.hpp>
 
-#include "hasher.hpp"
+#include "cell_spill.hpp"
+#include "out_of_core.hpp"
 #include "svo/builder/build.hpp"
 
 namespace svo {
@@ -49,101 +48,8 @@ constexpr double kInCoreBytesPerTriangle = 380.0;
 // The deepest cell level --memory considers: 2^9 cells a side is 512^3 work items, far past any budget's
 // need.
 constexpr int kDeepestChosenCellLevel = 9;
-// Zstd level of the spilled cells: fast, they are read once.
-constexpr int kSpillZstdLevel = 1;
 // Work-folder format; a resume refuses a folder of another format.
 constexpr int kWorkFormat = 1;
-constexpr char kCellMagic[8] = {'S', 'V', 'O', 'C', 'E', 'L', 'L', '1'};
-
-struct CellFileHeader {
-  char magic[8];
-  // XXH3-64 of this header (with checksum 0) and the compressed records: a resume trusts no unchecked byte.
-  std::uint64_t recordCount = 0, compressedBytes = 0, checksum = 0;
-  VoxelRecord root;
-  double weight = 0.0, color[4] = {}, normal[3] = {};
-  std::uint32_t hasColors = 0, hasNormals = 0;
-};
-
-std::uint64_t cellChecksum(CellFileHeader h, const char* payload, std::size_t bytes) {
-  h.checksum = 0;
-  return Hasher().add(&h, 1).add(payload, bytes).digest();
-}
-
-std::filesystem::path cellPath(const std::filesystem::path& work, glm::ivec3 c) {
-  return work /
-         ("cell_" + std::to_string(c.x) + "_" + std::to_string(c.y) + "_" + std::to_string(c.z) + ".bin");
-}
-
-void writeCell(const std::filesystem::path& path, const VoxelTree& tree, const CellRoot& root) {
-  const std::size_t rawBytes = tree.voxels.size() * sizeof(VoxelRecord);
-  std::vector<char> packed(ZSTD_compressBound(rawBytes));
-  const std::size_t n =
-      ZSTD_compress(packed.data(), packed.size(), tree.voxels.data(), rawBytes, kSpillZstdLevel);
-  if (ZSTD_isError(n)) throw std::runtime_error(path.string() + ": compression failed");
-  CellFileHeader h{};
-  std::memcpy(h.magic, kCellMagic, sizeof h.magic);
-  h.recordCount = tree.voxels.size();
-  h.compressedBytes = n;
-  h.root = root.record;
-  h.weight = root.sums.weight;
-  for (int k = 0; k < 4; ++k) h.color[k] = root.sums.color[k];
-  for (int k = 0; k < 3; ++k) h.normal[k] = root.sums.normal[k];
-  h.hasColors = tree.hasColors, h.hasNormals = tree.hasNormals;
-  h.checksum = cellChecksum(h, packed.data(), n);
-  // Complete or absent: written under a temporary name, flushed, renamed.
-  const std::filesystem::path temp = path.string() + ".tmp";
-  {
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    out.write(reinterpret_cast<const char*>(&h), sizeof h);
-    out.write(packed.data(), std::streamsize(n));
-    if (!out.flush()) throw std::runtime_error(temp.string() + ": cannot write (disk full?)");
-  }
-  std::filesystem::rename(temp, path);
-}
-
-// The header of a cell file that is complete and intact, or nullopt.
-std::optional<CellFileHeader> readCellHeader(const std::filesystem::path& path, std::vector<char>* payload) {
-  std::ifstream in(path, std::ios::binary);
-  CellFileHeader h{};
-  if (!in.read(reinterpret_cast<char*>(&h), sizeof h) ||
-      std::memcmp(h.magic, kCellMagic, sizeof h.magic) != 0)
-    return std::nullopt;
-  std::error_code ec;
-  if (std::filesystem::file_size(path, ec) != sizeof h + h.compressedBytes || ec) return std::nullopt;
-  std::vector<char> data(h.compressedBytes);
-  if (!in.read(data.data(), std::streamsize(data.size())) ||
-      cellChecksum(h, data.data(), data.size()) != h.checksum ||
-      ZSTD_getFrameContentSize(data.data(), data.size()) != h.recordCount * sizeof(VoxelRecord))
-    return std::nullopt;
-  if (payload) *payload = std::move(data);
-  return h;
-}
-
-CellRoot rootOf(const CellFileHeader& h) {
-  CellRoot r;
-  r.record = h.root;
-  r.sums.weight = h.weight;
-  r.sums.color = glm::dvec4(h.color[0], h.color[1], h.color[2], h.color[3]);
-  r.sums.normal = glm::dvec3(h.normal[0], h.normal[1], h.normal[2]);
-  return r;
-}
-
-VoxelTree readCell(const std::filesystem::path& path) {
-  std::vector<char> payload;
-  const std::optional<CellFileHeader> h = readCellHeader(path, &payload);
-  if (!h)
-    throw std::runtime_error(path.string() +
-                             ": a spilled cell is missing or damaged; build again without --resume");
-  VoxelTree tree;
-  tree.hasColors = h->hasColors != 0, tree.hasNormals = h->hasNormals != 0;
-  tree.voxels.resize(h->recordCount);
-  const std::size_t n = ZSTD_decompress(tree.voxels.data(), tree.voxels.size() * sizeof(VoxelRecord),
-                                        payload.data(), payload.size());
-  if (ZSTD_isError(n) || n != tree.voxels.size() * sizeof(VoxelRecord))
-    throw std::runtime_error(path.string() +
-                             ": a spilled cell does not decompress; build again without --resume");
-  return tree;
-}
 
 // What a resume must agree on: the input (hashed) and every option that changes the voxels or the slices.
 nlohmann::json manifestOf(const TriangleSource& source, const BuildOptions& options,
@@ -229,6 +135,10 @@ int chooseCellLevel(const TriangleSource& source, const SceneTransform& transfor
 
 }  // namespace
 
+std::filesystem::path workFolderOf(const OutOfCoreOptions& ooc, const std::filesystem::path& store) {
+  return ooc.workDir.empty() ? std::filesystem::path(store.string() + ".build") : ooc.workDir;
+}
+
 std::uint64_t estimateInCoreBuildBytes(const TriangleSource& source, const BuildOptions& options) {
   const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
   double area = 0.0;  // octree units: the scene cube is [1, 2]^3
@@ -247,6 +157,12 @@ std::uint64_t estimateInCoreBuildBytes(const TriangleSource& source, const Build
 OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& options,
                            const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
                            const std::filesystem::path& store) {
+  return buildStore(source, options, write, ooc, store, localCellRunner(std::max(1, ooc.threads)));
+}
+
+OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& options,
+                           const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
+                           const std::filesystem::path& store, const CellRunner& runner) {
   const auto start = std::chrono::steady_clock::now();
   const auto seconds = [](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -257,8 +173,7 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   OutOfCoreReport report;
   const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
   const int concurrency = std::max(1, ooc.threads);
-  const std::filesystem::path work =
-      ooc.workDir.empty() ? std::filesystem::path(store.string() + ".build") : ooc.workDir;
+  const std::filesystem::path work = workFolderOf(ooc, store);
   const std::filesystem::path manifestPath = work / "manifest.json";
   // The work folder of an interrupted run, when resuming.
   std::optional<nlohmann::json> old;
@@ -302,6 +217,13 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   auto phase = std::chrono::steady_clock::now();
   std::mutex mutex;
   std::size_t cellsDone = 0, cellCount = 1;
+  std::uint64_t voxelsDone = 0;
+  const auto cellDone = [&](std::uint64_t voxels) {  // under `mutex`
+    ++cellsDone;
+    voxelsDone += voxels;
+    progress("voxelize", std::min(1.0, double(cellsDone) / double(cellCount)));
+    if (ooc.cellProgress) ooc.cellProgress(cellsDone, cellCount, voxelsDone);
+  };
   CellCallbacks callbacks;
   callbacks.progress = [&](const char* name, double f) {
     progress(name, f);
@@ -314,20 +236,23 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
     if (!h) return std::nullopt;
     std::lock_guard lock(mutex);
     ++report.cellsReused;
-    ++cellsDone;
+    cellDone(h->recordCount);
     return rootOf(*h);
   };
   callbacks.built = [&](glm::ivec3 cell, VoxelTree&& tree, const CellRoot& root) {
     writeCell(cellPath(work, cell), tree, root);
     {
       std::lock_guard lock(mutex);
-      ++cellsDone;
-      progress("voxelize", std::min(1.0, double(cellsDone) / double(cellCount)));
+      cellDone(tree.voxels.size());
     }
     if (ooc.cellSpilled) ooc.cellSpilled(cell);
   };
+  callbacks.builtElsewhere = [&](glm::ivec3, std::uint64_t voxels) {
+    std::lock_guard lock(mutex);
+    cellDone(voxels);
+  };
   const VoxelTree top =
-      voxelizeCells(source, transform, options, report.cellLevel, callbacks, concurrency, work / "triangles");
+      voxelizeCells(source, transform, options, report.cellLevel, callbacks, runner, work / "triangles");
   report.phaseSeconds["voxelize"] = seconds(phase);
 
   // 2. The store: the slices writeStore would make of the whole tree, the top's and every cell's, with the

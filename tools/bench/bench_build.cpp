@@ -1,6 +1,7 @@
 // `svo bench build MESH`: in-core octree build time against OpenVDB's mesh to level set conversion at the
 // same resolutions, same triangles, all threads, measured in the same run. OpenVDB stays in this file only:
 // its headers make a translation unit take ~30 s and ~1.2 GB to compile.
+#include <algorithm>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -34,6 +35,8 @@ struct BuildArgs {
   std::string resolutions = "256,512,1024";
   std::vector<int> threads{1, 2};
   int runs = 3;
+  std::vector<int> ranks;  // with it: only the MPI comparison
+  int cellLevel = 0;
 };
 
 #ifdef SVO_BENCH_PEERS
@@ -59,7 +62,8 @@ std::string megabytes(std::uint64_t bytes) {
   return fmt::format("{:.1f}", double(bytes) / (1 << 20));
 }
 
-// Cell level of the out-of-core column: 8^3 cells, enough to spread over any thread count measured here.
+// Cell level of the out-of-core column (and the MPI comparison's default): 8^3 cells, enough to spread over
+// any thread or rank count measured here.
 constexpr int kBenchCellLevel = 3;
 
 std::string rate(double count, double seconds) {
@@ -69,6 +73,19 @@ std::string rate(double count, double seconds) {
 void runBuildBench(const BuildArgs& args) {
   const std::vector<std::int64_t> resolutions = parseResolutions(args.resolutions, "--resolutions");
   requireRuns(args.runs);
+  if (!args.ranks.empty()) {
+    MpiBuildBenchArgs mpi;
+    mpi.mesh = args.mesh;
+    mpi.levels = levelsOfResolution(*std::max_element(resolutions.begin(), resolutions.end()), "--resolutions");
+    mpi.cellLevel = args.cellLevel > 0 ? args.cellLevel : std::min(kBenchCellLevel, mpi.levels - 1);
+    if (mpi.cellLevel >= mpi.levels)
+      throw UsageError("--cell-level must be below the levels of the finest resolution (" +
+                       std::to_string(mpi.levels) + ")");
+    mpi.runs = args.runs;
+    mpi.ranks = args.ranks;
+    runMpiBuildBench(mpi);
+    return;
+  }
   std::vector<int> threadCounts;
   for (const int t : args.threads) threadCounts.push_back(resolveThreads(t));
   const Mesh mesh = loadBenchMesh(args.mesh);
@@ -176,6 +193,13 @@ void addBuildBench(CLI::App& bench) {
   cmd->add_option("--threads", args->threads, "thread counts, e.g. 1,2 (0 = all cores)")
       ->delimiter(',')
       ->capture_default_str();
+  cmd->add_option("--ranks", args->ranks,
+                  "instead: the out-of-core build under mpirun with these rank counts (e.g. 1,2), one thread "
+                  "a rank, against one plain process, at the finest resolution")
+      ->delimiter(',')
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--cell-level", args->cellLevel, "with --ranks: the cell level (default 3)")
+      ->check(CLI::PositiveNumber);
   cmd->callback([args] { runBuildBench(*args); });
 }
 

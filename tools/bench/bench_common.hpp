@@ -53,6 +53,16 @@ struct LevelSetResult {
 std::optional<LevelSetResult> openVdbLevelSet(const Mesh& mesh, glm::dvec3 corner, double voxelSize,
                                               int runs);
 
+// ----- `bench build --ranks`: the out-of-core build under mpirun (bench_build_mpi.cpp) -------------------
+struct MpiBuildBenchArgs {
+  std::string mesh;
+  int levels = 0, cellLevel = 0, runs = 1;
+  std::vector<int> ranks;
+};
+// `svo build` of the mesh as one plain process and under `mpirun -n R` for each R, one thread a rank: wall
+// times, efficiency, MPI's own overhead, the serial part and the speed-up it allows (Amdahl).
+void runMpiBuildBench(const MpiBuildBenchArgs& args);
+
 // Wall-clock seconds of one call of `f`.
 template <class F>
 double timeSeconds(F&& f) {

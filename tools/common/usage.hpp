@@ -11,6 +11,11 @@ struct UsageError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// Thrown where another process reports the failure (an MPI job's rank 0): main exits 1 without a message.
+struct FailureReportedElsewhere : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
 // Throws UsageError before any work when the output's folder is missing or not writable.
 void checkWritableOutput(const std::filesystem::path& out);
 

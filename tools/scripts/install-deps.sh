@@ -13,6 +13,7 @@ packages=(
   libglfw3-dev libimgui-dev libgl1-mesa-dri xvfb imagemagick
   libegl-dev libopengl-dev libegl-mesa0
   clang libclang-rt-14-dev
+  libopenmpi-dev openmpi-bin
 )
 missing=()
 for p in "${packages[@]}"; do

@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Set-up as for the demo, then the whole test suite (unit, end-to-end, bad input under AddressSanitizer).
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
-# The AddressSanitizer build of the command runs the bad-input tests; no peers needed there.
+# The AddressSanitizer build of the command runs the bad-input tests; no peers needed there, nor MPI (the
+# MPI tests run the optimized build under mpirun).
 cmake -S "$root" -B "$build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DSVO_SANITIZE=ON -DSVO_BENCH_PEERS=OFF \
-  -DBUILD_TESTING=OFF >/dev/null
+  -DSVO_MPI=OFF -DBUILD_TESTING=OFF >/dev/null
 cmake --build "$build-asan" --target svo -j "$jobs"
 export SVO_ASAN_BINARY="$build-asan/tools/svo"
 # The libFuzzer targets over the store reader, the PLY reader, the server's request parsers and the view

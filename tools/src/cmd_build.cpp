@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <optional>
@@ -17,9 +18,13 @@
 #include "machine.hpp"
 #include "measure.hpp"
 #include "progress.hpp"
+#include "report.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/builder/volume.hpp"
 #include "text_file.hpp"
+#ifdef SVO_MPI
+#include "svo/builder/mpi_build.hpp"
+#endif
 
 namespace svo::tools {
 namespace {
@@ -47,13 +52,22 @@ struct BuildOutcome {
   BuildStats stats;
   std::vector<SliceInfo> slices;
   nlohmann::json phases = nlohmann::json::object();
+  nlohmann::json ranks;  // an MPI job's, by rank
 };
 
+// The ranks of the MPI job that started this process (mpirun, or srun with PMI), 0 outside one.
+int mpiLaunchedRanks() {
+  for (const char* variable : {"OMPI_COMM_WORLD_SIZE", "PMIX_SIZE", "PMI_SIZE"})
+    if (const char* value = std::getenv(variable); value && *value) return std::max(1, std::atoi(value));
+  return std::getenv("PMIX_RANK") ? 1 : 0;
+}
+
 // The out-of-core options the command line asks for. With no bound given: in core when its estimated peak
-// fits the machine's default share, else out of core within that share. A resume is out of core (the
-// interrupted run's cell level, or one for the share).
+// fits the machine's default share, else out of core within that share. A resume, and an MPI job, is out
+// of core (the interrupted run's cell level, or one for the share).
 OutOfCoreOptions outOfCoreOptions(const BuildArgs& args, const TriangleSource& source,
-                                  const BuildOptions& options, std::uint64_t processBytes) {
+                                  const BuildOptions& options, std::uint64_t processBytes,
+                                  bool outOfCore = false) {
   OutOfCoreOptions ooc;
   ooc.memoryBytes = args.memory;
   ooc.cellLevel = args.cellLevel;
@@ -62,11 +76,12 @@ OutOfCoreOptions outOfCoreOptions(const BuildArgs& args, const TriangleSource& s
   ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
   if (args.memory != 0 || args.cellLevel != 0) return ooc;
   const std::uint64_t share = defaultMemoryShare(machineMemory());
-  const std::uint64_t estimate = args.resume ? 0 : processBytes + estimateInCoreBuildBytes(source, options);
-  if (args.resume || estimate > share) {
+  const bool chosen = args.resume || outOfCore;
+  const std::uint64_t estimate = chosen ? 0 : processBytes + estimateInCoreBuildBytes(source, options);
+  if (chosen || estimate > share) {
     ooc.memoryBytes = share;
     ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
-    if (!args.resume)
+    if (!chosen)
       spdlog::info(
           "building out of core within {}: in core would take about {}, more than half of the available "
           "memory (--memory sets the bound)",
@@ -78,15 +93,20 @@ OutOfCoreOptions outOfCoreOptions(const BuildArgs& args, const TriangleSource& s
   return ooc;
 }
 
-void buildOutOfCore(const BuildArgs& args, const TriangleSource& source, const BuildOptions& options,
-                    const StoreWriteOptions& storeOptions, OutOfCoreOptions ooc, BuildOutcome& outcome) {
+// The out-of-core build with one progress bar (cells done and their voxels while they are built), by
+// `build` (buildStore, or an MPI job's rank 0).
+void buildOutOfCore(OutOfCoreOptions ooc, BuildOutcome& outcome,
+                    const std::function<OutOfCoreReport(const OutOfCoreOptions&)>& build) {
   std::unique_ptr<ProgressBar> bar;
   std::string current;
   ooc.progress = [&](const char* phase, double f) {
     if (current != phase) bar = std::make_unique<ProgressBar>(current = phase);
     bar->update(f);
   };
-  const OutOfCoreReport built = buildStore(source, options, storeOptions, ooc, args.out);
+  ooc.cellProgress = [&](std::size_t done, std::size_t cells, std::uint64_t voxels) {
+    if (bar) bar->setDetail(fmt::format("{}/{} cells, {} voxels", done, cells, formatCount(voxels)));
+  };
+  const OutOfCoreReport built = build(ooc);
   bar.reset();
   for (const auto& [phase, seconds] : built.phaseSeconds) outcome.phases[phase] = seconds;
   outcome.stats = built.stats;
@@ -173,6 +193,7 @@ void writeBuildReport(const BuildArgs& args, const std::filesystem::path& report
   report["levels"] = levels;
   report["seconds"] = seconds;
   report["phaseSeconds"] = outcome.phases;
+  if (!outcome.ranks.is_null()) report["ranks"] = outcome.ranks;
   report["peakResidentBytes"] = peakResidentBytes();
   report["voxels"] = voxels;
   report["leafVoxels"] = stats.leafVoxels;
@@ -199,22 +220,105 @@ void writeBuildReport(const BuildArgs& args, const std::filesystem::path& report
               double(fileBytes) / (1 << 20), double(fileBytes) / leaves, reportPath.c_str());
 }
 
-void runBuild(const BuildArgs& args) {
+// What every build checks and derives from its command line before it opens the input.
+struct BuildSetup {
+  std::filesystem::path reportPath;
+  BuildOptions options;
+  StoreWriteOptions storeOptions;
+};
+
+BuildSetup setUpBuild(const BuildArgs& args) {
   checkWritableOutput(args.out);
   if (args.cellLevel >= args.options.levels)
     throw UsageError("--cell-level must be below --levels (" + std::to_string(args.options.levels) + ")");
-  const std::filesystem::path reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
-  checkWritableOutput(reportPath);
+  BuildSetup setup;
+  setup.reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
+  checkWritableOutput(setup.reportPath);
+  setup.options = args.options;
+  setup.options.contours = !args.noContours;
+  setup.storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
+  setup.storeOptions.inheritance = setup.options.layout;
+  return setup;
+}
+
+void logInput(const std::string& mesh, const TriangleSource& source) {
+  const std::size_t dropped = source.droppedDegenerate();
+  spdlog::info("{}: {} triangles ({}){}", mesh, source.triangleCount(), source.format(),
+               dropped ? fmt::format(", dropped {} degenerate", dropped) : "");
+}
+
+#ifdef SVO_MPI
+// One rank of `mpirun -n N svo build`: every rank opens the input, MpiJob::build checks that they agree
+// and shares the cells out, rank 0 writes the store and the report. Only rank 0 prints.
+void runMpiBuild(const BuildArgs& args) {
+  MpiJob job;
+  const bool root = job.rank() == 0;
+  if (!root) spdlog::set_level(spdlog::level::warn);
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
+                              args.threads > 0 ? args.threads : tbb::info::default_concurrency());
+  const auto start = std::chrono::steady_clock::now();
+  const std::uint64_t processBytes = residentBytes();  // the program, its libraries and MPI
+  // A rank that cannot start says so to rank 0 (MpiJob::build), which reports it for the job.
+  BuildSetup setup;
+  std::unique_ptr<TriangleSource> source;
+  OutOfCoreOptions ooc;
+  std::string openError;
+  BuildOutcome outcome;
+  try {
+    setup = setUpBuild(args);
+    source = openTriangleSource(args.mesh);
+    outcome.phases["load"] = secondsSince(start);
+    if (root) logInput(args.mesh, *source);
+    ooc = outOfCoreOptions(args, *source, setup.options, processBytes, true);
+  } catch (const std::exception& e) {
+    source.reset();
+    openError = e.what();
+  }
+  try {
+    if (!root) {
+      job.build(source.get(), openError, setup.options, setup.storeOptions, ooc, args.out);
+      return;
+    }
+    spdlog::info("MPI: {} ranks, rank 0 on {}", job.size(), job.host());
+    buildOutOfCore(ooc, outcome, [&](const OutOfCoreOptions& o) {
+      std::optional<MpiBuildReport> built =
+          job.build(source.get(), openError, setup.options, setup.storeOptions, o, args.out);
+      for (const RankReport& r : built->ranks) {
+        outcome.ranks.push_back({{"rank", r.rank},
+                                 {"host", r.host},
+                                 {"cells", r.cells},
+                                 {"buildSeconds", r.buildSeconds},
+                                 {"peakResidentBytes", r.peakResidentBytes}});
+        spdlog::info("rank {} on {}: {} cells in {:.2f} s, peak resident {}", r.rank, r.host, r.cells,
+                     r.buildSeconds, formatBytes(r.peakResidentBytes));
+      }
+      return std::move(built->build);
+    });
+  } catch (const MpiJobFailed& e) {
+    throw FailureReportedElsewhere(e.what());
+  }
+  writeBuildReport(args, setup.reportPath, source->triangleCount(), source->hasColor(), setup.options.levels,
+                   secondsSince(start), outcome);
+}
+#endif
+
+void runBuild(const BuildArgs& args) {
+  if (mpiLaunchedRanks() > 0) {
+#ifdef SVO_MPI
+    runMpiBuild(args);
+    return;
+#else
+    if (mpiLaunchedRanks() > 1)
+      throw UsageError(
+          "this svo is built without MPI (Open MPI was absent, or -DSVO_MPI=OFF): under mpirun every rank "
+          "would build the whole store; run one process, or build svo with Open MPI");
+#endif
+  }
+  const BuildSetup setup = setUpBuild(args);
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
                               args.threads > 0 ? args.threads : tbb::info::default_concurrency());
   const auto start = std::chrono::steady_clock::now();
   const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
-
-  BuildOptions options = args.options;
-  options.contours = !args.noContours;
-  StoreWriteOptions storeOptions;
-  storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
-  storeOptions.inheritance = options.layout;
   BuildOutcome outcome;
   // Both paths open the input as a source: binary PLY streams from the file, other formats load whole; a
   // level set or fog volume is meshed first, a voxel mask needs no voxelizing.
@@ -233,17 +337,18 @@ void runBuild(const BuildArgs& args) {
     source = openTriangleSource(args.mesh);
   }
   outcome.phases["load"] = secondsSince(start);
-  const std::size_t dropped = source->droppedDegenerate();
-  spdlog::info("{}: {} triangles ({}){}", args.mesh, source->triangleCount(), source->format(),
-               dropped ? fmt::format(", dropped {} degenerate", dropped) : "");
+  logInput(args.mesh, *source);
   const bool hasColors = source->hasColor();
   const std::uint64_t triangles = source->triangleCount();
-  const OutOfCoreOptions ooc = outOfCoreOptions(args, *source, options, processBytes);
+  const OutOfCoreOptions ooc = outOfCoreOptions(args, *source, setup.options, processBytes);
   if (ooc.memoryBytes > 0 || ooc.cellLevel > 0)
-    buildOutOfCore(args, *source, options, storeOptions, ooc, outcome);
+    buildOutOfCore(ooc, outcome, [&](const OutOfCoreOptions& o) {
+      return buildStore(*source, setup.options, setup.storeOptions, o, args.out);
+    });
   else
-    buildInCore(args, std::move(source), options, storeOptions, outcome);
-  writeBuildReport(args, reportPath, triangles, hasColors, options.levels, secondsSince(start), outcome);
+    buildInCore(args, std::move(source), setup.options, setup.storeOptions, outcome);
+  writeBuildReport(args, setup.reportPath, triangles, hasColors, setup.options.levels, secondsSince(start),
+                   outcome);
 }
 
 }  // namespace

@@ -34,6 +34,8 @@ int main(int argc, char** argv) {
   } catch (const svo::tools::UsageError& e) {
     std::fprintf(stderr, "svo: %s\n", e.what());
     return 2;
+  } catch (const svo::tools::FailureReportedElsewhere&) {
+    return 1;
   } catch (const std::bad_alloc&) {
     std::fprintf(stderr, "svo: out of memory (an allocation failed; try a smaller input or budget)\n");
     return 1;

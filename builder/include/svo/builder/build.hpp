@@ -82,6 +82,8 @@ struct CellCallbacks {
   std::function<void(std::size_t cells)> planned;
   // A cell's subtree (root first), pruned, with its root; from worker threads.
   std::function<void(glm::ivec3 cell, VoxelTree&& subtree, const CellRoot& root)> built;
+  // A cell another process built and spilled, with its voxel count (a build shared out over MPI).
+  std::function<void(glm::ivec3 cell, std::uint64_t voxels)> builtElsewhere;
 };
 
 // voxelize() cell by cell below `cellLevel` (in [1, levels - 1]), never holding the whole mesh:
@@ -113,6 +115,8 @@ struct OutOfCoreOptions {
   bool resume = false;
   std::filesystem::path workDir;  // spilled cells; default: STORE.build, removed when the store is written
   std::function<void(const char* phase, double fraction)> progress;
+  // As cells complete (here or, shared out, elsewhere): cells done of all, and the voxels they hold.
+  std::function<void(std::size_t done, std::size_t cells, std::uint64_t voxels)> cellProgress;
   // After each cell's spill file is complete on disk (a throw here interrupts the build, as a kill would).
   std::function<void(glm::ivec3 cell)> cellSpilled;
 };
