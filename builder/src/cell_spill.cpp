@@ -50,7 +50,12 @@ void writeCell(const std::filesystem::path& path, const VoxelTree& tree, const C
     std::ofstream out(temp, std::ios::binary | std::ios::trunc);
     out.write(reinterpret_cast<const char*>(&h), sizeof h);
     out.write(packed.data(), std::streamsize(n));
-    if (!out.flush()) throw std::runtime_error(temp.string() + ": cannot write (disk full?)");
+    if (!out.flush()) {
+      out.close();
+      std::error_code ignored;
+      std::filesystem::remove(temp, ignored);
+      throw std::runtime_error(temp.string() + ": cannot write (disk full?)");
+    }
   }
   std::filesystem::rename(temp, path);
 }

@@ -24,7 +24,7 @@ namespace {
 // Open MPI refuses root and more ranks than cores unless told (DESIGN.md); the tests run 4 ranks on any
 // machine.
 const std::string kMpirun =
-    "OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1 "
+    "env OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1 "
     "mpirun --oversubscribe";
 
 std::string bytesOf(const fs::path& p) {
@@ -154,6 +154,31 @@ TEST_F(MpiBuild, RanksThatDisagreeFailWithOneMessageFromRankZero) {
   expectFailure(other.string() + " -o " + store.string() + " --cell-level 2 --levels 6", "another input");
   expectFailure((dir_ / "missing.ply").string() + " -o " + store.string() + " --cell-level 2 --levels 6",
                 "missing.ply");
+}
+
+// A disk that fills while the cells are spilled (a small tmpfs under the output): rank 0 names the file that
+// could not be written (and the rank, when not its own), mpirun exits non-zero, no store appears; with room
+// again, --resume finishes the job with the same bytes. Needs the right to mount (root), else skipped.
+TEST_F(MpiBuild, FullDiskWhileSpillingFailsCleanlyAndResumes) {
+  const std::string options = " --levels 9 --cell-level 3 --threads 1";
+  const std::string single = bytesOf(reference(options));
+  const fs::path disk = dir_ / "disk", store = disk / "s.svo";
+  fs::create_directories(disk);
+  // Room for the binned triangles but not for every spilled cell of this sphere (about 1 MiB of each).
+  if (run("mount -t tmpfs -o size=1600k tmpfs " + disk.string()).find("exit 0") == std::string::npos)
+    GTEST_SKIP() << "cannot mount a small file system here";
+  struct Unmount {
+    fs::path at;
+    ~Unmount() { svotest::runShell("umount " + at.string()); }
+  } unmount{disk};
+  const std::string full = mpi(2, "build " + mesh_.string() + options + " -o " + store.string());
+  EXPECT_EQ(full.find("exit 0"), std::string::npos) << full;
+  EXPECT_NE(full.find("cannot write (disk full?)"), std::string::npos) << full;
+  EXPECT_FALSE(fs::exists(store));
+  ASSERT_NE(run("mount -o remount,size=64m " + disk.string()).find("exit 0"), std::string::npos);
+  const std::string resumed = mpi(2, "build " + mesh_.string() + options + " -o " + store.string() + " --resume");
+  ASSERT_NE(resumed.find("exit 0"), std::string::npos) << resumed;
+  EXPECT_TRUE(bytesOf(store) == single) << "the resumed store differs from the single-process one";
 }
 
 }  // namespace
