@@ -67,7 +67,7 @@ using namespace mpi;
 constexpr char kSharedCheckFile[] = "shared-folder-check";
 
 // What every rank must agree on: the input as it read it, and every option that shapes the cells or the
-// store; or why it could not open the input.
+// store; or why it could not open the input. Not the memory bound: each rank's own (rank 0 picks the cells).
 nlohmann::json agreementOf(const TriangleSource* source, const std::string& openError,
                            const BuildOptions& options, const StoreWriteOptions& write,
                            const OutOfCoreOptions& ooc, const std::filesystem::path& store) {
@@ -83,7 +83,6 @@ nlohmann::json agreementOf(const TriangleSource* source, const std::string& open
             {"color error", options.colorError},
             {"normal error", options.normalError},
             {"slice size", write.sliceBytes},
-            {"memory", ooc.memoryBytes},
             {"cell level", ooc.cellLevel},
             {"resume", ooc.resume},
             {"output", std::filesystem::absolute(store).string()},

@@ -156,6 +156,23 @@ TEST_F(MpiBuild, RanksThatDisagreeFailWithOneMessageFromRankZero) {
                 "missing.ply");
 }
 
+// A work folder rank 1 does not see: rank 1 runs in a mount namespace of its own with an empty file system
+// over the output's folder (as on a host that does not mount it). Needs unshare and mount (root), else
+// skipped.
+TEST_F(MpiBuild, AWorkFolderNotSharedWithEveryRankFailsCleanly) {
+  if (run("unshare -m true").find("exit 0") == std::string::npos) GTEST_SKIP() << "no mount namespaces here";
+  const fs::path out = dir_ / "out", store = out / "s.svo";
+  fs::create_directories(out);
+  const std::string args = " build " + mesh_.string() + " -o " + store.string() + " --cell-level 2 --levels 6";
+  const std::string result = run(kMpirun + " -n 1 " + SVO_BINARY + args + " : -n 1 unshare -m sh -c 'mount -t tmpfs tmpfs " +
+                                 out.string() + " && exec " + SVO_BINARY + args + "'");
+  EXPECT_EQ(result.find("exit 0"), std::string::npos) << result;
+  EXPECT_NE(result.find("svo: the work folder " + store.string() + ".build is not shared with rank 1 on "),
+            std::string::npos)
+      << result;
+  EXPECT_TRUE(fs::is_empty(out)) << "left behind in " << out;
+}
+
 // A disk that fills while the cells are spilled (a small tmpfs under the output): rank 0 names the file that
 // could not be written (and the rank, when not its own), mpirun exits non-zero, no store appears; with room
 // again, --resume finishes the job with the same bytes. Needs the right to mount (root), else skipped.
