@@ -10,7 +10,7 @@ export SVO_ASAN_BINARY="$build-asan/tools/svo"
 # The libFuzzer targets over the store reader, the PLY reader, the server's request parsers and the view
 # stream's messages (clang); the
 # test suite runs them for a bounded number of inputs.
-CC=clang CXX=clang++ cmake -S "$root" -B "$build-fuzz" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSVO_FUZZ=ON \
+CC=clang CXX=clang++ cmake -S "$root" -B "$build-fuzz" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSVO_FUZZ=ON -DSVO_MPI=OFF \
   >/dev/null
 cmake --build "$build-fuzz" -j "$jobs"
 export SVO_FUZZ_STORE="$build-fuzz/tests/fuzz/svo_fuzz_store"

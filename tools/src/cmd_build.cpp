@@ -220,6 +220,19 @@ void writeBuildReport(const BuildArgs& args, const std::filesystem::path& report
               double(fileBytes) / (1 << 20), double(fileBytes) / leaves, reportPath.c_str());
 }
 
+// Whether the input is a .vdb voxel mask, which is laid out voxel for voxel rather than voxelized.
+bool isVoxelMask(const BuildArgs& args) {
+  return isVolumeFile(args.mesh) && chooseVolumeGrid(args.mesh, args.volume).kind == VolumeGridKind::Voxels;
+}
+
+// The input as triangles: binary PLY streams from the file, other formats load whole; a level set or fog
+// volume is meshed first (into `volumeSurface`, which the source refers to).
+std::unique_ptr<TriangleSource> openInput(const BuildArgs& args, std::optional<Mesh>& volumeSurface) {
+  if (!isVolumeFile(args.mesh)) return openTriangleSource(args.mesh);
+  volumeSurface = loadVolumeSurface(args.mesh, args.volume);
+  return meshTriangleSource(*volumeSurface, "meshed volume");
+}
+
 // What every build checks and derives from its command line before it opens the input.
 struct BuildSetup {
   std::filesystem::path reportPath;
@@ -260,13 +273,16 @@ void runMpiBuild(const BuildArgs& args) {
   const std::uint64_t processBytes = residentBytes();  // the program, its libraries and MPI
   // A rank that cannot start says so to rank 0 (MpiJob::build), which reports it for the job.
   BuildSetup setup;
+  std::optional<Mesh> volumeSurface;
   std::unique_ptr<TriangleSource> source;
   OutOfCoreOptions ooc;
   std::string openError;
   BuildOutcome outcome;
   try {
     setup = setUpBuild(args);
-    source = openTriangleSource(args.mesh);
+    if (isVoxelMask(args))
+      throw UsageError(args.mesh + ": a voxel mask is laid out voxel for voxel in one process, not over MPI");
+    source = openInput(args, volumeSurface);
     outcome.phases["load"] = secondsSince(start);
     if (root) logInput(args.mesh, *source);
     ooc = outOfCoreOptions(args, *source, setup.options, processBytes, true);
@@ -320,22 +336,14 @@ void runBuild(const BuildArgs& args) {
   const auto start = std::chrono::steady_clock::now();
   const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
   BuildOutcome outcome;
-  // Both paths open the input as a source: binary PLY streams from the file, other formats load whole; a
-  // level set or fog volume is meshed first, a voxel mask needs no voxelizing.
-  std::optional<Mesh> volumeSurface;
-  std::unique_ptr<TriangleSource> source;
-  if (isVolumeFile(args.mesh)) {
-    if (chooseVolumeGrid(args.mesh, args.volume).kind == VolumeGridKind::Voxels) {
-      const bool hasColors = buildFromVoxels(args, storeOptions, outcome);
-      writeBuildReport(args, reportPath, 0, hasColors, int(outcome.stats.voxelsPerLevel.size()) - 1,
-                       secondsSince(start), outcome);
-      return;
-    }
-    volumeSurface = loadVolumeSurface(args.mesh, args.volume);
-    source = meshTriangleSource(*volumeSurface, "meshed volume");
-  } else {
-    source = openTriangleSource(args.mesh);
+  if (isVoxelMask(args)) {
+    const bool hasColors = buildFromVoxels(args, setup.storeOptions, outcome);
+    writeBuildReport(args, setup.reportPath, 0, hasColors, int(outcome.stats.voxelsPerLevel.size()) - 1,
+                     secondsSince(start), outcome);
+    return;
   }
+  std::optional<Mesh> volumeSurface;
+  std::unique_ptr<TriangleSource> source = openInput(args, volumeSurface);
   outcome.phases["load"] = secondsSince(start);
   logInput(args.mesh, *source);
   const bool hasColors = source->hasColor();
