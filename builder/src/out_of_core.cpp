@@ -263,9 +263,11 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   StoreFileWriter writer(store, writeOptions);
   BuildStats& stats = report.stats;
   addTreeStats(top, 0, stats);
+  std::mutex statsMutex;  // cells are loaded on several threads
   writer.appendForest(top, report.cellLevel, [&](glm::ivec3 cell, bool counting) {
     VoxelTree tree = readCell(cellPath(work, cell));
     if (!counting) {
+      std::lock_guard lock(statsMutex);
       // The cell's root is already counted by the top as a leaf voxel of the cell level.
       addTreeStats(tree, report.cellLevel, stats);
       --stats.voxelsPerLevel[std::size_t(report.cellLevel)];

@@ -4,11 +4,17 @@
 #include <cerrno>
 #include <cstring>
 #include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <system_error>
 #include <utility>
 
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_pipeline.h>
 #include <unistd.h>
 #include <xxhash.h>
 #include <zstd.h>
@@ -180,16 +186,20 @@ void StoreFileWriter::appendForest(const VoxelTree& top, int cellLevel,
     return SubtreePlacement{cellLevel, coord, effective.color[record], effective.normal[record],
                             SliceInfo::kNoSlice};
   };
-  const auto progress = [&](std::size_t done) {
+  std::mutex progressMutex;
+  std::size_t done = 0;  // cells counted, then cells written
+  const auto progress = [&] {
+    std::lock_guard lock(progressMutex);
+    ++done;
     if (options_.progress)
       options_.progress(double(done) / double(std::max<std::size_t>(2 * cells.size(), 1)));
   };
-  // 1. Every cell's totals per level: the plan's sizes for slices spanning cells.
+  // 1. Every cell's totals per level, cells in parallel: the plan's sizes for slices spanning cells.
   std::vector<std::vector<LevelTotals>> totals(cells.size());
-  for (std::size_t i = 0; i < cells.size(); ++i) {
+  tbb::parallel_for(std::size_t(0), cells.size(), [&](std::size_t i) {
     totals[i] = plannerOf(loadCell(cells[i].second, true), options_, placement(i)).totals();
-    progress(i + 1);
-  }
+    progress();
+  });
   topPlanner.addCells(totals);
   // 2. The plan: the top's slices written, the spanning ones reserved, the rest handed to their cells.
   const auto write = [&](const std::vector<std::byte>& raw, const SliceInfo& info) {
@@ -197,23 +207,45 @@ void StoreFileWriter::appendForest(const VoxelTree& top, int cellLevel,
   };
   ForestSink sink(write, slices_, cells.size());
   topPlanner.run(sink);
-  // 3. Each cell: its parts of the spanning slices (a slice is written when its last cell is done), then its
-  // own slices.
+  // 3. Each cell, loaded and planned in parallel, then in Morton order: its parts of the spanning slices (a
+  // slice is written when its last cell is done), then its own slices.
+  struct PlannedCell {
+    std::size_t index = 0;
+    VoxelTree tree;
+    std::optional<SlicePlanner> plan;  // refers to `tree`
+  };
+  using Planned = std::shared_ptr<PlannedCell>;  // pipeline items are copied
   FileSink own(write);
-  for (std::size_t i = 0; i < cells.size(); ++i) {
-    const VoxelTree tree = loadCell(cells[i].second, false);
-    const SlicePlanner cell = plannerOf(tree, options_, placement(i));
-    for (const auto& [level, id] : sink.cellParts[i]) {
-      ForestSink::Reserved& r = sink.reserved.at(id);
-      r.parts.append(cell.sectionsOfLevel(level));
-      if (r.lastCell != i) continue;
-      writeSlice(encodeSlice(r.head, r.parts), slices_[id], id);
-      sink.reserved.erase(id);
-    }
-    if (const auto [level, parent] = sink.cellStart[i]; parent != SliceInfo::kNoSlice)
-      cell.runFrom(level, parent, own);
-    progress(cells.size() + i + 1);
-  }
+  std::size_t next = 0;
+  const auto inFlight = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  tbb::parallel_pipeline(
+      std::max<std::size_t>(inFlight, 1),
+      tbb::make_filter<void, std::size_t>(tbb::filter_mode::serial_in_order,
+                                          [&](tbb::flow_control& control) -> std::size_t {
+                                            if (next == cells.size()) control.stop();
+                                            return next++;
+                                          }) &
+          tbb::make_filter<std::size_t, Planned>(tbb::filter_mode::parallel,
+                                                 [&](std::size_t i) {
+                                                   auto c = std::make_shared<PlannedCell>();
+                                                   c->index = i;
+                                                   c->tree = loadCell(cells[i].second, false);
+                                                   c->plan.emplace(plannerOf(c->tree, options_, placement(i)));
+                                                   return c;
+                                                 }) &
+          tbb::make_filter<Planned, void>(tbb::filter_mode::serial_in_order, [&](const Planned& c) {
+            const std::size_t i = c->index;
+            for (const auto& [level, id] : sink.cellParts[i]) {
+              ForestSink::Reserved& r = sink.reserved.at(id);
+              r.parts.append(c->plan->sectionsOfLevel(level));
+              if (r.lastCell != i) continue;
+              writeSlice(encodeSlice(r.head, r.parts), slices_[id], id);
+              sink.reserved.erase(id);
+            }
+            if (const auto [level, parent] = sink.cellStart[i]; parent != SliceInfo::kNoSlice)
+              c->plan->runFrom(level, parent, own);
+            progress();
+          }));
   if (!sink.reserved.empty()) throw std::logic_error("writeStore: a slice spanning cells was not completed");
 }
 

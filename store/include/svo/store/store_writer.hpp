@@ -47,9 +47,10 @@ class StoreFileWriter {
                                     EffectiveAttributes* effective = nullptr);
   // The out-of-core build's store, as the first subtree: `top` holds the levels down to `cellLevel`, and each
   // of its voxels of that level is a cell whose subtree (rooted at that voxel) `loadCell` returns, twice per
-  // cell in Morton order (`counting` first, then to write). The slices are those writeStore makes of the
-  // whole tree; the ones spanning several cells are assembled from each cell's part, so at most one cell is
-  // held at a time (plus one slice per level).
+  // cell (`counting` first, for every cell, then to write). The slices are those writeStore makes of the
+  // whole tree, written in Morton order; the ones spanning several cells are assembled from each cell's part.
+  // Cells are loaded and planned on TBB's threads, so `loadCell` must be thread-safe, and as many cells as
+  // TBB may run threads are held at a time (plus one slice per level).
   void appendForest(const VoxelTree& top, int cellLevel,
                     const std::function<VoxelTree(glm::ivec3 cell, bool counting)>& loadCell);
   const std::vector<SliceInfo>& slices() const { return slices_; }
