@@ -1,8 +1,8 @@
 // Runs the libFuzzer targets over the store reader (tests/fuzz/fuzz_store.cpp), the streaming PLY reader
-// (tests/fuzz/fuzz_ply.cpp), the server's request parsers (tests/fuzz/fuzz_request.cpp) and the view stream's
+// (tests/fuzz/fuzz_ply.cpp), the point-cloud readers (tests/fuzz/fuzz_points.cpp), the server's request parsers (tests/fuzz/fuzz_request.cpp) and the view stream's
 // messages (tests/fuzz/fuzz_view.cpp) for a bounded number of inputs, each seeded with small valid inputs.
-// tools/scripts/test.sh builds the targets with clang and sets SVO_FUZZ_STORE, SVO_FUZZ_PLY, SVO_FUZZ_REQUEST
-// and SVO_FUZZ_VIEW; without them (a plain g++ build) the tests are skipped.
+// tools/scripts/test.sh builds the targets with clang and sets SVO_FUZZ_STORE, SVO_FUZZ_PLY, SVO_FUZZ_POINTS,
+// SVO_FUZZ_REQUEST and SVO_FUZZ_VIEW; without them (a plain g++ build) the tests are skipped.
 #include <gtest/gtest.h>
 
 #include <array>
@@ -72,6 +72,37 @@ TEST(Fuzz, PlyReaderRejectsMutatedFilesCleanly) {
   for (const glm::dvec3& p : mesh.positions) mesh.colors.push_back(glm::vec4(glm::vec3(0.5 + 0.4 * p), 1.0f));
   svo::writePly(dir / "seeds" / "triangles.ply", mesh);
   ASSERT_LT(fs::file_size(dir / "seeds" / "triangles.ply"), std::uintmax_t(kFuzzMaxBytes));
+  EXPECT_TRUE(fuzz(fuzzer, dir)) << "the fuzzer found a failing input; its log and the input are in " << dir;
+}
+
+TEST(Fuzz, PointCloudReadersRejectMutatedFilesCleanly) {
+  const char* fuzzer = std::getenv("SVO_FUZZ_POINTS");
+  if (!fuzzer || !*fuzzer)
+    GTEST_SKIP() << "SVO_FUZZ_POINTS is not set (tools/scripts/test.sh builds the target)";
+  const fs::path dir = freshDir("svo_fuzz_points_");
+  // Seeds: the first byte picks the reader (even: PLY, odd: .xyz). A binary PLY with normals and colors, an
+  // ASCII one with a list element before the vertices, and .xyz lines of each layout.
+  std::string binary =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty uchar red\n"
+      "property uchar green\nproperty uchar blue\nend_header\n";
+  for (int i = 0; i < 3; ++i) {
+    const float values[6] = {float(i), 0.5f * float(i), 1.0f, 0.0f, 0.0f, 1.0f};
+    const unsigned char rgb[3] = {std::uint8_t(40 * i), 200, 7};
+    binary.append(reinterpret_cast<const char*>(values), sizeof values);
+    binary.append(reinterpret_cast<const char*>(rgb), sizeof rgb);
+  }
+  const std::array<std::pair<const char*, std::string>, 4> seeds = {{
+      {"binary.ply", std::string(1, '\0') + binary},
+      {"ascii.ply", std::string(1, '\0') +
+                        "ply\nformat ascii 1.0\ncomment seed\nelement camera 1\nproperty list uchar int "
+                        "ids\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\n"
+                        "property float diffuse_red\nproperty float diffuse_green\nproperty float "
+                        "diffuse_blue\nend_header\n3 1 2 3\n0 0 0 0.5 0.5 0.5\n1 2 3 1 0 0\n"},
+      {"colors.xyz", "\x01# x y z r g b nx ny nz\n0 0 0 255 0 0 0 0 1\n1,2,3,0,255,0,0,1,0\n"},
+      {"normals.xyz", "\x01" "0 0 0 0 0 1\n1 1 1 0 1 0\n2 0 1 1 0 0\n"},
+  }};
+  for (const auto& [name, bytes] : seeds) std::ofstream(dir / "seeds" / name, std::ios::binary) << bytes;
   EXPECT_TRUE(fuzz(fuzzer, dir)) << "the fuzzer found a failing input; its log and the input are in " << dir;
 }
 

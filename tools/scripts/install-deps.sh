@@ -7,7 +7,7 @@ packages=(
   libdraco-dev libassimp-dev assimp-testmodels
   libopenimageio-dev openimageio-tools libglm-dev libzstd-dev libxxhash-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
-  libembree-dev
+  libembree-dev libnanoflann-dev libeigen3-dev
   libcurl4-openssl-dev prometheus-cpp-dev nginx-light wrk nghttp2-client openssl
   gnuplot-nox
   libglfw3-dev libimgui-dev libgl1-mesa-dri xvfb imagemagick

@@ -7,7 +7,7 @@ cmake -S "$root" -B "$build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DSVO_SANITI
   -DSVO_MPI=OFF -DBUILD_TESTING=OFF >/dev/null
 cmake --build "$build-asan" --target svo -j "$jobs"
 export SVO_ASAN_BINARY="$build-asan/tools/svo"
-# The libFuzzer targets over the store reader, the PLY reader, the server's request parsers and the view
+# The libFuzzer targets over the store reader, the PLY reader, the point-cloud readers, the server's request parsers and the view
 # stream's messages (clang); the
 # test suite runs them for a bounded number of inputs.
 CC=clang CXX=clang++ cmake -S "$root" -B "$build-fuzz" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSVO_FUZZ=ON -DSVO_MPI=OFF \
@@ -15,6 +15,7 @@ CC=clang CXX=clang++ cmake -S "$root" -B "$build-fuzz" -G Ninja -DCMAKE_BUILD_TY
 cmake --build "$build-fuzz" -j "$jobs"
 export SVO_FUZZ_STORE="$build-fuzz/tests/fuzz/svo_fuzz_store"
 export SVO_FUZZ_PLY="$build-fuzz/tests/fuzz/svo_fuzz_ply"
+export SVO_FUZZ_POINTS="$build-fuzz/tests/fuzz/svo_fuzz_points"
 export SVO_FUZZ_REQUEST="$build-fuzz/tests/fuzz/svo_fuzz_request"
 export SVO_FUZZ_VIEW="$build-fuzz/tests/fuzz/svo_fuzz_view"
 cd "$build"

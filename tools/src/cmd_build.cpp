@@ -1,5 +1,5 @@
-// `svo build MESH -o out.svo --levels N`: mesh (or OpenVDB volume) -> octree -> .svo, with progress and a
-// size summary.
+// `svo build MESH -o out.svo --levels N`: mesh (or point cloud, or OpenVDB volume) -> octree -> .svo, with
+// progress and a size summary.
 
 #include <algorithm>
 #include <chrono>
@@ -20,6 +20,7 @@
 #include "progress.hpp"
 #include "report.hpp"
 #include "svo/builder/build.hpp"
+#include "svo/builder/points.hpp"
 #include "svo/builder/volume.hpp"
 #include "text_file.hpp"
 #ifdef SVO_MPI
@@ -169,6 +170,55 @@ bool buildFromVoxels(const BuildArgs& args, StoreWriteOptions storeOptions, Buil
   return volume.tree.hasColors;
 }
 
+// A point cloud (scan): normals estimated where the file has none, each point in a finest voxel, contours
+// fitted to each voxel's points. Returns whether it has colors.
+bool buildFromPoints(const BuildArgs& args, BuildOptions options, StoreWriteOptions storeOptions,
+                     BuildOutcome& outcome) {
+  if (options.levels > kMaxPointLevels)
+    throw UsageError(fmt::format("--levels {}: point clouds build at most {} levels", options.levels,
+                                 kMaxPointLevels));
+  auto phaseStart = std::chrono::steady_clock::now();
+  PointCloud cloud = loadPointCloud(args.mesh);
+  outcome.phases["load"] = secondsSince(phaseStart);
+  SceneTransform transform;
+  try {
+    transform = fitSceneCube(cloud);
+  } catch (const std::runtime_error& e) {
+    throw std::runtime_error(args.mesh + ": " + e.what());
+  }
+  spdlog::info("{}: {} points ({}{}{})", args.mesh, cloud.positions.size(), cloud.format,
+               cloud.normals.empty() ? "" : ", normals", cloud.colors.empty() ? "" : ", colors");
+  if (cloud.missing > 0)
+    spdlog::warn("{}: the file ends inside point {} of the {} its header declares; building from the {} "
+                 "before",
+                 args.mesh, cloud.positions.size(), cloud.positions.size() + cloud.missing,
+                 cloud.positions.size());
+  phaseStart = std::chrono::steady_clock::now();
+  const NormalEstimate normals = estimateNormals(cloud);
+  if (normals.estimated > 0) {
+    outcome.phases["normals"] = secondsSince(phaseStart);
+    spdlog::info("estimated {} normals ({} nearest neighbours), oriented from {} seeds", normals.estimated,
+                 kNormalNeighbours, normals.components);
+  }
+  phaseStart = std::chrono::steady_clock::now();
+  VoxelTree tree;
+  {
+    ProgressBar bar("voxelize");
+    options.progress = [&bar](double f) { bar.update(f); };
+    tree = voxelizePoints(cloud, transform, options, &outcome.stats);
+  }
+  outcome.phases["voxelize"] = secondsSince(phaseStart);
+  cloud = PointCloud();  // the store's writing needs the tree only
+  phaseStart = std::chrono::steady_clock::now();
+  {
+    ProgressBar bar("write");
+    storeOptions.progress = [&bar](double f) { bar.update(f); };
+    outcome.slices = writeStore(args.out, tree, transform, storedParameters(options), storeOptions);
+  }
+  outcome.phases["write"] = secondsSince(phaseStart);
+  return tree.hasColors;
+}
+
 // The report: phases, voxels and slices per level, bytes per leaf voxel on disk and decoded by part; and
 // its summary on the terminal.
 void writeBuildReport(const BuildArgs& args, const std::filesystem::path& reportPath, std::uint64_t triangles,
@@ -282,6 +332,8 @@ void runMpiBuild(const BuildArgs& args) {
     setup = setUpBuild(args);
     if (isVoxelMask(args))
       throw UsageError(args.mesh + ": a voxel mask is laid out voxel for voxel in one process, not over MPI");
+    if (isPointCloudFile(args.mesh))
+      throw UsageError(args.mesh + ": a point cloud builds in core in one process, not over MPI");
     source = openInput(args, volumeSurface);
     outcome.phases["load"] = secondsSince(start);
     if (root) logInput(args.mesh, *source);
@@ -336,6 +388,14 @@ void runBuild(const BuildArgs& args) {
   const auto start = std::chrono::steady_clock::now();
   const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
   BuildOutcome outcome;
+  if (isPointCloudFile(args.mesh)) {
+    if (args.memory != 0 || args.cellLevel != 0 || args.resume)
+      throw UsageError(args.mesh + ": a point cloud builds in core only (--memory, --cell-level and --resume "
+                                   "are for meshes)");
+    const bool hasColors = buildFromPoints(args, setup.options, setup.storeOptions, outcome);
+    writeBuildReport(args, setup.reportPath, 0, hasColors, setup.options.levels, secondsSince(start), outcome);
+    return;
+  }
   if (isVoxelMask(args)) {
     const bool hasColors = buildFromVoxels(args, setup.storeOptions, outcome);
     writeBuildReport(args, setup.reportPath, 0, hasColors, int(outcome.stats.voxelsPerLevel.size()) - 1,
@@ -364,9 +424,13 @@ void runBuild(const BuildArgs& args) {
 void addBuildCommand(CLI::App& app) {
   auto args = std::make_shared<BuildArgs>();
   auto* cmd = app.add_subcommand("build",
-                                 "voxelize a mesh (OBJ, PLY, STL, glTF/GLB, DAE, FBX, DRC) or an OpenVDB "
-                                 "volume (.vdb) into a .svo octree");
-  cmd->add_option("mesh", args->mesh, "input mesh, or an OpenVDB volume (.vdb)")->required();
+                                 "voxelize a mesh (OBJ, PLY, STL, glTF/GLB, DAE, FBX, DRC), a point cloud "
+                                 "(PLY or DRC without faces, .xyz) or an OpenVDB volume (.vdb) into a .svo "
+                                 "octree");
+  cmd->add_option("mesh", args->mesh,
+                  "input mesh, point cloud (a PLY or DRC without faces: normals estimated where missing; "
+                  ".xyz lines: x y z [r g b] [nx ny nz]) or OpenVDB volume (.vdb)")
+      ->required();
   cmd->add_option("-o,--output", args->out, "output .svo file")->required();
   cmd->add_option("--levels", args->options.levels, "octree depth: finest voxels are 2^-levels of the scene")
       ->check(CLI::Range(1, kMaxLevels))

@@ -1,0 +1,81 @@
+// Point clouds (scans) as the builder sees them: read from PLY, Draco and .xyz files, normals estimated where
+// the file has none, and voxelized into octree levels with contours fitted to each voxel's points.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <glm/vec3.hpp>
+#include <glm/vec4.hpp>
+
+#include "svo/builder/build.hpp"
+
+namespace svo {
+
+struct PointCloud {
+  std::vector<glm::dvec3> positions;  // world space, finite
+  std::vector<glm::vec3> normals;     // per point, unit length or zero (unknown); empty when the file has none
+  std::vector<glm::vec4> colors;      // per point linear RGBA in [0, 1]; empty when the file has none
+  std::string format;                 // what the file was read as
+  std::uint64_t missing = 0;          // points the header declares that a truncated file lacks
+};
+
+// Whether `svo build` reads the file as a point cloud, by content: a .xyz file, a PLY whose header declares
+// vertices and no faces, a Draco file encoding a point cloud.
+bool isPointCloudFile(const std::filesystem::path& path);
+
+// Reads a point cloud:
+// - PLY, ASCII or binary (either byte order): the `vertex` element's x, y, z; nx, ny, nz when present; colors
+//   from red, green, blue or diffuse_red, diffuse_green, diffuse_blue (integers scaled from their type's
+//   range, floats taken as [0, 1]). Other elements and properties are skipped; a face element makes it a
+//   mesh, not a point cloud. A file that ends inside the vertex records gives the complete ones before the
+//   cut (PointCloud::missing counts the rest); one that ends before the first vertex is an error.
+// - Draco (.drc) point clouds: POSITION, and NORMAL and COLOR when present.
+// - .xyz text, one point per line, numbers separated by spaces, tabs or commas; `#` starts a comment. The
+//   columns, the same on every line, are one of: x y z | x y z r g b | x y z r g b nx ny nz | x y z nx ny nz
+//   (9 columns are colors then normals; 6 columns are colors when every value of columns 4-6 in the file is
+//   an integer in 0..255 and any exceeds 1, else normals). Colors r g b are in 0..255.
+// Colors are display (sRGB) values, made linear as mesh colors are. Throws std::runtime_error with one line
+// naming the file and the problem: missing file, malformed header, truncated data, non-finite position, no
+// points. A normal that is zero or not finite is unknown: zero in `normals`, for estimateNormals.
+PointCloud loadPointCloud(const std::filesystem::path& path);
+
+// Checks the cloud (finite positions, attribute counts matching) and throws naming `source` and
+// the first bad point. loadPointCloud calls it.
+void validatePointCloud(const PointCloud& cloud, const std::string& source);
+
+// k of the k-nearest-neighbour tangent planes (Hoppe et al. 1992, "Surface reconstruction from unorganized
+// points", sec. 3.2: the plane through a point's k nearest neighbours by principal component analysis).
+inline constexpr int kNormalNeighbours = 16;
+
+struct NormalEstimate {
+  std::size_t estimated = 0;  // points whose normal was computed
+  std::size_t flipped = 0;    // of those, turned over by the orientation pass
+  std::size_t components = 0; // neighbour-graph components, each oriented from its own seed
+};
+// Fills in every zero (or missing) normal: the smallest-eigenvalue eigenvector of the covariance of the
+// point's k nearest neighbours (itself included), then oriented consistently as Hoppe et al. orient theirs
+// (sec. 3.3): along a minimum spanning tree of the symmetric k-nearest-neighbour graph weighted 1 - |ni.nj|,
+// from a seed per connected component, the component's highest point (largest z), whose normal is turned to
+// +z; each point takes the side of its tree parent. Normals the file gave are kept and seed their
+// neighbours. Deterministic.
+NormalEstimate estimateNormals(PointCloud& cloud, int neighbours = kNormalNeighbours);
+
+// Deepest octree a point cloud builds: a finest voxel's Morton code, 3 bits a level, fits in 64 bits.
+inline constexpr int kMaxPointLevels = 21;
+
+// The point cloud's voxels in the octree frame of `transform`, `options.levels` deep: each point falls in one
+// finest voxel; a voxel's color and normal are the means of its points' (normals summed as unit vectors);
+// where options.contours, each voxel below the root gets the thinnest slab along its (stored) normal that
+// holds all its points, kept when it trims more than options.leafContourMinReduction (finest voxels) or
+// options.innerContourMinReduction (coarser ones) of the voxel's width along that normal. Needs normals for
+// every point (estimateNormals). Deterministic, whatever the thread count.
+VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transform, const BuildOptions& options,
+                         BuildStats* stats = nullptr);
+
+// The scene cube of the points (fitSceneCube of their bounds). Throws when they have no extent.
+SceneTransform fitSceneCube(const PointCloud& cloud);
+
+}  // namespace svo
