@@ -2,6 +2,7 @@
 // plane by Eigen's symmetric 3x3 eigen-solver, orientation along a minimum spanning tree (Hoppe et al. 1992).
 #include <algorithm>
 #include <cstdint>
+#include <limits>
 #include <numeric>
 #include <queue>
 #include <tuple>
@@ -99,14 +100,18 @@ std::pair<std::size_t, std::size_t> orient(std::vector<glm::vec3>& normals, cons
                                            const std::vector<glm::dvec3>& points, const Graph& g) {
   const std::size_t n = points.size();
   std::vector<bool> reached(n, false);
+  // The cheapest edge seen into each point: only a cheaper one is queued (Prim's key decrease, lazily).
+  std::vector<float> best(n, std::numeric_limits<float>::infinity());
   using Entry = std::tuple<float, std::uint32_t, std::uint32_t>;  // cost, point, reached from
   std::priority_queue<Entry, std::vector<Entry>, std::greater<>> frontier;
   std::size_t flipped = 0, seeds = 0;
   const auto reach = [&](std::uint32_t i) {
     reached[i] = true;
     for (std::uint64_t e = g.first[i]; e < g.first[i + 1]; ++e)
-      if (const std::uint32_t o = g.next[e]; !reached[o])
-        frontier.emplace(1.0f - std::abs(glm::dot(normals[i], normals[o])), o, i);
+      if (const std::uint32_t o = g.next[e]; !reached[o]) {
+        const float cost = 1.0f - std::abs(glm::dot(normals[i], normals[o]));
+        if (cost < best[o]) best[o] = cost, frontier.emplace(cost, o, i);
+      }
   };
   const auto grow = [&] {
     while (!frontier.empty()) {
