@@ -48,10 +48,14 @@ std::vector<char> readBytes(const fs::path& path, std::size_t limit) {
 double colorMax(const draco::PointAttribute& col) {
   if (col.normalized()) return 1.0;
   switch (col.data_type()) {
-    case draco::DT_UINT8: return 255.0;
-    case draco::DT_UINT16: return 65535.0;
-    case draco::DT_UINT32: return 4294967295.0;
-    default: return 1.0;
+    case draco::DT_UINT8:
+      return 255.0;
+    case draco::DT_UINT16:
+      return 65535.0;
+    case draco::DT_UINT32:
+      return 4294967295.0;
+    default:
+      return 1.0;
   }
 }
 

@@ -103,14 +103,22 @@ double valueAt(const char* p, PlyType t, bool swap) {
     return double(v);
   };
   switch (t) {
-    case PlyType::Int8: return get(std::int8_t{});
-    case PlyType::UInt8: return get(std::uint8_t{});
-    case PlyType::Int16: return get(std::int16_t{});
-    case PlyType::UInt16: return get(std::uint16_t{});
-    case PlyType::Int32: return get(std::int32_t{});
-    case PlyType::UInt32: return get(std::uint32_t{});
-    case PlyType::Float32: return get(float{});
-    case PlyType::Float64: return get(double{});
+    case PlyType::Int8:
+      return get(std::int8_t{});
+    case PlyType::UInt8:
+      return get(std::uint8_t{});
+    case PlyType::Int16:
+      return get(std::int16_t{});
+    case PlyType::UInt16:
+      return get(std::uint16_t{});
+    case PlyType::Int32:
+      return get(std::int32_t{});
+    case PlyType::UInt32:
+      return get(std::uint32_t{});
+    case PlyType::Float32:
+      return get(float{});
+    case PlyType::Float64:
+      return get(double{});
   }
   return 0.0;
 }
@@ -161,10 +169,14 @@ std::optional<PlyHeader> parsePlyHeader(std::string_view text, std::string& erro
     if (word == "format") {
       std::string kind, version;
       words >> kind >> version;
-      if (kind == "ascii") header.format = PlyFormat::Ascii;
-      else if (kind == "binary_little_endian") header.format = PlyFormat::BinaryLittleEndian;
-      else if (kind == "binary_big_endian") header.format = PlyFormat::BinaryBigEndian;
-      else return bad("unknown format");
+      if (kind == "ascii")
+        header.format = PlyFormat::Ascii;
+      else if (kind == "binary_little_endian")
+        header.format = PlyFormat::BinaryLittleEndian;
+      else if (kind == "binary_big_endian")
+        header.format = PlyFormat::BinaryBigEndian;
+      else
+        return bad("unknown format");
       formatSeen = true;
     } else if (word == "element") {
       PlyElement e;
@@ -435,7 +447,8 @@ PointCloud loadXyz(const fs::path& path) {
       cloud.colors.push_back(detail::displayToLinear(c));
     }
     if (normals)
-      cloud.normals.emplace_back(float(r[normalColumn]), float(r[normalColumn + 1]), float(r[normalColumn + 2]));
+      cloud.normals.emplace_back(float(r[normalColumn]), float(r[normalColumn + 1]),
+                                 float(r[normalColumn + 2]));
   }
   return cloud;
 }
@@ -482,10 +495,14 @@ void validatePointCloud(const PointCloud& cloud, const std::string& source) {
 PointCloud loadPointCloud(const fs::path& path) {
   const std::string ext = detail::lowerExtension(path);
   PointCloud cloud;
-  if (ext == ".xyz") cloud = loadXyz(path);
-  else if (ext == ".ply") cloud = loadPly(path);
-  else if (ext == ".drc") cloud = detail::loadDracoPoints(path);
-  else fail(path, "not a point cloud format (.ply, .drc or .xyz)");
+  if (ext == ".xyz")
+    cloud = loadXyz(path);
+  else if (ext == ".ply")
+    cloud = loadPly(path);
+  else if (ext == ".drc")
+    cloud = detail::loadDracoPoints(path);
+  else
+    fail(path, "not a point cloud format (.ply, .drc or .xyz)");
   validatePointCloud(cloud, path.string());
   // A normal that is zero or not a number is unknown (scanners leave some so: pond.0.ply has NaNs), kept as
   // zero and estimated later; the others become unit length.

@@ -8,11 +8,11 @@
 #include <tuple>
 #include <vector>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <Eigen/Eigenvalues>
 #include <glm/geometric.hpp>
 #include <nanoflann.hpp>
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include "svo/builder/points.hpp"
 

@@ -10,10 +10,10 @@
 #include <string>
 #include <vector>
 
-#include <glm/geometric.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
+#include <glm/geometric.hpp>
 
 #include "svo/builder/points.hpp"
 #include "svo/store/format.hpp"
@@ -56,8 +56,7 @@ using PointOrder = std::vector<std::pair<std::uint64_t, std::uint32_t>>;  // (fi
 std::vector<Node> finestNodes(const PointCloud& cloud, const PointOrder& order) {
   std::vector<Node> nodes;
   for (std::uint32_t i = 0; i < order.size(); ++i) {
-    if (nodes.empty() || nodes.back().code != order[i].first)
-      nodes.push_back(Node{order[i].first, i, i});
+    if (nodes.empty() || nodes.back().code != order[i].first) nodes.push_back(Node{order[i].first, i, i});
     Node& n = nodes.back();
     n.end = i + 1;
     const std::uint32_t p = order[i].second;
@@ -82,8 +81,9 @@ std::vector<Node> parentNodes(const std::vector<Node>& children) {
 
 // The slab along the voxel's stored normal that holds its points, when it trims at least `minCut` (voxel
 // widths) off the cube's extent along that normal (as the mesh builder's chooseContour measures a cut).
-bool fitContour(const PointCloud& cloud, const PointOrder& order, const Node& node, int level, const SceneTransform& transform, std::uint32_t normalBits,
-                double minCut, std::uint32_t& bits) {
+bool fitContour(const PointCloud& cloud, const PointOrder& order, const Node& node, int level,
+                const SceneTransform& transform, std::uint32_t normalBits, double minCut,
+                std::uint32_t& bits) {
   const glm::ivec3 qn = quantizeContourNormal(glm::dvec3(normalDirection(normalBits)));
   const glm::dvec3 n = glm::dvec3(qn) / double(kContourNormalScale);
   const double voxel = std::ldexp(1.0, -level);
@@ -123,20 +123,20 @@ SceneTransform fitSceneCube(const PointCloud& cloud) {
   if (cloud.positions.empty()) throw std::runtime_error("no points");
   glm::dvec3 lo(cloud.positions.front()), hi(lo);
   for (const glm::dvec3& p : cloud.positions) lo = glm::min(lo, p), hi = glm::max(hi, p);
-  if (!(glm::any(glm::greaterThan(hi, lo)))) throw std::runtime_error("the points have no extent: all coincide");
+  if (!(glm::any(glm::greaterThan(hi, lo))))
+    throw std::runtime_error("the points have no extent: all coincide");
   return fitSceneCube(lo, hi);
 }
 
-VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transform, const BuildOptions& options,
-                         BuildStats* stats) {
+VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transform,
+                         const BuildOptions& options, BuildStats* stats) {
   const auto start = std::chrono::steady_clock::now();
   const int levels = options.levels;
   if (levels < 1 || levels > kMaxPointLevels)
     throw std::runtime_error("point clouds build 1 to " + std::to_string(kMaxPointLevels) + " levels, not " +
                              std::to_string(levels));
   if (cloud.positions.empty()) throw std::runtime_error("no points");
-  if (cloud.positions.size() > std::size_t(UINT32_MAX))
-    throw std::runtime_error("more than 2^32 - 1 points");
+  if (cloud.positions.size() > std::size_t(UINT32_MAX)) throw std::runtime_error("more than 2^32 - 1 points");
   if (cloud.normals.size() != cloud.positions.size())
     throw std::runtime_error("voxelizePoints needs a normal per point (estimateNormals)");
   const auto order = sortedPoints(cloud, transform, levels);
@@ -151,7 +151,8 @@ VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transfor
     const std::vector<Node>& in = nodes[std::size_t(level)];
     std::vector<SliceVoxel>& voxels = out[std::size_t(level)];
     voxels.resize(in.size());
-    const double minCut = level == levels ? options.leafContourMinReduction : options.innerContourMinReduction;
+    const double minCut =
+        level == levels ? options.leafContourMinReduction : options.innerContourMinReduction;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, in.size()), [&](const auto& range) {
       for (std::size_t i = range.begin(); i < range.end(); ++i) {
         const Node& node = in[i];

@@ -1,8 +1,8 @@
 // libFuzzer target over the point-cloud readers (loadPointCloud: PLY, ASCII and binary, and .xyz).
 // The first byte picks the format, the rest is the file. Any bytes must end in a clean exception or a cloud
-// whose positions and normals are finite and whose normals and colors match them in number: never a crash, a hang or a
-// sanitizer report. Draco files are the Draco library's to decode, so its entry points are stubbed here, as
-// is the color conversion, and the target needs glm alone.
+// whose positions and normals are finite and whose normals and colors match them in number: never a crash, a
+// hang or a sanitizer report. Draco files are the Draco library's to decode, so its entry points are stubbed
+// here, as is the color conversion, and the target needs glm alone.
 #include <cmath>
 #include <cstddef>
 #include <cstdint>

@@ -1,6 +1,7 @@
 // Runs the libFuzzer targets over the store reader (tests/fuzz/fuzz_store.cpp), the streaming PLY reader
-// (tests/fuzz/fuzz_ply.cpp), the point-cloud readers (tests/fuzz/fuzz_points.cpp), the server's request parsers (tests/fuzz/fuzz_request.cpp) and the view stream's
-// messages (tests/fuzz/fuzz_view.cpp) for a bounded number of inputs, each seeded with small valid inputs.
+// (tests/fuzz/fuzz_ply.cpp), the point-cloud readers (tests/fuzz/fuzz_points.cpp), the server's request
+// parsers (tests/fuzz/fuzz_request.cpp) and the view stream's messages (tests/fuzz/fuzz_view.cpp) for a
+// bounded number of inputs, each seeded with small valid inputs.
 // tools/scripts/test.sh builds the targets with clang and sets SVO_FUZZ_STORE, SVO_FUZZ_PLY, SVO_FUZZ_POINTS,
 // SVO_FUZZ_REQUEST and SVO_FUZZ_VIEW; without them (a plain g++ build) the tests are skipped.
 #include <gtest/gtest.h>

@@ -13,8 +13,8 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <iterator>
 #include <functional>
+#include <iterator>
 #include <map>
 #include <numbers>
 #include <random>
@@ -91,11 +91,12 @@ std::string number(double v) {
 
 // A PLY of the cloud; colors as 0..255 codes in `colors` (the cloud's are codes, not linear values).
 std::string ply(const PointCloud& c, bool binary) {
-  std::string out = std::string("ply\nformat ") + (binary ? "binary_little_endian" : "ascii") +
-                    " 1.0\ncomment made by test_points\nelement vertex " + std::to_string(c.positions.size()) +
-                    "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float "
-                    "ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar "
-                    "blue\nend_header\n";
+  std::string out =
+      std::string("ply\nformat ") + (binary ? "binary_little_endian" : "ascii") +
+      " 1.0\ncomment made by test_points\nelement vertex " + std::to_string(c.positions.size()) +
+      "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float "
+      "ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar "
+      "blue\nend_header\n";
   for (std::size_t i = 0; i < c.positions.size(); ++i) {
     const float v[6] = {float(c.positions[i].x), float(c.positions[i].y), float(c.positions[i].z),
                         c.normals[i].x,          c.normals[i].y,          c.normals[i].z};
@@ -117,9 +118,9 @@ std::string xyz(const PointCloud& c) {
   for (std::size_t i = 0; i < c.positions.size(); ++i) {
     const glm::dvec3& p = c.positions[i];
     const glm::vec3& n = c.normals[i];
-    out += number(p.x) + " " + number(p.y) + " " + number(p.z) + " " + std::to_string(int(c.colors[i].r)) + " " +
-           std::to_string(int(c.colors[i].g)) + " " + std::to_string(int(c.colors[i].b)) + " " + number(n.x) +
-           " " + number(n.y) + " " + number(n.z) + "\n";
+    out += number(p.x) + " " + number(p.y) + " " + number(p.z) + " " + std::to_string(int(c.colors[i].r)) +
+           " " + std::to_string(int(c.colors[i].g)) + " " + std::to_string(int(c.colors[i].b)) + " " +
+           number(n.x) + " " + number(n.y) + " " + number(n.z) + "\n";
   }
   return out;
 }
@@ -182,7 +183,8 @@ std::map<Key, std::vector<glm::dvec3>> voxelsOfPoints(const PointCloud& c, const
 
 // Checks the leaves against the brute-force voxel set, their contours against their points, and returns
 // the leaves' largest angle to `expected`, the analytic normal at each leaf's points' mean.
-double checkVoxels(const PointCloud& cloud, int levels, const std::function<glm::dvec3(glm::dvec3)>& expected) {
+double checkVoxels(const PointCloud& cloud, int levels,
+                   const std::function<glm::dvec3(glm::dvec3)>& expected) {
   svo::BuildOptions options;
   options.levels = levels;
   const svo::SceneTransform transform = svo::fitSceneCube(cloud);
@@ -203,7 +205,8 @@ double checkVoxels(const PointCloud& cloud, int levels, const std::function<glm:
     glm::dvec3 mean(0.0);
     for (const glm::dvec3& p : it->second) mean += p;
     mean /= double(it->second.size());
-    worst = std::max(worst, degreesBetween(glm::dvec3(svo::decodeNormal(leaf.record.normal)), expected(mean)));
+    worst =
+        std::max(worst, degreesBetween(glm::dvec3(svo::decodeNormal(leaf.record.normal)), expected(mean)));
     if (!leaf.record.hasContour) continue;
     ++contours;
     const svo::Contour c = svo::decodeContour(leaf.record.contour);
@@ -311,7 +314,8 @@ std::pair<std::string, std::size_t> repairedPond() {
     for (const float f : v)
       if (!std::isfinite(f)) return false;
     const float length = std::sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]);
-    return std::max({std::abs(v[0]), std::abs(v[1]), std::abs(v[2])}) < 1e3f && std::abs(length - 1.0f) < 1e-3f;
+    return std::max({std::abs(v[0]), std::abs(v[1]), std::abs(v[2])}) < 1e3f &&
+           std::abs(length - 1.0f) < 1e-3f;
   };
   std::string records;
   std::size_t count = 0;
@@ -354,9 +358,10 @@ TEST_F(Points, PondScanNormalsAgreeWithTheFile) {
   // Orientation is consistent when the sides agree for nearly all points, up to one global sign: Hoppe's
   // seed faces +z, where the scanner's normals face -y on the whole.
   const double side = double(sameSide) / double(c.positions.size()), consistent = std::max(side, 1.0 - side);
-  std::printf("pond.0.ply: PCA against the file's normals: median %.1f, p75 %.1f, p90 %.1f degrees; %.1f%% "
-              "oriented alike up to one sign\n",
-              quantile(0.5), quantile(0.75), quantile(0.9), 100.0 * consistent);
+  std::printf(
+      "pond.0.ply: PCA against the file's normals: median %.1f, p75 %.1f, p90 %.1f degrees; %.1f%% "
+      "oriented alike up to one sign\n",
+      quantile(0.5), quantile(0.75), quantile(0.9), 100.0 * consistent);
   // Measured with k = 16: median 14.7, p75 26.4, p90 39.7 degrees, 92.8% alike (the file's normals are
   // smoother than 16-neighbour planes on this noisy scan).
   EXPECT_LT(quantile(0.5), 20.0);
@@ -385,14 +390,16 @@ std::string slurp(const fs::path& p) {
 class PointsCli : public Points {
  protected:
   // `svo build INPUT -o OUT ARGS`: exit status and stderr.
-  std::pair<int, std::string> build(const fs::path& input, const fs::path& out, const std::string& args = "") {
+  std::pair<int, std::string> build(const fs::path& input, const fs::path& out,
+                                    const std::string& args = "") {
     const fs::path err = dir_ / "stderr.txt";
     const std::string command = binary() + " build " + input.string() + " -o " + out.string() + " " + args +
                                 " >" + (dir_ / "stdout.txt").string() + " 2>" + err.string();
     const int status = std::system(command.c_str());
     return {WIFEXITED(status) ? WEXITSTATUS(status) : 128, slurp(err)};
   }
-  // One error line naming the file and mentioning `problem`, a non-zero exit, no crash, nothing at the target.
+  // One error line naming the file and mentioning `problem`, a non-zero exit, no crash, nothing at the
+  // target.
   void expectCleanFailure(const fs::path& input, const std::string& problem, const std::string& args = "") {
     const fs::path out = dir_ / "o.svo";
     const auto [code, err] = build(input, out, "--levels 6 " + args);
@@ -409,16 +416,19 @@ class PointsCli : public Points {
 };
 
 TEST_F(PointsCli, BadPointCloudsGiveOneClearError) {
-  const std::string header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                             "property float z\nend_header\n";
+  const std::string header =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nend_header\n";
   expectCleanFailure(write("nan.xyz", "0 0 0\nnan 0 0\n1 1 1\n"), "non-finite position");
   expectCleanFailure(write("inf.ply", header + "0 0 0\n1 inf 0\n1 1 1\n"), "non-finite position");
   expectCleanFailure(write("empty.xyz", "# no points\n"), "no points");
-  expectCleanFailure(write("none.ply", "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty "
-                                       "float y\nproperty float z\nend_header\n"),
+  expectCleanFailure(write("none.ply",
+                           "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty "
+                           "float y\nproperty float z\nend_header\n"),
                      "no points");
-  expectCleanFailure(write("type.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty flot x\nend_header\n"),
-                     "malformed PLY header");
+  expectCleanFailure(
+      write("type.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty flot x\nend_header\n"),
+      "malformed PLY header");
   expectCleanFailure(write("open.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"),
                      "no end_header");
   expectCleanFailure(write("short.ply", header + "0 0"), "ends before its first vertex");
@@ -428,7 +438,8 @@ TEST_F(PointsCli, BadPointCloudsGiveOneClearError) {
   const std::string draco = drc(c);
   expectCleanFailure(write("short.drc", draco.substr(0, draco.size() / 2)), "Draco");
   expectCleanFailure(write("same.xyz", "1 2 3\n1 2 3\n"), "no extent");
-  if (fs::exists(kPond)) expectCleanFailure(kPond, "point 714 has a non-finite position");  // see repairedPond
+  if (fs::exists(kPond))
+    expectCleanFailure(kPond, "point 714 has a non-finite position");  // see repairedPond
   // A scan has no out-of-core path yet: a bound it cannot honour is an error, not ignored.
   expectCleanFailure(write("bound.xyz", "0 0 0\n1 1 1\n"), "in core only", "--memory 1G");
 }

@@ -393,7 +393,8 @@ void runBuild(const BuildArgs& args) {
       throw UsageError(args.mesh + ": a point cloud builds in core only (--memory, --cell-level and --resume "
                                    "are for meshes)");
     const bool hasColors = buildFromPoints(args, setup.options, setup.storeOptions, outcome);
-    writeBuildReport(args, setup.reportPath, 0, hasColors, setup.options.levels, secondsSince(start), outcome);
+    writeBuildReport(args, setup.reportPath, 0, hasColors, setup.options.levels, secondsSince(start),
+                     outcome);
     return;
   }
   if (isVoxelMask(args)) {

@@ -16,10 +16,10 @@ namespace svo {
 
 struct PointCloud {
   std::vector<glm::dvec3> positions;  // world space, finite
-  std::vector<glm::vec3> normals;     // per point, unit length or zero (unknown); empty when the file has none
-  std::vector<glm::vec4> colors;      // per point linear RGBA in [0, 1]; empty when the file has none
-  std::string format;                 // what the file was read as
-  std::uint64_t missing = 0;          // points the header declares that a truncated file lacks
+  std::vector<glm::vec3> normals;  // per point, unit length or zero (unknown); empty when the file has none
+  std::vector<glm::vec4> colors;   // per point linear RGBA in [0, 1]; empty when the file has none
+  std::string format;              // what the file was read as
+  std::uint64_t missing = 0;       // points the header declares that a truncated file lacks
 };
 
 // Whether `svo build` reads the file as a point cloud, by content: a .xyz file, a PLY whose header declares
@@ -51,9 +51,9 @@ void validatePointCloud(const PointCloud& cloud, const std::string& source);
 inline constexpr int kNormalNeighbours = 16;
 
 struct NormalEstimate {
-  std::size_t estimated = 0;  // points whose normal was computed
-  std::size_t flipped = 0;    // of those, turned over by the orientation pass
-  std::size_t components = 0; // neighbour-graph components, each oriented from its own seed
+  std::size_t estimated = 0;   // points whose normal was computed
+  std::size_t flipped = 0;     // of those, turned over by the orientation pass
+  std::size_t components = 0;  // neighbour-graph components, each oriented from its own seed
 };
 // Fills in every zero (or missing) normal: the smallest-eigenvalue eigenvector of the covariance of the
 // point's k nearest neighbours (itself included), then oriented consistently as Hoppe et al. orient theirs
@@ -72,8 +72,8 @@ inline constexpr int kMaxPointLevels = 21;
 // holds all its points, kept when it trims more than options.leafContourMinReduction (finest voxels) or
 // options.innerContourMinReduction (coarser ones) of the voxel's width along that normal. Needs normals for
 // every point (estimateNormals). Deterministic, whatever the thread count.
-VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transform, const BuildOptions& options,
-                         BuildStats* stats = nullptr);
+VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transform,
+                         const BuildOptions& options, BuildStats* stats = nullptr);
 
 // The scene cube of the points (fitSceneCube of their bounds). Throws when they have no extent.
 SceneTransform fitSceneCube(const PointCloud& cloud);
