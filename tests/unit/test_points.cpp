@@ -466,6 +466,19 @@ TEST_F(PointsCli, BuildsAScanIntoAStore) {
   const svo::VoxelTree tree = store.loadTree();
   EXPECT_TRUE(tree.hasColors);
   EXPECT_GT(tree.voxels.size(), 10000u);
+  // The store keeps the voxelizer's structure and contours exactly (record order aside).
+  PointCloud cloud = svo::loadPointCloud(dir_ / "pond.ply");
+  svo::estimateNormals(cloud);
+  svo::BuildOptions options;
+  options.levels = 9;
+  const svo::VoxelTree built = svo::voxelizePoints(cloud, svo::fitSceneCube(cloud), options);
+  const auto shape = [](const svo::VoxelTree& t) {
+    std::multiset<std::tuple<int, bool, std::uint32_t>> out;
+    for (const svo::VoxelRecord& r : t.voxels)
+      out.emplace(r.childMask, r.hasContour, r.hasContour ? r.contour : 0);
+    return out;
+  };
+  EXPECT_EQ(shape(tree), shape(built));
 }
 
 TEST_F(PointsCli, PlyAndXyzOfTheSamePointsBuildTheSameStore) {
