@@ -141,14 +141,11 @@ VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transfor
     throw std::runtime_error("voxelizePoints needs a normal per point (estimateNormals)");
   const auto order = sortedPoints(cloud, transform, levels);
 
-  std::vector<std::vector<Node>> nodes(std::size_t(levels) + 1);
-  nodes.back() = finestNodes(cloud, order);
-  for (int level = levels - 1; level >= 0; --level) nodes[std::size_t(level)] = parentNodes(nodes[level + 1]);
-
+  // Level by level from the finest up: a level's nodes make its voxels, then its parents' nodes, and go.
   const bool colors = !cloud.colors.empty();
-  VoxelLevels out(nodes.size());
+  VoxelLevels out(std::size_t(levels) + 1);
+  std::vector<Node> in = finestNodes(cloud, order);
   for (int level = levels; level >= 0; --level) {
-    const std::vector<Node>& in = nodes[std::size_t(level)];
     std::vector<SliceVoxel>& voxels = out[std::size_t(level)];
     voxels.resize(in.size());
     const double minCut =
@@ -171,6 +168,7 @@ VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transfor
                        fitContour(cloud, order, node, level, transform, v.normal, minCut, v.contour);
       }
     });
+    if (level > 0) in = parentNodes(in);
     if (options.progress) options.progress(double(levels + 1 - level) / double(levels + 1));
   }
   VoxelTree tree = treeOfLevels(out, colors, true);
