@@ -242,6 +242,42 @@ TEST_F(Points, PlyAsciiAndBinaryReadTheSamePoints) {
   EXPECT_FALSE(svo::isPointCloudFile("/usr/share/assimp/models/PLY/cube.ply"));  // a mesh
 }
 
+TEST_F(Points, BigEndianPlyReadsAsLittleEndian) {
+  const PointCloud c = exactCloud(20);
+  std::string little = ply(c, true), big = little;
+  big.replace(big.find("binary_little_endian"), 20, "binary_big_endian");
+  const std::size_t start = big.find("end_header\n") + 11;
+  for (std::size_t r = 0; r < c.positions.size(); ++r)
+    for (int f = 0; f < 6; ++f) {  // the six floats of each 27-byte record, byte-swapped
+      char* at = big.data() + start + r * 27 + 4 * std::size_t(f);
+      std::reverse(at, at + 4);
+    }
+  const PointCloud a = svo::loadPointCloud(write("le.ply", little));
+  const PointCloud b = svo::loadPointCloud(write("be.ply", big));
+  EXPECT_EQ(a.positions, b.positions);
+  EXPECT_EQ(a.normals, b.normals);
+  EXPECT_EQ(a.colors, b.colors);
+}
+
+TEST_F(Points, XyzColumnLayouts) {
+  const PointCloud xyz3 = svo::loadPointCloud(write("a.xyz", "0 0 0\n1\t2\t3 # a comment\n\n"));
+  EXPECT_EQ(xyz3.positions.size(), 2u);
+  EXPECT_TRUE(xyz3.normals.empty() && xyz3.colors.empty());
+  const PointCloud rgb = svo::loadPointCloud(write("b.xyz", "0 0 0 255 0 0\n1,2,3,0,255,1\n"));
+  EXPECT_TRUE(rgb.normals.empty());
+  ASSERT_EQ(rgb.colors.size(), 2u);
+  EXPECT_EQ(rgb.colors[0], glm::vec4(1, 0, 0, 1));
+  const PointCloud normals = svo::loadPointCloud(write("c.xyz", "0 0 0 0 0 1\n1 2 3 0 1 0\n"));
+  EXPECT_TRUE(normals.colors.empty());
+  ASSERT_EQ(normals.normals.size(), 2u);
+  EXPECT_EQ(normals.normals[1], glm::vec3(0, 1, 0));
+  const PointCloud both = svo::loadPointCloud(write("d.xyz", "0 0 0 0 0 255 0.6 0 0.8\n1 1 1 0 0 0 0 0 0\n"));
+  ASSERT_EQ(both.colors.size(), 2u);
+  EXPECT_EQ(both.colors[0], glm::vec4(0, 0, 1, 1));
+  EXPECT_EQ(both.normals[0], glm::vec3(0.6f, 0.0f, 0.8f));
+  EXPECT_EQ(both.normals[1], glm::vec3(0.0f));  // unknown: estimated later
+}
+
 TEST_F(Points, PlyXyzAndDracoGiveTheSameTree) {
   const PointCloud c = exactCloud(3000);
   std::vector<svo::VoxelTree> trees;
