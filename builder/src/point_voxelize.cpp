@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -17,10 +18,17 @@
 
 #include "svo/builder/points.hpp"
 #include "svo/store/format.hpp"
+#include "voxel_kernels.hpp"
 
 namespace svo {
 
 namespace {
+
+using voxel::chooseContour;
+using voxel::ContourFit;
+using voxel::Direction;
+using voxel::Extent;
+using voxel::slabOf;
 
 std::uint64_t spreadBits(std::uint32_t v) {
   std::uint64_t out = 0;
@@ -40,6 +48,11 @@ std::uint64_t mortonOf(glm::ivec3 c) {
 glm::ivec3 coordOf(std::uint64_t code) {
   return glm::ivec3(int(gatherBits(code)), int(gatherBits(code >> 1)), int(gatherBits(code >> 2)));
 }
+
+// A voxel's points: a run of the sorted points.
+struct Run {
+  std::uint32_t begin = 0, end = 0;
+};
 
 // A voxel of one level: its Morton code at that level, its run of sorted points and the sums over them.
 struct Node {
@@ -79,26 +92,80 @@ std::vector<Node> parentNodes(const std::vector<Node>& children) {
   return parents;
 }
 
-// The slab along the voxel's stored normal that holds its points, when it trims at least `minCut` (voxel
-// widths) off the cube's extent along that normal (as the mesh builder's chooseContour measures a cut).
-bool fitContour(const PointCloud& cloud, const PointOrder& order, const Node& node, int level,
-                const SceneTransform& transform, std::uint32_t normalBits, double minCut,
-                std::uint32_t& bits) {
-  const glm::ivec3 qn = quantizeContourNormal(glm::dvec3(normalDirection(normalBits)));
-  const glm::dvec3 n = glm::dvec3(qn) / double(kContourNormalScale);
-  const double voxel = std::ldexp(1.0, -level);
-  const glm::dvec3 centre = 1.0 + (glm::dvec3(coordOf(node.code)) + 0.5) * voxel;
-  double lo = 1e300, hi = -1e300;
-  for (std::uint32_t i = node.begin; i < node.end; ++i) {
-    const double d = glm::dot(n, transform.toOctree(cloud.positions[order[i].second]) - centre) / voxel;
-    lo = std::min(lo, d), hi = std::max(hi, d);
+// A voxel's cube in the octree frame.
+geom::Cube cubeOf(glm::ivec3 coord, int level) {
+  const double size = std::ldexp(1.0, -level);
+  return {1.0 + glm::dvec3(coord) * size, size};
+}
+
+// The slabs that bound a voxel's shape from above (sec. 5.3): its ancestors' contours that still cut its
+// cube, the finest few, as many as the hull uses.
+struct Bounds {
+  std::array<geom::Slab, geom::kMaxHullSlabs> slabs;
+  std::uint8_t count = 0;
+};
+
+Bounds boundsOf(const Bounds& parent, const SliceVoxel& parentVoxel, int parentLevel,
+                const geom::Cube& cube) {
+  std::array<geom::Slab, geom::kMaxHullSlabs + 1> all;
+  std::size_t n = 0;
+  for (std::uint8_t k = 0; k < parent.count; ++k) all[n++] = parent.slabs[k];
+  if (parentVoxel.hasContour) all[n++] = slabOf(cubeOf(parentVoxel.coord, parentLevel), parentVoxel.contour);
+  Bounds out;
+  for (std::size_t k = 0; k < n; ++k)
+    if (geom::slabCutsCube(all[k], cube)) {
+      if (out.count == out.slabs.size())  // the oldest gives way
+        std::move(out.slabs.begin() + 1, out.slabs.end(), out.slabs.begin()), --out.count;
+      out.slabs[out.count++] = all[k];
+    }
+  return out;
+}
+
+// The voxel's contour, as the mesh builder chooses one (chooseContour): the slab along its stored normal that
+// holds its points, kept where it trims at least `minCut` voxel widths off its ancestor-bounded hull.
+std::optional<ContourFit> fitContour(const PointCloud& cloud, const PointOrder& order, Run run,
+                                     const SliceVoxel& voxel, const geom::Cube& cube, const Bounds& bounds,
+                                     const SceneTransform& transform, double minCut) {
+  const glm::ivec3 qn = quantizeContourNormal(glm::dvec3(normalDirection(voxel.normal)));
+  const std::vector<Direction> direction{{qn, glm::dvec3(qn) / double(kContourNormalScale)}};
+  std::vector<Extent> extent(1);
+  const glm::dvec3 centre = cube.centre();
+  for (std::uint32_t i = run.begin; i < run.end; ++i) {
+    const glm::dvec3 p = transform.toOctree(cloud.positions[order[i].second]);
+    const double d = glm::dot(direction[0].normal, p - centre) / cube.size;
+    extent[0].lo = std::min(extent[0].lo, d), extent[0].hi = std::max(extent[0].hi, d);
   }
-  if (!encodeContour(qn, lo, hi, bits)) return false;
-  const Contour c = decodeContour(bits);
-  const double hullHi = 0.5 * (std::abs(n.x) + std::abs(n.y) + std::abs(n.z)), hullLo = -hullHi;
-  const double slabLo = c.position - 0.5 * c.thickness, slabHi = c.position + 0.5 * c.thickness;
-  const double cut = std::max(0.0, slabLo - hullLo) + std::max(0.0, hullHi - slabHi);
-  return cut > 0.0 && cut >= minCut;
+  return chooseContour(cube, direction, extent, {bounds.slabs.begin(), bounds.slabs.begin() + bounds.count},
+                       minCut);
+}
+
+// Contours from the root down, each voxel's decided against the slabs its ancestors' decisions left.
+void addContours(const PointCloud& cloud, const PointOrder& order, const std::vector<std::vector<Run>>& runs,
+                 const SceneTransform& transform, const BuildOptions& options, VoxelLevels& levels) {
+  std::vector<Bounds> parentBounds(1);  // the root keeps no contour (the store keeps its attributes only)
+  for (int level = 1; level < int(levels.size()); ++level) {
+    const std::vector<SliceVoxel>& parents = levels[std::size_t(level) - 1];
+    std::vector<SliceVoxel>& voxels = levels[std::size_t(level)];
+    std::vector<std::uint32_t> parentOf(voxels.size());
+    for (std::uint32_t i = 0, p = 0; i < voxels.size(); ++i) {
+      while (parents[p].coord != voxels[i].coord >> 1) ++p;
+      parentOf[i] = p;
+    }
+    const double minCut =
+        level == int(levels.size()) - 1 ? options.leafContourMinReduction : options.innerContourMinReduction;
+    std::vector<Bounds> bounds(voxels.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, voxels.size()), [&](const auto& range) {
+      for (std::size_t i = range.begin(); i < range.end(); ++i) {
+        const geom::Cube cube = cubeOf(voxels[i].coord, level);
+        bounds[i] = boundsOf(parentBounds[parentOf[i]], parents[parentOf[i]], level - 1, cube);
+        const std::optional<ContourFit> fit = fitContour(cloud, order, runs[std::size_t(level)][i], voxels[i],
+                                                         cube, bounds[i], transform, minCut);
+        voxels[i].hasContour = fit.has_value();
+        voxels[i].contour = fit ? fit->bits : 0;
+      }
+    });
+    parentBounds = std::move(bounds);
+  }
 }
 
 // The points by their finest voxel's Morton code (then by index).
@@ -144,12 +211,12 @@ VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transfor
   // Level by level from the finest up: a level's nodes make its voxels, then its parents' nodes, and go.
   const bool colors = !cloud.colors.empty();
   VoxelLevels out(std::size_t(levels) + 1);
+  std::vector<std::vector<Run>> runs(std::size_t(levels) + 1);
   std::vector<Node> in = finestNodes(cloud, order);
   for (int level = levels; level >= 0; --level) {
     std::vector<SliceVoxel>& voxels = out[std::size_t(level)];
     voxels.resize(in.size());
-    const double minCut =
-        level == levels ? options.leafContourMinReduction : options.innerContourMinReduction;
+    runs[std::size_t(level)].resize(in.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, in.size()), [&](const auto& range) {
       for (std::size_t i = range.begin(); i < range.end(); ++i) {
         const Node& node = in[i];
@@ -163,14 +230,14 @@ VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transfor
         if (!(glm::dot(n, n) > 1e-24)) n = glm::dvec3(cloud.normals[order[node.begin].second]);
         if (!(glm::dot(n, n) > 1e-24)) n = glm::dvec3(0.0, 0.0, 1.0);
         v.normal = latticeNormal(glm::vec3(glm::normalize(n)));
-        // The scene's root keeps no contour (the store keeps its attributes only).
-        v.hasContour = options.contours && level > 0 &&
-                       fitContour(cloud, order, node, level, transform, v.normal, minCut, v.contour);
+        runs[std::size_t(level)][i] = {node.begin, node.end};
       }
     });
     if (level > 0) in = parentNodes(in);
     if (options.progress) options.progress(double(levels + 1 - level) / double(levels + 1));
   }
+  if (options.contours) addContours(cloud, order, runs, transform, options, out);
+  runs = {};
   VoxelTree tree = treeOfLevels(out, colors, true);
   if (stats) {
     addTreeStats(tree, 0, *stats);

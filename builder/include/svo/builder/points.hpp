@@ -72,9 +72,10 @@ inline constexpr int kMaxPointLevels = 21;
 // The point cloud's voxels in the octree frame of `transform`, `options.levels` deep: each point falls in one
 // finest voxel; a voxel's color and normal are the means of its points' (normals summed as unit vectors);
 // where options.contours, each voxel below the root gets the thinnest slab along its (stored) normal that
-// holds all its points, kept when it trims more than options.leafContourMinReduction (finest voxels) or
-// options.innerContourMinReduction (coarser ones) of the voxel's width along that normal. Needs normals for
-// every point (estimateNormals). Deterministic, whatever the thread count.
+// holds all its points, kept as the mesh builder keeps a contour: when it trims at least
+// options.leafContourMinReduction (finest voxels) or options.innerContourMinReduction (coarser ones) voxel
+// widths off the voxel's cube as its ancestors' contours bound it (sec. 5.3). Needs normals for every point
+// (estimateNormals). Deterministic, whatever the thread count.
 VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transform,
                          const BuildOptions& options, BuildStats* stats = nullptr);
 
