@@ -30,6 +30,13 @@ using voxel::Direction;
 using voxel::Extent;
 using voxel::slabOf;
 
+// How far (voxel widths) a contour's slab reaches past its voxel's points on either side. The points are
+// samples: between them the surface leaves a slab fitted to them exactly, and rays pass through the cracks
+// between neighbouring voxels' slabs to the far side. Measured on a 2M-point sphere at 9 levels, 256^2
+// pixels differing from the cube voxels' image (cracks): 0.125, 0.25, 0.5 -> 92, 63, 22 pixels, 0.5 leaving
+// the silhouette's differences only.
+constexpr double kSlabMargin = 0.5;
+
 std::uint64_t spreadBits(std::uint32_t v) {
   std::uint64_t out = 0;
   for (int b = 0; b < kMaxPointLevels; ++b) out |= std::uint64_t((v >> b) & 1u) << (3 * b);
@@ -135,6 +142,7 @@ std::optional<ContourFit> fitContour(const PointCloud& cloud, const PointOrder& 
     const double d = glm::dot(direction[0].normal, p - centre) / cube.size;
     extent[0].lo = std::min(extent[0].lo, d), extent[0].hi = std::max(extent[0].hi, d);
   }
+  extent[0].lo -= kSlabMargin, extent[0].hi += kSlabMargin;
   return chooseContour(cube, direction, extent, {bounds.slabs.begin(), bounds.slabs.begin() + bounds.count},
                        minCut);
 }
