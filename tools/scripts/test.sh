@@ -7,9 +7,8 @@ cmake -S "$root" -B "$build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DSVO_SANITI
   -DSVO_MPI=OFF -DBUILD_TESTING=OFF >/dev/null
 cmake --build "$build-asan" --target svo -j "$jobs"
 export SVO_ASAN_BINARY="$build-asan/tools/svo"
-# The libFuzzer targets over the store reader, the PLY reader, the point-cloud readers, the server's request parsers and the view
-# stream's messages (clang); the
-# test suite runs them for a bounded number of inputs.
+# The libFuzzer targets over the store reader, the PLY reader, the point-cloud readers, the server's request
+# parsers and the view stream's messages (clang); the test suite runs them for a bounded number of inputs.
 CC=clang CXX=clang++ cmake -S "$root" -B "$build-fuzz" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSVO_FUZZ=ON -DSVO_MPI=OFF \
   >/dev/null
 cmake --build "$build-fuzz" -j "$jobs"
