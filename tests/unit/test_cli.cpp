@@ -242,8 +242,8 @@ TEST_F(Cli, MissingMesh) {
 }
 
 TEST_F(Cli, UnknownFormat) {
-  const fs::path junk = write("junk.xyz", "this is not a mesh\n\x01\x02");
-  expectCleanFailure(svo("build " + junk.string() + " -o " + (dir_ / "o.svo").string()), "junk.xyz",
+  const fs::path junk = write("junk.qqq", "this is not a mesh\n\x01\x02");
+  expectCleanFailure(svo("build " + junk.string() + " -o " + (dir_ / "o.svo").string()), "junk.qqq",
                      dir_ / "o.svo");
 }
 
