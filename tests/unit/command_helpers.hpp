@@ -5,7 +5,10 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -29,6 +32,21 @@ inline Rgb8 readRgb8(const std::filesystem::path& png) {
   out.pixels.resize(std::size_t(out.width) * out.height * 3);
   in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, out.pixels.data());
   return out;
+}
+
+// The `svo` the command tests run: the AddressSanitizer build where the test script names one, else this
+// build's.
+inline std::string svoBinary() {
+  if (const char* asan = std::getenv("SVO_ASAN_BINARY"); asan && *asan) return asan;
+  return SVO_BINARY;
+}
+
+// A file's whole contents (empty when it cannot be read).
+inline std::string slurp(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
 }
 
 // What a shell command printed on stdout and stderr, then a last line "exit N" with its exit status.

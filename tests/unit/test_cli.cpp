@@ -18,6 +18,7 @@
 #include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
+#include "command_helpers.hpp"
 #include "reference.hpp"
 #include "svo/store/store_reader.hpp"
 
@@ -30,17 +31,7 @@ struct CommandResult {
   std::string out, err;
 };
 
-std::string binary() {
-  if (const char* asan = std::getenv("SVO_ASAN_BINARY"); asan && *asan) return asan;
-  return SVO_BINARY;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using svotest::slurp;
 
 std::vector<std::string> lines(const std::string& text) {
   std::vector<std::string> out;
@@ -88,7 +79,7 @@ class Cli : public ::testing::Test {
   // `environment`: variable assignments for this run ("SVO_MACHINE_MEMORY=1G"); `program`: the optimized
   // build instead of the sanitized one, for runs too long under AddressSanitizer.
   CommandResult svo(const std::string& args, const std::string& environment = "",
-                    const std::string& program = binary()) {
+                    const std::string& program = svotest::svoBinary()) {
     const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
     const std::string command =
         environment + " " + program + " " + args + " >" + out.string() + " 2>" + err.string();
@@ -162,7 +153,7 @@ TEST_F(Cli, OutOfCoreBuildSurvivesSigkillAndResumes) {
   if (pid == 0) {
     const int null = ::open("/dev/null", O_WRONLY);
     ::dup2(null, 1), ::dup2(null, 2);
-    const std::string bin = binary(), m = mesh.string(), s = store.string();
+    const std::string bin = svotest::svoBinary(), m = mesh.string(), s = store.string();
     ::execl(bin.c_str(), bin.c_str(), "build", m.c_str(), "--levels", "9", "--cell-level", "3", "--threads",
             "1", "-o", s.c_str(), static_cast<char*>(nullptr));
     ::_exit(127);

@@ -29,6 +29,7 @@
 #include <glm/geometric.hpp>
 #include <glm/trigonometric.hpp>
 
+#include "command_helpers.hpp"
 #include "svo/builder/points.hpp"
 #include "svo/store/format.hpp"
 #include "svo/store/store_reader.hpp"
@@ -415,17 +416,7 @@ TEST_F(Points, PondScanNormalsAgreeWithTheFile) {
 
 namespace {
 
-std::string binary() {
-  if (const char* asan = std::getenv("SVO_ASAN_BINARY"); asan && *asan) return asan;
-  return SVO_BINARY;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using svotest::slurp;
 
 }  // namespace
 
@@ -435,7 +426,7 @@ class PointsCli : public Points {
   std::pair<int, std::string> build(const fs::path& input, const fs::path& out,
                                     const std::string& args = "") {
     const fs::path err = dir_ / "stderr.txt";
-    const std::string command = binary() + " build " + input.string() + " -o " + out.string() + " " + args +
+    const std::string command = svotest::svoBinary() + " build " + input.string() + " -o " + out.string() + " " + args +
                                 " >" + (dir_ / "stdout.txt").string() + " 2>" + err.string();
     const int status = std::system(command.c_str());
     return {WIFEXITED(status) ? WEXITSTATUS(status) : 128, slurp(err)};
