@@ -4,6 +4,7 @@
 
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -11,6 +12,7 @@
 #include <random>
 #include <thread>
 
+#include <tbb/info.h>
 #include <nlohmann/json.hpp>
 
 #include "cell_spill.hpp"
@@ -256,9 +258,12 @@ std::optional<MpiBuildReport> MpiJob::build(const TriangleSource* source, const 
     return std::nullopt;
   }
   Dispatcher dispatcher(hosts, ooc.threads);
+  OutOfCoreOptions writing = ooc;
+  const auto ranksHere = std::count(hosts.begin(), hosts.end(), host_);
+  writing.writeThreads = std::min(ooc.threads * int(ranksHere), tbb::info::default_concurrency());
   MpiBuildReport report;
   try {
-    report.build = buildStore(*source, options, write, ooc, store,
+    report.build = buildStore(*source, options, write, writing, store,
                               [&](const CellJobs& jobs) { return dispatcher.run(jobs); });
   } catch (...) {
     dispatcher.releaseAfterFailure();

@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <thread>
 
+#include <tbb/task_arena.h>
+
 namespace svo::mpi {
 
 // What rank 0's threads and its MPI loop share while the cells are built.
@@ -98,8 +100,11 @@ std::vector<CellRoot> Dispatcher::run(const CellJobs& jobs) {
     --shared.localRunning;
   };
   shared.localRunning = std::size_t(threads_);
+  // The process may run more threads than its cell builders (the store is written on every core of the
+  // host); the cells' own parallel loops stay within the builders' share.
+  tbb::task_arena cells(threads_);
   std::vector<std::jthread> builders;
-  for (int t = 0; t < threads_; ++t) builders.emplace_back(work);
+  for (int t = 0; t < threads_; ++t) builders.emplace_back([&] { cells.execute(work); });
   // This thread talks MPI (the job runs MPI_THREAD_FUNNELED) until every rank is stopped and every local
   // builder is done.
   std::vector<char> message;

@@ -16,6 +16,7 @@
 #include <string>
 #include <unordered_map>
 
+#include <tbb/task_arena.h>
 #include <glm/geometric.hpp>
 #include <nlohmann/json.hpp>
 
@@ -264,18 +265,22 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   BuildStats& stats = report.stats;
   addTreeStats(top, 0, stats);
   std::mutex statsMutex;  // cells are loaded on several threads
-  writer.appendForest(top, report.cellLevel, [&](glm::ivec3 cell, bool counting) {
-    VoxelTree tree = readCell(cellPath(work, cell));
-    if (!counting) {
-      std::lock_guard lock(statsMutex);
-      // The cell's root is already counted by the top as a leaf voxel of the cell level.
-      addTreeStats(tree, report.cellLevel, stats);
-      --stats.voxelsPerLevel[std::size_t(report.cellLevel)];
-      --stats.leafVoxels;
-      stats.contours -= tree.voxels[0].hasContour;
-      ++report.cells;
-    }
-    return tree;
+  // The cells are loaded and planned on these threads, as many cells in flight.
+  tbb::task_arena writing(ooc.writeThreads > 0 ? ooc.writeThreads : concurrency);
+  writing.execute([&] {
+    writer.appendForest(top, report.cellLevel, [&](glm::ivec3 cell, bool counting) {
+      VoxelTree tree = readCell(cellPath(work, cell));
+      if (!counting) {
+        std::lock_guard lock(statsMutex);
+        // The cell's root is already counted by the top as a leaf voxel of the cell level.
+        addTreeStats(tree, report.cellLevel, stats);
+        --stats.voxelsPerLevel[std::size_t(report.cellLevel)];
+        --stats.leafVoxels;
+        stats.contours -= tree.voxels[0].hasContour;
+        ++report.cells;
+      }
+      return tree;
+    });
   });
   report.slices = writer.slices();
   writer.finish({transform,

@@ -15,6 +15,7 @@
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_pipeline.h>
+#include <tbb/task_arena.h>
 #include <unistd.h>
 #include <xxhash.h>
 #include <zstd.h>
@@ -217,7 +218,9 @@ void StoreFileWriter::appendForest(const VoxelTree& top, int cellLevel,
   using Planned = std::shared_ptr<PlannedCell>;  // pipeline items are copied
   FileSink own(write);
   std::size_t next = 0;
-  const auto inFlight = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  const std::size_t inFlight =
+      std::min<std::size_t>(tbb::this_task_arena::max_concurrency(),
+                            tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
   tbb::parallel_pipeline(
       std::max<std::size_t>(inFlight, 1),
       tbb::make_filter<void, std::size_t>(tbb::filter_mode::serial_in_order,

@@ -70,16 +70,25 @@ void runMpiBuildBench(const MpiBuildBenchArgs& args) {
     throw std::runtime_error("--ranks needs mpirun (Open MPI; tools/scripts/install-deps.sh installs it)");
   const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();
   const ScratchPath store("svo-bench-mpi.svo"), report("svo-bench-mpi.json"), log("svo-bench-mpi.log");
-  const std::string build = fmt::format("{} build {} -o {} --levels {} --cell-level {} --threads 1 --report {}",
-                                        self, args.mesh, store.path().string(), args.levels, args.cellLevel,
-                                        report.path().string());
+  const auto buildWith = [&](int threads) {
+    return fmt::format("{} build {} -o {} --levels {} --cell-level {} --threads {} --report {}", self,
+                       args.mesh, store.path().string(), args.levels, args.cellLevel, threads,
+                       report.path().string());
+  };
+  const std::string build = buildWith(1);
   // More ranks than cores is allowed (the bench may ask for it); root needs Open MPI's consent.
   const std::string mpirun =
       std::string("mpirun --oversubscribe") + (::geteuid() == 0 ? " --allow-run-as-root" : "") + " -n ";
 
   spdlog::info("plain svo build, {} runs ...", args.runs);
   const RunResult plain = timeCommand(build, report.path(), log.path(), args.runs);
-  std::vector<std::pair<int, RunResult>> mpi;
+  // The same cores as threads of one process: what this machine's cores give the build without MPI.
+  std::vector<std::pair<int, RunResult>> threaded, mpi;
+  for (const int ranks : args.ranks) {
+    if (ranks == 1) continue;
+    spdlog::info("svo build --threads {}, {} runs ...", ranks, args.runs);
+    threaded.emplace_back(ranks, timeCommand(buildWith(ranks), report.path(), log.path(), args.runs));
+  }
   for (const int ranks : args.ranks) {
     spdlog::info("mpirun -n {} svo build, {} runs ...", ranks, args.runs);
     mpi.emplace_back(ranks, timeCommand(mpirun + std::to_string(ranks) + " " + build, report.path(),
@@ -103,6 +112,14 @@ void runMpiBuildBench(const MpiBuildBenchArgs& args) {
   table.addRow({"plain svo build", "-", formatSeconds(plain.wall.median), phase(plain, "voxelize"),
                 formatSeconds(serialOf(plain)), "-", "-", "-",
                 fmt::format("{:.0f}", double(plain.report.at("peakResidentBytes").get<std::uint64_t>()) / (1 << 20))});
+  for (const auto& [threads, r] : threaded) {
+    const double speedUp = base / r.wall.median;
+    table.addRow(
+        {fmt::format("plain, --threads {}", threads), "-", formatSeconds(r.wall.median), phase(r, "voxelize"),
+         formatSeconds(serialOf(r)), fmt::format("{:.2f}x", speedUp),
+         fmt::format("{:.0f}%", 100.0 * speedUp / threads), "-",
+         fmt::format("{:.0f}", double(r.report.at("peakResidentBytes").get<std::uint64_t>()) / (1 << 20))});
+  }
   for (const auto& [ranks, r] : mpi) {
     std::string cells, peaks;
     for (const auto& rank : r.report.at("ranks")) {
@@ -124,11 +141,20 @@ void runMpiBuildBench(const MpiBuildBenchArgs& args) {
   fmt::print(
       "wall: the whole command timed from outside (mpirun's start-up included); voxelize: the cells' phase, "
       "shared out; serial: {}, on rank 0 alone.\n"
-      "speed-up, efficiency: against the 1-rank job (else the plain build); efficiency = speed-up / ranks.\n",
+      "speed-up, efficiency: against the 1-rank job (else the plain build); efficiency = speed-up / ranks "
+      "(or threads).\n",
       fmt::join(kSerialPhases, " + "));
   if (one != mpi.end())
     fmt::print("MPI overhead, 1 rank against the plain build: {:+.1f}% wall time\n",
                100.0 * (one->second.wall.median / plain.wall.median - 1.0));
+  for (const auto& [ranks, r] : mpi) {
+    const auto same =
+        std::find_if(threaded.begin(), threaded.end(), [&](const auto& t) { return t.first == ranks; });
+    if (same == threaded.end()) continue;
+    fmt::print(
+        "{} ranks: {:.2f}x 1/{} of the 1-rank time, {:.2f}x the wall time of {} threads in one process\n",
+        ranks, r.wall.median / (base / ranks), ranks, r.wall.median / same->second.wall.median, ranks);
+  }
   const RunResult& ref = one != mpi.end() ? one->second : plain;
   const double serial = serialOf(ref), share = std::min(1.0, serial / ref.wall.median);
   std::string slowest;

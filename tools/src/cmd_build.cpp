@@ -317,8 +317,11 @@ void runMpiBuild(const BuildArgs& args) {
   MpiJob job;
   const bool root = job.rank() == 0;
   if (!root) spdlog::set_level(spdlog::level::warn);
+  // Rank 0 writes the store on the cores of the ranks beside it as well (its cell builders keep to
+  // --threads, MpiJob::build).
+  const int cellThreads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism,
-                              args.threads > 0 ? args.threads : tbb::info::default_concurrency());
+                              root ? std::max(cellThreads, tbb::info::default_concurrency()) : cellThreads);
   const auto start = std::chrono::steady_clock::now();
   const std::uint64_t processBytes = residentBytes();  // the program, its libraries and MPI
   // A rank that cannot start says so to rank 0 (MpiJob::build), which reports it for the job.

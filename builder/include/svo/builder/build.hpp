@@ -111,6 +111,9 @@ struct OutOfCoreOptions {
   std::size_t processBytes = 0;
   int cellLevel = 0;  // in [1, levels - 1]; 0: chosen from memoryBytes
   int threads = 1;    // cells built at once (each holds its own subtree)
+  // Threads writing the store once every cell is built; 0: `threads`. An MPI job's rank 0 writes with the
+  // cores of the ranks on its host too, idle by then.
+  int writeThreads = 0;
   // Keep the cells an interrupted run of the same build spilled (same input and options), build the rest.
   bool resume = false;
   std::filesystem::path workDir;  // spilled cells; default: STORE.build, removed when the store is written
