@@ -5,6 +5,7 @@
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 #include <zstd.h>
 
@@ -37,21 +38,41 @@ const char* get(const char* in, T& value) {
 
 }  // namespace
 
-CellPartition::CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials)
-    : CellPartition(std::move(folder), colors, uvs, materials, true) {}
+CellPartition::CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials, bool orders)
+    : CellPartition(std::move(folder), colors, uvs, materials, orders, true) {}
 
-CellPartition CellPartition::attach(std::filesystem::path folder, bool colors, bool uvs, bool materials) {
-  return CellPartition(std::move(folder), colors, uvs, materials, false);
+CellPartition CellPartition::attach(std::filesystem::path folder, bool colors, bool uvs, bool materials,
+                                    bool orders) {
+  return CellPartition(std::move(folder), colors, uvs, materials, orders, false);
 }
 
-CellPartition::CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials, bool owner)
-    : folder_(std::move(folder)), colors_(colors), uvs_(uvs), materials_(materials), owner_(owner) {
+CellPartition::CellPartition(std::filesystem::path folder, bool colors, bool uvs, bool materials, bool orders,
+                             bool owner)
+    : folder_(std::move(folder)),
+      colors_(colors),
+      uvs_(uvs),
+      materials_(materials),
+      orders_(orders),
+      owner_(owner) {
   recordBytes_ = sizeof(SourceTriangle::positions) + (colors ? sizeof(SourceTriangle::colors) : 0) +
-                 (uvs ? sizeof(SourceTriangle::uvs) : 0) + (materials ? sizeof(SourceTriangle::material) : 0);
+                 (uvs ? sizeof(SourceTriangle::uvs) : 0) +
+                 (materials ? sizeof(SourceTriangle::material) : 0) + (orders ? sizeof(std::uint32_t) : 0);
   if (!owner_) return;
   std::filesystem::remove_all(folder_);
   std::filesystem::create_directories(folder_);
 }
+
+CellPartition::CellPartition(CellPartition&& other) noexcept
+    : folder_(std::move(other.folder_)),
+      colors_(other.colors_),
+      uvs_(other.uvs_),
+      materials_(other.materials_),
+      orders_(other.orders_),
+      owner_(std::exchange(other.owner_, false)),
+      recordBytes_(other.recordBytes_),
+      buffers_(std::move(other.buffers_)),
+      triangles_(std::move(other.triangles_)),
+      buffered_(other.buffered_) {}
 
 CellPartition::~CellPartition() {
   if (!owner_) return;
@@ -69,7 +90,7 @@ std::uint32_t CellPartition::addCell() {
   return std::uint32_t(buffers_.size() - 1);
 }
 
-void CellPartition::append(std::uint32_t cell, const SourceTriangle& t) {
+void CellPartition::append(std::uint32_t cell, const SourceTriangle& t, std::uint32_t order) {
   std::vector<char>& b = buffers_[cell];
   ++triangles_[cell];
   const std::size_t at = b.size();
@@ -77,7 +98,8 @@ void CellPartition::append(std::uint32_t cell, const SourceTriangle& t) {
   char* out = put(b.data() + at, t.positions);
   if (colors_) out = put(out, t.colors);
   if (uvs_) out = put(out, t.uvs);
-  if (materials_) put(out, t.material);
+  if (materials_) out = put(out, t.material);
+  if (orders_) put(out, order);
   if ((buffered_ += recordBytes_) >= kBufferedBytes) flush();
 }
 
@@ -102,6 +124,12 @@ void CellPartition::flush() {
 
 std::vector<SourceTriangle> CellPartition::read(std::uint32_t cell) const {
   std::vector<SourceTriangle> out;
+  forEach(cell, [&](const SourceTriangle& t, std::uint32_t) { out.push_back(t); });
+  return out;
+}
+
+void CellPartition::forEach(
+    std::uint32_t cell, const std::function<void(const SourceTriangle&, std::uint32_t order)>& visit) const {
   std::unique_ptr<std::FILE, FileCloser> file(std::fopen(fileOf(cell).c_str(), "rb"));
   if (!file) throw std::runtime_error(fileOf(cell).string() + ": binned triangles are missing");
   std::vector<char> packed, raw;
@@ -113,17 +141,19 @@ std::vector<SourceTriangle> CellPartition::read(std::uint32_t cell) const {
         raw.size() % recordBytes_ != 0)
       throw std::runtime_error(fileOf(cell).string() + ": binned triangles are damaged");
     for (const char* in = raw.data(); in < raw.data() + raw.size();) {
-      SourceTriangle& t = out.emplace_back();
+      SourceTriangle t;
+      std::uint32_t order = 0;
       in = get(in, t.positions);
       if (colors_) in = get(in, t.colors);
       if (uvs_) in = get(in, t.uvs);
       if (materials_) in = get(in, t.material);
+      if (orders_) in = get(in, order);
+      visit(t, order);
     }
   }
-  return out;
 }
 
-void CellPartition::remove(std::uint32_t cell) {
+void CellPartition::remove(std::uint32_t cell) const {
   std::error_code ignored;
   std::filesystem::remove(fileOf(cell), ignored);
 }

@@ -171,33 +171,50 @@ std::string unsharedFolder(const std::filesystem::path& work, int rank, const st
   return {};
 }
 
+// Every rank's message, at every rank, by rank; waits without spinning a core (ranks still binning on the
+// same host need it).
+std::vector<std::string> allGather(const std::string& mine, int size) {
+  const auto wait = [](MPI_Request& request) {
+    for (int done = 0; MPI_Test(&request, &done, MPI_STATUS_IGNORE), !done;) pause();
+  };
+  int length = int(mine.size());
+  std::vector<int> lengths(static_cast<std::size_t>(size)), offsets(static_cast<std::size_t>(size));
+  MPI_Request request;
+  MPI_Iallgather(&length, 1, MPI_INT, lengths.data(), 1, MPI_INT, MPI_COMM_WORLD, &request);
+  wait(request);
+  int total = 0;
+  for (int r = 0; r < size; ++r) offsets[std::size_t(r)] = total, total += lengths[std::size_t(r)];
+  std::vector<char> all(std::size_t(std::max(total, 1)));
+  MPI_Iallgatherv(mine.data(), length, MPI_CHAR, all.data(), lengths.data(), offsets.data(), MPI_CHAR,
+                  MPI_COMM_WORLD, &request);
+  wait(request);
+  std::vector<std::string> out;
+  for (int r = 0; r < size; ++r)
+    out.emplace_back(all.data() + offsets[std::size_t(r)], std::size_t(lengths[std::size_t(r)]));
+  return out;
+}
+
 // A rank other than 0: builds the cells rank 0 hands it until told to stop. Throws MpiJobFailed when the
 // job failed (this rank's own failure is reported to rank 0, which reports it).
 void buildHandedCells(const TriangleSource& source, const BuildOptions& options, const OutOfCoreOptions& ooc,
-                      const std::filesystem::path& store) {
+                      const std::filesystem::path& store, int ranks) {
   const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
+  const BinnedTriangles binned(scratchOf(workFolderOf(ooc, store)), ranks, source);
   const std::filesystem::path work = workFolderOf(ooc, store);
-  CellPartition partition = CellPartition::attach(work / "triangles", source.hasVertexColors(),
-                                                  source.hasUvs(), source.materials().size() > 1);
   Report report;
   std::string error;
   for (;;) {
     report.totals.peakResidentBytes = peakResidentBytes();
     send(0, kReportTag, pack(report, error));
-    std::vector<char> slabs;
-    const Assignment a = front<Assignment>(receive(0, kAssignTag), &slabs);
+    std::vector<char> rest;
+    const Assignment a = front<Assignment>(receive(0, kAssignTag), &rest);
     if (a.kind == Assignment::kStop) return;
     if (a.kind != Assignment::kTask) throw MpiJobFailed();
-    CellTask task;
-    task.coord = glm::ivec3(a.coord[0], a.coord[1], a.coord[2]);
-    task.bucket = a.bucket;
-    if (slabs.size() != a.slabCount * sizeof(geom::Slab)) throw std::runtime_error("MPI: a cell's slabs are cut");
-    task.slabs.resize(a.slabCount);
-    std::memcpy(task.slabs.data(), slabs.data(), slabs.size());
+    const CellTask task = unpackTask(a, rest);
     const auto start = std::chrono::steady_clock::now();
     try {
       CellRoot root;
-      const VoxelTree tree = buildCell(source, transform, options, a.cellLevel, partition, task, root);
+      const VoxelTree tree = buildCell(source, transform, options, a.cellLevel, binned, task, root);
       writeCell(cellPath(work, task.coord), tree, root);
       report.kind = Report::kBuilt;
       report.task = a.task;
@@ -253,20 +270,40 @@ std::optional<MpiBuildReport> MpiJob::build(const TriangleSource* source, const 
       gather(agreementOf(source, openError, options, write, ooc, store).dump(), rank_, size_);
   settle(rank_ == 0 ? disagreement(agreements, hosts) : std::string(), rank_);
   settle(unsharedFolder(workFolderOf(ooc, store), rank_, hosts), rank_);
+  TopSharing sharing;
+  sharing.rank = rank_, sharing.ranks = size_;
+  sharing.exchange = [&](const std::string& mine) { return allGather(mine, size_); };
   if (rank_ != 0) {
-    buildHandedCells(*source, options, ooc, store);
+    // Rank 0 settles the cell level (and the work folder), then every rank bins its share of the input.
+    const Start start = front<Start>(receive(0, kStartTag));
+    if (start.cellLevel == 0) throw MpiJobFailed();
+    const SceneTransform transform = fitSceneCube(source->lower(), source->upper());
+    // When the job failed there, rank 0 stops this rank at its first report.
+    shareTopLevels(*source, transform, options, start.cellLevel, scratchOf(workFolderOf(ooc, store)),
+                   sharing);
+    buildHandedCells(*source, options, ooc, store, size_);
     return std::nullopt;
   }
+  bool started = false;
+  sharing.start = [&](int cellLevel) {
+    for (int r = 1; r < size_; ++r) send(r, kStartTag, pack(Start{cellLevel}));
+    started = true;
+  };
+  sharing.describe = [&](int r) { return "rank " + std::to_string(r) + " on " + hosts[std::size_t(r)]; };
   Dispatcher dispatcher(hosts, ooc.threads);
   OutOfCoreOptions writing = ooc;
   const auto ranksHere = std::count(hosts.begin(), hosts.end(), host_);
   writing.writeThreads = std::min(ooc.threads * int(ranksHere), tbb::info::default_concurrency());
   MpiBuildReport report;
   try {
-    report.build = buildStore(*source, options, write, writing, store,
-                              [&](const CellJobs& jobs) { return dispatcher.run(jobs); });
+    report.build = buildStore(
+        *source, options, write, writing, store, [&](const CellJobs& jobs) { return dispatcher.run(jobs); },
+        sharing);
   } catch (...) {
-    dispatcher.releaseAfterFailure();
+    if (started)
+      dispatcher.releaseAfterFailure();
+    else
+      for (int r = 1; r < size_; ++r) send(r, kStartTag, pack(Start{0}));
     throw;
   }
   for (int r = 0; r < size_; ++r) {

@@ -66,8 +66,8 @@ void Dispatcher::answer(int from, const std::vector<char>& message, const CellJo
     a.cellLevel = jobs.cellLevel;
     a.task = std::int64_t(*task);
     for (int k = 0; k < 3; ++k) a.coord[k] = t.coord[k];
-    a.bucket = t.bucket;
     a.slabCount = t.slabs.size();
+    a.partCount = t.parts.size();
     send(from, kAssignTag, pack(a, &t));
     return;
   }

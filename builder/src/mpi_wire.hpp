@@ -14,7 +14,12 @@
 
 namespace svo::mpi {
 
-enum Tag : int { kReportTag = 1, kAssignTag = 2 };
+enum Tag : int { kReportTag = 1, kAssignTag = 2, kStartTag = 3 };
+
+// Rank 0 -> rank > 0, once: the cell level to bin the input for, or 0 when the job failed before.
+struct Start {
+  std::int32_t cellLevel = 0;
+};
 
 // What a rank has done so far; every report carries it, so rank 0 has each rank's totals at the end.
 struct Totals {
@@ -32,15 +37,21 @@ struct Report {
   Totals totals;
 };
 
-// Rank 0 -> rank > 0: a cell to build (its slabs follow), or the end of the job.
+// Rank 0 -> rank > 0: a cell to build (its slabs, then where its triangles are binned, follow), or the end
+// of the job.
 struct Assignment {
   enum Kind : std::int32_t { kTask, kStop, kStopFailed } kind = kStop;
   std::int32_t cellLevel = 0;
   std::int64_t task = -1;
   std::int32_t coord[3] = {};
-  std::uint32_t bucket = 0;
-  std::uint64_t slabCount = 0;
+  std::uint64_t slabCount = 0, partCount = 0;
 };
+
+inline std::vector<char> pack(const Start& s) {
+  std::vector<char> out(sizeof s);
+  std::memcpy(out.data(), &s, sizeof s);
+  return out;
+}
 
 inline std::vector<char> pack(const Report& r, const std::string& error = {}) {
   std::vector<char> out(sizeof r + error.size());
@@ -51,10 +62,25 @@ inline std::vector<char> pack(const Report& r, const std::string& error = {}) {
 
 inline std::vector<char> pack(const Assignment& a, const CellTask* task = nullptr) {
   const std::size_t slabBytes = task ? task->slabs.size() * sizeof(geom::Slab) : 0;
-  std::vector<char> out(sizeof a + slabBytes);
+  const std::size_t partBytes = task ? task->parts.size() * sizeof(CellPart) : 0;
+  std::vector<char> out(sizeof a + slabBytes + partBytes);
   std::memcpy(out.data(), &a, sizeof a);
   if (slabBytes) std::memcpy(out.data() + sizeof a, task->slabs.data(), slabBytes);
+  if (partBytes) std::memcpy(out.data() + sizeof a + slabBytes, task->parts.data(), partBytes);
   return out;
+}
+
+// The cell an assignment hands out, from the bytes after it.
+inline CellTask unpackTask(const Assignment& a, const std::vector<char>& rest) {
+  CellTask task;
+  task.coord = glm::ivec3(a.coord[0], a.coord[1], a.coord[2]);
+  const std::size_t slabBytes = a.slabCount * sizeof(geom::Slab), partBytes = a.partCount * sizeof(CellPart);
+  if (rest.size() != slabBytes + partBytes) throw std::runtime_error("MPI: a cell's assignment is cut");
+  task.slabs.resize(a.slabCount);
+  task.parts.resize(a.partCount);
+  if (slabBytes) std::memcpy(task.slabs.data(), rest.data(), slabBytes);
+  if (partBytes) std::memcpy(task.parts.data(), rest.data() + slabBytes, partBytes);
+  return task;
 }
 
 // The struct at the front of a message, and what follows it.

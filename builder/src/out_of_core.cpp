@@ -136,6 +136,10 @@ int chooseCellLevel(const TriangleSource& source, const SceneTransform& transfor
 
 }  // namespace
 
+std::filesystem::path scratchOf(const std::filesystem::path& work) {
+  return work / "triangles";
+}
+
 std::filesystem::path workFolderOf(const OutOfCoreOptions& ooc, const std::filesystem::path& store) {
   return ooc.workDir.empty() ? std::filesystem::path(store.string() + ".build") : ooc.workDir;
 }
@@ -163,7 +167,8 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
 
 OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& options,
                            const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
-                           const std::filesystem::path& store, const CellRunner& runner) {
+                           const std::filesystem::path& store, const CellRunner& runner,
+                           const TopSharing& sharing) {
   const auto start = std::chrono::steady_clock::now();
   const auto seconds = [](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -252,8 +257,8 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
     std::lock_guard lock(mutex);
     cellDone(voxels);
   };
-  const VoxelTree top =
-      voxelizeCells(source, transform, options, report.cellLevel, callbacks, runner, work / "triangles");
+  const VoxelTree top = voxelizeCells(source, transform, options, report.cellLevel, callbacks, runner,
+                                      scratchOf(work), sharing);
   report.phaseSeconds["voxelize"] = seconds(phase);
 
   // 2. The store: the slices writeStore would make of the whole tree, the top's and every cell's, with the

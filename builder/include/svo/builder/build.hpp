@@ -75,7 +75,7 @@ struct CellRoot {
 struct CellCallbacks {
   // The streaming passes' progress ("partition", "contours"), fraction of the triangles read.
   std::function<void(const char* phase, double fraction)> progress;
-  // A cell an earlier run finished (resume): its root, or nullopt to build it. Asked once per cell while the
+  // A cell an earlier run finished (resume): its root, or nullopt to build it. Asked once per cell once the
   // triangles are binned.
   std::function<std::optional<CellRoot>(glm::ivec3 cell)> finished;
   // How many cells the top levels found (once, before any cell is built).
@@ -87,9 +87,10 @@ struct CellCallbacks {
 };
 
 // voxelize() cell by cell below `cellLevel` (in [1, levels - 1]), never holding the whole mesh:
-// 1. one pass over the source bins each triangle into the cells it overlaps (in `scratch`, a folder that is
-//    created and removed) and gathers the contour candidates of the voxels above;
-// 2. a second pass finds those candidates' extents, which settles the top voxels' contours;
+// 1. one pass over the source bins each triangle into the cells and the octants below the root it overlaps
+//    (in `scratch`, a folder that is created and removed);
+// 2. two passes over each octant's triangles gather the contour candidates of the voxels above the cells,
+//    then their extents, which settles the top voxels' contours;
 // 3. each cell is built from its binned triangles, `concurrency` at a time, handed to `callbacks.built` and
 //    dropped.
 // Returns the tree down to the cell level, the cells' roots as leaves. The top tree plus the cells' subtrees
