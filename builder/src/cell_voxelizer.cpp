@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstring>
 #include <exception>
 #include <map>
 #include <mutex>
@@ -14,9 +13,9 @@
 #include <string>
 #include <thread>
 #include <tuple>
-#include <type_traits>
 
 #include "cell_voxelizer.hpp"
+#include "process_messages.hpp"
 #include "voxelizer.hpp"
 
 namespace svo {
@@ -36,55 +35,6 @@ std::filesystem::path cellsFolder(const std::filesystem::path& scratch, int rank
 std::filesystem::path octantsFolder(const std::filesystem::path& scratch, int rank) {
   return rankFolder(scratch, rank) / "octants";
 }
-
-// The messages the processes exchange: the values' bytes (every process runs the same binary).
-class MessageWriter {
- public:
-  template <class T>
-  void put(const T& value) {
-    static_assert(std::is_trivially_copyable_v<T>);
-    bytes_.append(reinterpret_cast<const char*>(&value), sizeof value);
-  }
-  template <class T>
-  void putAll(const std::vector<T>& values) {
-    static_assert(std::is_trivially_copyable_v<T>);
-    put<std::uint64_t>(values.size());
-    bytes_.append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(T));
-  }
-  std::string take() { return std::move(bytes_); }
-
- private:
-  std::string bytes_;
-};
-class MessageReader {
- public:
-  explicit MessageReader(const std::string& bytes) : bytes_(bytes) {}
-  bool done() const { return at_ == bytes_.size(); }
-  template <class T>
-  T get() {
-    T value;
-    need(sizeof value);
-    std::memcpy(&value, bytes_.data() + at_, sizeof value);
-    at_ += sizeof value;
-    return value;
-  }
-  template <class T>
-  std::vector<T> getAll() {
-    const auto count = get<std::uint64_t>();
-    need(count * sizeof(T));
-    std::vector<T> values(count);
-    std::memcpy(values.data(), bytes_.data() + at_, count * sizeof(T));
-    at_ += count * sizeof(T);
-    return values;
-  }
-
- private:
-  void need(std::size_t bytes) const {
-    if (bytes_.size() - at_ < bytes) throw std::logic_error("a message between the build's processes is cut");
-  }
-  const std::string& bytes_;
-  std::size_t at_ = 0;
-};
 
 // A voxel above the cells, or a cell, by level and coordinates.
 using NodeKey = std::tuple<int, int, int, int>;
