@@ -67,6 +67,19 @@ struct GatheredHeader {
   Spread spread;
 };
 
+// Node `node`'s child in `slot`, created when missing; and whether it was.
+template <class Node>
+std::pair<std::uint32_t, bool> childNode(std::vector<Node>& nodes, std::uint32_t node, int slot) {
+  const std::int32_t child = nodes[node].children[std::size_t(slot)];
+  if (child >= 0) return {std::uint32_t(child), false};
+  const auto created = std::uint32_t(nodes.size());
+  nodes[node].children[std::size_t(slot)] = std::int32_t(created);
+  Node& c = nodes.emplace_back();
+  c.level = nodes[node].level + 1;
+  c.coord = childCoordOf(nodes[node].coord, slot);
+  return {created, true};
+}
+
 // The out-of-core voxelizer of one process (see the top of this file). Equal to Voxelizer's tree: the same
 // triangles reach each voxel in the same order, and the contour fit and the attributes see the same pieces.
 class CellVoxelizer {
@@ -243,16 +256,9 @@ class CellVoxelizer {
       for (std::uint8_t mask = overlappedChildren(t, cubeAt(level, coord)); mask;
            mask &= std::uint8_t(mask - 1)) {
         const int slot = std::countr_zero(unsigned(mask));
-        std::int32_t child = nodes[node].children[std::size_t(slot)];
-        if (child < 0) {
-          child = std::int32_t(nodes.size());
-          nodes[node].children[std::size_t(slot)] = child;
-          BinNode& c = nodes.emplace_back();
-          c.level = level + 1;
-          c.coord = childCoordOf(coord, slot);
-          if (c.level == cellLevel_) c.bucket = cells.addCell();
-        }
-        BinNode& c = nodes[std::size_t(child)];
+        const auto [child, created] = childNode(nodes, node, slot);
+        BinNode& c = nodes[child];
+        if (created && c.level == cellLevel_) c.bucket = cells.addCell();
         if (c.level == cellLevel_) {
           cells.append(c.bucket, s);
           ++c.triangles;
@@ -260,7 +266,7 @@ class CellVoxelizer {
         }
         if (level == 0 && octants)
           octants->append(std::uint32_t(slot), s, t.source), ++octantTriangles[std::size_t(slot)];
-        self(self, std::uint32_t(child), t, s);
+        self(self, child, t, s);
       }
     };
     std::uint64_t ordinal = 0;
@@ -303,15 +309,7 @@ class CellVoxelizer {
     for (std::uint8_t mask = overlappedChildren(t, cubeAt(level, coord)); mask;
          mask &= std::uint8_t(mask - 1)) {
       const int slot = std::countr_zero(unsigned(mask));
-      std::int32_t child = nodes[node].children[std::size_t(slot)];
-      if (child < 0) {
-        child = std::int32_t(nodes.size());
-        nodes[node].children[std::size_t(slot)] = child;
-        TopNode& c = nodes.emplace_back();
-        c.level = level + 1;
-        c.coord = childCoordOf(coord, slot);
-      }
-      gatherDown(nodes, std::uint32_t(child), t, s, visit);
+      gatherDown(nodes, childNode(nodes, node, slot).first, t, s, visit);
     }
   }
 
