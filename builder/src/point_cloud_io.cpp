@@ -22,6 +22,7 @@
 #include <glm/geometric.hpp>
 
 #include "file_extension.hpp"
+#include "ply_format.hpp"
 #include "point_cloud_draco.hpp"
 #include "svo/builder/points.hpp"
 
@@ -35,10 +36,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// A PLY header longer than this is not a point cloud's header.
-constexpr std::size_t kMaxPlyHeader = std::size_t(1) << 16;
+using detail::ply::kMaxHeaderBytes;
 // How much of a file is read to tell a PLY point cloud from a PLY mesh: its header.
-constexpr std::size_t kSniffBytes = kMaxPlyHeader;
+constexpr std::size_t kSniffBytes = kMaxHeaderBytes;
 
 [[noreturn]] void fail(const fs::path& path, const std::string& what) {
   throw std::runtime_error(path.string() + ": " + what);
@@ -66,25 +66,11 @@ std::string readHead(const fs::path& path, std::size_t bytes) {
 
 // ----- PLY -------------------------------------------------------------------------------------------------
 
-enum class PlyType : std::uint8_t { Int8, UInt8, Int16, UInt16, Int32, UInt32, Float32, Float64 };
-
-std::optional<PlyType> parsePlyType(std::string_view name) {
-  static constexpr std::pair<std::string_view, PlyType> kNames[] = {
-      {"char", PlyType::Int8},      {"int8", PlyType::Int8},       {"uchar", PlyType::UInt8},
-      {"uint8", PlyType::UInt8},    {"short", PlyType::Int16},     {"int16", PlyType::Int16},
-      {"ushort", PlyType::UInt16},  {"uint16", PlyType::UInt16},   {"int", PlyType::Int32},
-      {"int32", PlyType::Int32},    {"uint", PlyType::UInt32},     {"uint32", PlyType::UInt32},
-      {"float", PlyType::Float32},  {"float32", PlyType::Float32}, {"double", PlyType::Float64},
-      {"float64", PlyType::Float64}};
-  for (const auto& [text, type] : kNames)
-    if (name == text) return type;
-  return std::nullopt;
-}
-
-std::size_t sizeOf(PlyType t) {
-  constexpr std::size_t kSizes[] = {1, 1, 2, 2, 4, 4, 4, 8};
-  return kSizes[int(t)];
-}
+using PlyType = detail::ply::Type;
+using PlyProperty = detail::ply::Property;
+using PlyElement = detail::ply::Element;
+using detail::ply::sizeOf;
+using detail::ply::valueAt;
 
 // What a color property's largest value is: integers span their type, floats [0, 1].
 double colorScale(PlyType t) {
@@ -92,48 +78,6 @@ double colorScale(PlyType t) {
   return kMax[int(t)];
 }
 
-// The value at `p` (file byte order `swap` away from ours) as a double: exact for every PLY type.
-double valueAt(const char* p, PlyType t, bool swap) {
-  char bytes[8];
-  const std::size_t n = sizeOf(t);
-  std::memcpy(bytes, p, n);
-  if (swap) std::reverse(bytes, bytes + n);
-  const auto get = [&bytes]<class T>(T v) {
-    std::memcpy(&v, bytes, sizeof v);
-    return double(v);
-  };
-  switch (t) {
-    case PlyType::Int8:
-      return get(std::int8_t{});
-    case PlyType::UInt8:
-      return get(std::uint8_t{});
-    case PlyType::Int16:
-      return get(std::int16_t{});
-    case PlyType::UInt16:
-      return get(std::uint16_t{});
-    case PlyType::Int32:
-      return get(std::int32_t{});
-    case PlyType::UInt32:
-      return get(std::uint32_t{});
-    case PlyType::Float32:
-      return get(float{});
-    case PlyType::Float64:
-      return get(double{});
-  }
-  return 0.0;
-}
-
-struct PlyProperty {
-  std::string name;
-  PlyType type = PlyType::UInt8;
-  bool list = false;
-  PlyType countType = PlyType::UInt8;
-};
-struct PlyElement {
-  std::string name;
-  std::uint64_t count = 0;
-  std::vector<PlyProperty> properties;
-};
 enum class PlyFormat : std::uint8_t { Ascii, BinaryLittleEndian, BinaryBigEndian };
 struct PlyHeader {
   PlyFormat format = PlyFormat::Ascii;
@@ -143,7 +87,7 @@ struct PlyHeader {
 
 // The header's lines up to end_header; nullopt with `error` set when it is not a PLY header.
 std::optional<PlyHeader> parsePlyHeader(std::string_view text, std::string& error) {
-  const std::size_t end = text.substr(0, kMaxPlyHeader).find("end_header");
+  const std::size_t end = text.substr(0, kMaxHeaderBytes).find("end_header");
   if (text.substr(0, 3) != "ply" || (text.size() > 3 && text[3] != '\n' && text[3] != '\r'))
     return error = "not a PLY file (no 'ply' line)", std::nullopt;
   if (end == std::string_view::npos)
@@ -187,22 +131,10 @@ std::optional<PlyHeader> parsePlyHeader(std::string_view text, std::string& erro
       header.elements.push_back(std::move(e));
     } else if (word == "property") {
       if (header.elements.empty()) return bad("a property before any element");
-      PlyProperty p;
-      std::string type;
-      words >> type;
-      if (type == "list") {
-        std::string countType, itemType;
-        words >> countType >> itemType;
-        const auto c = parsePlyType(countType), i = parsePlyType(itemType);
-        if (!c || !i) return bad("unknown list type");
-        p.list = true, p.countType = *c, p.type = *i;
-      } else {
-        const auto t = parsePlyType(type);
-        if (!t) return bad("unknown type '" + type + "'");
-        p.type = *t;
-      }
-      if (!(words >> p.name)) return bad("a property needs a name");
-      header.elements.back().properties.push_back(std::move(p));
+      std::string what;
+      std::optional<PlyProperty> p = detail::ply::parseProperty(words, what);
+      if (!p) return bad(what);
+      header.elements.back().properties.push_back(std::move(*p));
     } else {
       return bad("unknown keyword");
     }

@@ -24,6 +24,7 @@
 
 #include "file_extension.hpp"
 #include "hasher.hpp"
+#include "ply_format.hpp"
 #include "svo/builder/mesh.hpp"
 
 namespace svo {
@@ -40,8 +41,6 @@ namespace fs = std::filesystem;
 constexpr std::size_t kBatchTriangles = std::size_t(1) << 14;
 // Bytes read from the file at a time.
 constexpr std::size_t kReadChunk = std::size_t(4) << 20;
-// A PLY header longer than this is not a mesh header.
-constexpr std::size_t kMaxPlyHeader = std::size_t(1) << 16;
 
 [[noreturn]] void fail(const fs::path& path, const std::string& what) {
   throw std::runtime_error(path.string() + ": " + what);
@@ -139,86 +138,11 @@ class MeshSource : public SummarizedSource {
 
 // ----- binary little-endian PLY ----------------------------------------------------------------------------
 
-enum class PlyType { Int8, UInt8, Int16, UInt16, Int32, UInt32, Float32, Float64 };
-
-std::optional<PlyType> parsePlyType(const std::string& name) {
-  static const std::pair<const char*, PlyType> kNames[] = {
-      {"char", PlyType::Int8},      {"int8", PlyType::Int8},       {"uchar", PlyType::UInt8},
-      {"uint8", PlyType::UInt8},    {"short", PlyType::Int16},     {"int16", PlyType::Int16},
-      {"ushort", PlyType::UInt16},  {"uint16", PlyType::UInt16},   {"int", PlyType::Int32},
-      {"int32", PlyType::Int32},    {"uint", PlyType::UInt32},     {"uint32", PlyType::UInt32},
-      {"float", PlyType::Float32},  {"float32", PlyType::Float32}, {"double", PlyType::Float64},
-      {"float64", PlyType::Float64}};
-  for (const auto& [text, type] : kNames)
-    if (name == text) return type;
-  return std::nullopt;
-}
-
-std::size_t sizeOf(PlyType t) {
-  switch (t) {
-    case PlyType::Int8:
-    case PlyType::UInt8:
-      return 1;
-    case PlyType::Int16:
-    case PlyType::UInt16:
-      return 2;
-    case PlyType::Int32:
-    case PlyType::UInt32:
-    case PlyType::Float32:
-      return 4;
-    case PlyType::Float64:
-      return 8;
-  }
-  return 0;
-}
-
-// The value at `p` as a double (exact for every PLY type).
-double valueAt(const char* p, PlyType t) {
-  const auto get = [p]<class T>(T) {
-    T v;
-    std::memcpy(&v, p, sizeof v);
-    return double(v);
-  };
-  switch (t) {
-    case PlyType::Int8:
-      return get(std::int8_t{});
-    case PlyType::UInt8:
-      return get(std::uint8_t{});
-    case PlyType::Int16:
-      return get(std::int16_t{});
-    case PlyType::UInt16:
-      return get(std::uint16_t{});
-    case PlyType::Int32:
-      return get(std::int32_t{});
-    case PlyType::UInt32:
-      return get(std::uint32_t{});
-    case PlyType::Float32:
-      return get(float{});
-    case PlyType::Float64:
-      return get(double{});
-  }
-  return 0.0;
-}
-
-struct PlyProperty {
-  std::string name;
-  PlyType type = PlyType::UInt8;
-  bool list = false;
-  PlyType countType = PlyType::UInt8;
-};
-struct PlyElement {
-  std::string name;
-  std::uint64_t count = 0;
-  std::vector<PlyProperty> properties;
-  std::size_t fixedBytes() const {  // record size without lists
-    std::size_t n = 0;
-    for (const PlyProperty& p : properties) n += p.list ? 0 : sizeOf(p.type);
-    return n;
-  }
-  bool hasList() const {
-    return std::any_of(properties.begin(), properties.end(), [](const PlyProperty& p) { return p.list; });
-  }
-};
+using PlyType = detail::ply::Type;
+using PlyProperty = detail::ply::Property;
+using PlyElement = detail::ply::Element;
+using detail::ply::sizeOf;
+using detail::ply::valueAt;
 
 // The layout the streaming reader handles: vertices (fixed-size records with x, y, z) before the faces (one
 // index list, other properties fixed-size), elements between them fixed-size. nullopt for anything else.
@@ -229,7 +153,7 @@ struct PlyLayout {
 
 std::optional<PlyLayout> parsePlyHeader(std::FILE* file, std::string& header) {
   header.clear();
-  for (int c; header.size() < kMaxPlyHeader && (c = std::fgetc(file)) != EOF;) {
+  for (int c; header.size() < detail::ply::kMaxHeaderBytes && (c = std::fgetc(file)) != EOF;) {
     header += char(c);
     if (header.size() >= 11 && header.compare(header.size() - 11, 11, "end_header\n") == 0) break;
   }
@@ -253,22 +177,10 @@ std::optional<PlyLayout> parsePlyHeader(std::FILE* file, std::string& header) {
       elements.push_back(e);
     } else if (word == "property") {
       if (elements.empty()) return std::nullopt;
-      PlyProperty p;
-      std::string type;
-      words >> type;
-      if (type == "list") {
-        std::string countType, itemType;
-        words >> countType >> itemType;
-        const auto c = parsePlyType(countType), i = parsePlyType(itemType);
-        if (!c || !i) return std::nullopt;
-        p.list = true, p.countType = *c, p.type = *i;
-      } else {
-        const auto t = parsePlyType(type);
-        if (!t) return std::nullopt;
-        p.type = *t;
-      }
-      if (!(words >> p.name)) return std::nullopt;
-      elements.back().properties.push_back(p);
+      std::string ignored;
+      const std::optional<PlyProperty> p = detail::ply::parseProperty(words, ignored);
+      if (!p) return std::nullopt;
+      elements.back().properties.push_back(*p);
     }
   }
   if (!binaryLittleEndian) return std::nullopt;
