@@ -2,7 +2,9 @@
 // plane by Eigen's symmetric 3x3 eigen-solver, orientation along a minimum spanning tree (Hoppe et al. 1992).
 #include <algorithm>
 #include <cstdint>
+#include <cmath>
 #include <limits>
+#include <numbers>
 #include <numeric>
 #include <queue>
 #include <tuple>
@@ -141,6 +143,41 @@ std::pair<std::size_t, std::size_t> orient(std::vector<glm::vec3>& normals, cons
 }
 
 }  // namespace
+
+double estimatePointSpacing(const std::vector<glm::dvec3>& sample, std::uint64_t total) {
+  if (sample.size() < 2 || total < sample.size()) return 0.0;
+  const std::size_t k = std::min<std::size_t>(std::size_t(kNormalNeighbours), sample.size());
+  const CloudAdaptor adaptor{sample};
+  const KdTree tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(kKdLeafSize));
+  std::vector<double> spacing(sample.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, sample.size()), [&](const auto& range) {
+    std::vector<std::uint32_t> indices(k);
+    std::vector<double> squared(k);
+    for (std::size_t i = range.begin(); i < range.end(); ++i) {
+      const double query[3] = {sample[i].x, sample[i].y, sample[i].z};
+      const std::size_t found = tree.knnSearch(query, k, indices.data(), squared.data());
+      // pi r^2 holds found - 1 other points: each owns pi r^2 / (found - 1) of the surface.
+      spacing[i] = std::sqrt(std::numbers::pi * squared[found - 1] / double(found - 1));
+    }
+  });
+  const auto middle = spacing.begin() + std::ptrdiff_t(spacing.size() / 2);
+  std::nth_element(spacing.begin(), middle, spacing.end());
+  return *middle * std::sqrt(double(sample.size()) / double(total));
+}
+
+double estimatePointSpacing(const PointCloud& cloud) {
+  const std::size_t n = cloud.positions.size(), stride = std::max<std::size_t>(1, n / kSpacingSamples);
+  std::vector<glm::dvec3> sample;
+  sample.reserve(n / stride + 1);
+  for (std::size_t i = 0; i < n; i += stride) sample.push_back(cloud.positions[i]);
+  return estimatePointSpacing(sample, n);
+}
+
+int levelsForSpacing(double spacing, const SceneTransform& transform) {
+  if (!(spacing > 0.0)) return kMaxPointLevels;
+  const double level = std::floor(std::log2(transform.size / (kVoxelsPerSpacing * spacing)));
+  return int(std::clamp(level, 1.0, double(kMaxPointLevels)));
+}
 
 NormalEstimate estimateNormals(PointCloud& cloud, int neighbours) {
   const std::size_t n = cloud.positions.size();

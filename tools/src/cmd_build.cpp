@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <memory>
@@ -170,13 +171,29 @@ bool buildFromVoxels(const BuildArgs& args, StoreWriteOptions storeOptions, Buil
   return volume.tree.hasColors;
 }
 
+// A scan's depth: --levels, checked against the points' spacing (a warning where its finest voxels are too
+// small for the points to cover), or else the level the spacing fits.
+int levelsForScan(const BuildArgs& args, double spacing, const SceneTransform& transform) {
+  const int levels = args.options.levels, fits = levelsForSpacing(spacing, transform);
+  if (args.levelsGiven && levels > kMaxPointLevels)
+    throw UsageError(fmt::format("--levels {}: point clouds build at most {} levels", levels, kMaxPointLevels));
+  const auto voxelAt = [&](int level) { return std::ldexp(transform.size, -level); };
+  if (!args.levelsGiven) {
+    spdlog::info("{}: the points lie {:.3g} apart: {} levels (finest voxel {:.3g}, at least {} spacings)",
+                 args.mesh, spacing, fits, voxelAt(fits), kVoxelsPerSpacing);
+    return fits;
+  }
+  if (levels > fits)
+    spdlog::warn("{}: the points lie {:.3g} apart, too sparse for the finest voxel ({:.3g}) of --levels {}: the "
+                 "surface will have holes; --levels {} fits (a voxel of at least {} spacings)",
+                 args.mesh, spacing, voxelAt(levels), levels, fits, kVoxelsPerSpacing);
+  return levels;
+}
+
 // A point cloud (scan): normals estimated where the file has none, each point in a finest voxel, contours
 // fitted to each voxel's points. Returns whether it has colors.
 bool buildFromPoints(const BuildArgs& args, BuildOptions options, StoreWriteOptions storeOptions,
                      BuildOutcome& outcome) {
-  if (options.levels > kMaxPointLevels)
-    throw UsageError(fmt::format("--levels {}: point clouds build at most {} levels", options.levels,
-                                 kMaxPointLevels));
   auto phaseStart = std::chrono::steady_clock::now();
   PointCloud cloud = loadPointCloud(args.mesh);
   outcome.phases["load"] = secondsSince(phaseStart);
@@ -193,6 +210,7 @@ bool buildFromPoints(const BuildArgs& args, BuildOptions options, StoreWriteOpti
                  "before",
                  args.mesh, cloud.positions.size(), cloud.positions.size() + cloud.missing,
                  cloud.positions.size());
+  options.levels = levelsForScan(args, estimatePointSpacing(cloud), transform);
   phaseStart = std::chrono::steady_clock::now();
   const NormalEstimate normals = estimateNormals(cloud);
   if (normals.estimated > 0) {
@@ -396,8 +414,8 @@ void runBuild(const BuildArgs& args) {
       throw UsageError(args.mesh + ": a point cloud builds in core only (--memory, --cell-level and --resume "
                                    "are for meshes)");
     const bool hasColors = buildFromPoints(args, setup.options, setup.storeOptions, outcome);
-    writeBuildReport(args, setup.reportPath, 0, hasColors, setup.options.levels, secondsSince(start),
-                     outcome);
+    writeBuildReport(args, setup.reportPath, 0, hasColors, int(outcome.stats.voxelsPerLevel.size()) - 1,
+                     secondsSince(start), outcome);
     return;
   }
   if (isVoxelMask(args)) {
