@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <optional>
 #include <sstream>
@@ -37,6 +38,10 @@ namespace {
 namespace fs = std::filesystem;
 
 using detail::ply::kMaxHeaderBytes;
+// Bytes read from a file at a time.
+constexpr std::size_t kReadChunk = std::size_t(4) << 20;
+// Points handed over per batch: 3.4 MB with normals and colors.
+constexpr std::size_t kBatchPoints = std::size_t(1) << 16;
 // How much of a file is read to tell a PLY point cloud from a PLY mesh: its header.
 constexpr std::size_t kSniffBytes = kMaxHeaderBytes;
 
@@ -44,16 +49,51 @@ constexpr std::size_t kSniffBytes = kMaxHeaderBytes;
   throw std::runtime_error(path.string() + ": " + what);
 }
 
-std::string readFile(const fs::path& path) {
+// A file read in chunks: view() is what is read past the cursor, more() reads the next chunk (dropping what
+// lies before the cursor) and says whether it found any bytes.
+class FileWindow {
+ public:
+  FileWindow(const fs::path& path, std::uint64_t offset) : path_(path), in_(path, std::ios::binary) {
+    if (!in_) fail(path, "cannot open file");
+    in_.seekg(std::streamoff(offset));
+    std::error_code ec;
+    fileBytes_ = fs::file_size(path, ec);
+    read_ = offset;
+  }
+  // How much of the file lies before the cursor.
+  double fraction() const {
+    return fileBytes_ == 0 ? 1.0 : double(read_ - (buffer_.size() - pos_)) / double(fileBytes_);
+  }
+  std::string_view view() const { return std::string_view(buffer_).substr(pos_); }
+  void advance(std::size_t n) { pos_ += n; }
+  bool more() {
+    if (eof_) return false;
+    buffer_.erase(0, pos_);
+    pos_ = 0;
+    const std::size_t old = buffer_.size();
+    buffer_.resize(old + kReadChunk);
+    in_.read(buffer_.data() + old, std::streamsize(kReadChunk));
+    const std::size_t got = std::size_t(std::max<std::streamsize>(in_.gcount(), 0));
+    if (in_.bad()) fail(path_, "cannot read file");
+    buffer_.resize(old + got);
+    read_ += got;
+    eof_ = got < kReadChunk;
+    return got > 0;
+  }
+
+ private:
+  const fs::path& path_;
+  std::ifstream in_;
+  std::string buffer_;
+  std::size_t pos_ = 0;
+  bool eof_ = false;
+  std::uint64_t fileBytes_ = 0, read_ = 0;
+};
+
+void checkRegularFile(const fs::path& path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) fail(path, "no such file");
   if (!fs::is_regular_file(path, ec)) fail(path, "not a regular file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail(path, "cannot open file");
-  std::ostringstream bytes;
-  bytes << in.rdbuf();
-  if (in.bad()) fail(path, "cannot read file");
-  return std::move(bytes).str();
 }
 
 std::string readHead(const fs::path& path, std::size_t bytes) {
@@ -166,26 +206,50 @@ PointProperties pointProperties(const PlyElement& vertex) {
   return out;
 }
 
-// Reads elements one record at a time, ASCII tokens or binary values, reporting truncation by element.
+// Hands the points read to the caller in batches: positions checked finite (naming the point), a normal that
+// is zero or not a number kept as zero (unknown, estimated later; scanners leave some so: pond.0.ply has
+// NaNs), the others made unit length.
+class BatchSink {
+ public:
+  BatchSink(const fs::path& path, const PointBatch& emit, std::function<double()> fraction)
+      : path_(path), emit_(emit), fraction_(std::move(fraction)) {}
+  void add(const glm::dvec3& p, const glm::vec3* normal, const glm::vec4* color) {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+      fail(path_, "point " + std::to_string(count_ + batch_.positions.size()) + " has a non-finite position");
+    batch_.positions.push_back(p);
+    if (normal) {
+      const float len = glm::length(*normal);
+      batch_.normals.push_back(std::isfinite(len) && len > 0.0f ? *normal / len : glm::vec3(0.0f));
+    }
+    if (color) batch_.colors.push_back(*color);
+    if (batch_.positions.size() == kBatchPoints) flush();
+  }
+  void flush() {
+    if (batch_.positions.empty()) return;
+    emit_(batch_, count_, fraction_());
+    count_ += batch_.positions.size();
+    batch_.positions.clear(), batch_.normals.clear(), batch_.colors.clear();
+  }
+  std::uint64_t count() const { return count_ + batch_.positions.size(); }
+
+ private:
+  const fs::path& path_;
+  const PointBatch& emit_;
+  std::function<double()> fraction_;
+  PointCloud batch_;
+  std::uint64_t count_ = 0;
+};
+
+// Reads elements one record at a time from the file, ASCII tokens or binary values.
 class PlyRecords {
  public:
-  PlyRecords(const fs::path& path, std::string_view data, PlyFormat format)
+  PlyRecords(const fs::path& path, FileWindow& data, PlyFormat format)
       : path_(path), data_(data), format_(format) {}
 
-  // One value of `type`; `what` names the record for the error of a value that is not a number. At the end
-  // of the data it returns 0 and marks the data truncated.
-  double next(PlyType type, const std::string& what) {
-    if (format_ == PlyFormat::Ascii) return nextToken(what);
-    const std::size_t n = sizeOf(type);
-    if (data_.size() - pos_ < n) return truncated_ = true, pos_ = data_.size(), 0.0;
-    const double v = valueAt(data_.data() + pos_, type, format_ == PlyFormat::BinaryBigEndian);
-    pos_ += n;
-    return v;
-  }
-  // Reads one record of `e`, with its non-list values in `values` (lists skipped); false when the data ends
-  // before the record does.
+  // Reads one record of `e` (`index` names it in errors), with its non-list values in `values` (lists
+  // skipped); false when the file ends before the record does.
   bool record(const PlyElement& e, std::uint64_t index, std::vector<double>& values) {
-    const std::string what = e.name + " " + std::to_string(index) + " of " + std::to_string(e.count);
+    const auto what = [&] { return e.name + " " + std::to_string(index) + " of " + std::to_string(e.count); };
     values.resize(e.properties.size());
     for (std::size_t i = 0; i < e.properties.size() && !truncated_; ++i) {
       const PlyProperty& p = e.properties[i];
@@ -195,94 +259,110 @@ class PlyRecords {
       }
       const double count = next(p.countType, what);
       if (truncated_) break;
-      if (!(count >= 0.0) || count != std::floor(count)) fail(path_, "bad list length in " + what);
+      if (!(count >= 0.0) || count != std::floor(count)) fail(path_, "bad list length in " + what());
       for (double k = 0; k < count && !truncated_; ++k) next(p.type, what);
     }
     return !truncated_;
   }
-  // Fewest bytes a record of `e` takes: a bound on how many records the rest of the file can hold.
-  std::uint64_t recordsLeftAtMost(const PlyElement& e) const {
-    std::size_t least = 0;  // ASCII: a digit and a separator per value
-    for (const PlyProperty& p : e.properties)
-      least += format_ == PlyFormat::Ascii ? 2 : sizeOf(p.list ? p.countType : p.type);
-    return least == 0 ? std::numeric_limits<std::uint64_t>::max() : (data_.size() - pos_) / least;
-  }
 
  private:
-  double nextToken(const std::string& what) {
-    while (pos_ < data_.size() && std::isspace(static_cast<unsigned char>(data_[pos_]))) ++pos_;
-    std::size_t end = pos_;
-    while (end < data_.size() && !std::isspace(static_cast<unsigned char>(data_[end]))) ++end;
-    if (end == pos_) return truncated_ = true, 0.0;
+  // One value of `type`; at the end of the file it returns 0 and marks the data truncated.
+  template <class What>
+  double next(PlyType type, const What& what) {
+    if (format_ == PlyFormat::Ascii) return nextToken(what);
+    const std::size_t n = sizeOf(type);
+    while (data_.view().size() < n)
+      if (!data_.more()) return truncated_ = true, 0.0;
+    const double v = valueAt(data_.view().data(), type, format_ == PlyFormat::BinaryBigEndian);
+    data_.advance(n);
+    return v;
+  }
+  template <class What>
+  double nextToken(const What& what) {
+    const auto space = [](char c) { return std::isspace(static_cast<unsigned char>(c)) != 0; };
+    for (;;) {  // past the white space
+      const std::string_view rest = data_.view();
+      const auto start = std::find_if_not(rest.begin(), rest.end(), space);
+      data_.advance(std::size_t(start - rest.begin()));
+      if (start != rest.end()) break;
+      if (!data_.more()) return truncated_ = true, 0.0;
+    }
+    std::string_view rest = data_.view();
+    std::size_t end = std::size_t(std::find_if(rest.begin(), rest.end(), space) - rest.begin());
+    while (end == rest.size() && data_.more())  // the token may go on in the next chunk
+      rest = data_.view(), end = std::size_t(std::find_if(rest.begin(), rest.end(), space) - rest.begin());
     double v = 0.0;
-    const char* first = data_.data() + pos_;
+    const char* first = rest.data();
     if (*first == '+') ++first;
-    const auto [p, ec] = std::from_chars(first, data_.data() + end, v);
-    if (ec != std::errc() || p != data_.data() + end)
-      fail(path_, "'" + std::string(data_.substr(pos_, std::min<std::size_t>(end - pos_, 32))) +
-                      "' is not a number, in " + what);
-    pos_ = end;
+    const auto [p, ec] = std::from_chars(first, rest.data() + end, v);
+    if (ec != std::errc() || p != rest.data() + end)
+      fail(path_, "'" + std::string(rest.substr(0, std::min<std::size_t>(end, 32))) + "' is not a number, in " +
+                      what());
+    data_.advance(end);
     return v;
   }
 
   const fs::path& path_;
-  std::string_view data_;
+  FileWindow& data_;
   PlyFormat format_;
-  std::size_t pos_ = 0;
   bool truncated_ = false;
 };
 
-void readPlyVertices(const fs::path& path, PlyRecords& records, const PlyElement& vertex, PointCloud& cloud) {
+// The vertex element's records as points; returns how many the header declares that the file lacks.
+std::uint64_t readPlyVertices(const fs::path& path, PlyRecords& records, const PlyElement& vertex,
+                              BatchSink& sink) {
   const PointProperties props = pointProperties(vertex);
   for (int k = 0; k < 3; ++k)
     if (props.position[k] < 0) fail(path, "the PLY vertex element has no x, y and z properties");
   const bool normals = props.normal[0] >= 0 && props.normal[1] >= 0 && props.normal[2] >= 0;
   const bool colors = props.color[0] >= 0 && props.color[1] >= 0 && props.color[2] >= 0;
-  // A file that ends inside the vertex records (scans cut short in transfer, such as assimp's pond.0.ply)
-  // gives the complete records before the cut; the caller reports the missing ones.
-  const std::uint64_t reserve = std::min(vertex.count, records.recordsLeftAtMost(vertex));
-  cloud.positions.reserve(std::size_t(reserve));
-  if (normals) cloud.normals.reserve(std::size_t(reserve));
-  if (colors) cloud.colors.reserve(std::size_t(reserve));
   std::vector<double> v;
   for (std::uint64_t i = 0; i < vertex.count; ++i) {
+    // A file that ends inside the vertex records (scans cut short in transfer, such as assimp's pond.0.ply)
+    // gives the complete records before the cut; the caller reports the missing ones.
     if (!records.record(vertex, i, v)) {
-      cloud.missing = vertex.count - i;
       if (i == 0) fail(path, "truncated PLY data: the file ends before its first vertex");
-      return;
+      return vertex.count - i;
     }
     const auto at = [&](int prop) { return v[std::size_t(prop)]; };
-    cloud.positions.emplace_back(at(props.position[0]), at(props.position[1]), at(props.position[2]));
-    if (normals)
-      cloud.normals.emplace_back(float(at(props.normal[0])), float(at(props.normal[1])),
-                                 float(at(props.normal[2])));
+    const glm::dvec3 p(at(props.position[0]), at(props.position[1]), at(props.position[2]));
+    glm::vec3 n(0.0f);
+    if (normals) n = {float(at(props.normal[0])), float(at(props.normal[1])), float(at(props.normal[2]))};
+    glm::vec4 c(1.0f);
     if (colors) {
-      glm::vec4 c(1.0f);
       for (int k = 0; k < 3; ++k) {
         const PlyType type = vertex.properties[std::size_t(props.color[k])].type;
         c[k] = float(std::clamp(at(props.color[k]) / colorScale(type), 0.0, 1.0));
         if (!std::isfinite(c[k])) c[k] = 0.0f;
       }
-      cloud.colors.push_back(detail::displayToLinear(c));
+      c = detail::displayToLinear(c);
     }
+    sink.add(p, normals ? &n : nullptr, colors ? &c : nullptr);
   }
+  return 0;
 }
 
-PointCloud loadPly(const fs::path& path) {
-  const std::string bytes = readFile(path);
+PointFileInfo readPly(const fs::path& path, const PointBatch& emit) {
   std::string error;
-  const std::optional<PlyHeader> header = parsePlyHeader(bytes, error);
+  const std::optional<PlyHeader> header = parsePlyHeader(readHead(path, kMaxHeaderBytes + kReadChunk), error);
   if (!header) fail(path, error);
-  PlyRecords records(path, std::string_view(bytes).substr(header->bytes), header->format);
-  PointCloud cloud;
-  cloud.format = header->format == PlyFormat::Ascii ? "PLY point cloud (ASCII)" : "PLY point cloud (binary)";
+  FileWindow window(path, header->bytes);
+  PlyRecords records(path, window, header->format);
+  PointFileInfo info;
+  info.format = header->format == PlyFormat::Ascii ? "PLY point cloud (ASCII)" : "PLY point cloud (binary)";
+  BatchSink sink(path, emit, [&window] { return window.fraction(); });
   std::vector<double> skipped;
   for (const PlyElement& e : header->elements) {
     if ((e.name == "face" || e.name == "tristrips") && e.count > 0)
       fail(path, "the PLY file has faces: a mesh, not a point cloud");
     if (e.name == "vertex") {
-      readPlyVertices(path, records, e, cloud);
-      return cloud;  // what follows the vertices is not needed
+      const PointProperties props = pointProperties(e);
+      info.normals = props.normal[0] >= 0 && props.normal[1] >= 0 && props.normal[2] >= 0;
+      info.colors = props.color[0] >= 0 && props.color[1] >= 0 && props.color[2] >= 0;
+      info.missing = readPlyVertices(path, records, e, sink);
+      sink.flush();
+      info.points = sink.count();
+      return info;  // what follows the vertices is not needed
     }
     if (e.properties.empty()) continue;  // records of nothing take no bytes, however many are declared
     for (std::uint64_t i = 0; i < e.count; ++i)
@@ -322,28 +402,27 @@ bool parseXyzLine(std::string_view line, std::vector<double>& values, std::strin
   return true;
 }
 
-// Whether six-column lines carry colors: every value of columns 4-6 an integer in 0..255, some above 1.
-bool sixColumnsAreColors(const std::vector<double>& rows) {
-  bool aboveOne = false;
-  for (std::size_t i = 0; i < rows.size(); i += 6)
-    for (std::size_t k = 3; k < 6; ++k) {
-      const double c = rows[i + k];
-      if (!(c >= 0.0 && c <= 255.0) || c != std::floor(c)) return false;
-      aboveOne = aboveOne || c > 1.0;
-    }
-  return aboveOne;
-}
-
-PointCloud loadXyz(const fs::path& path) {
-  const std::string bytes = readFile(path);
-  std::vector<double> rows, values;
+// Calls `row` with each line's numbers (lines of none skipped) while it returns true; returns the column
+// count. Lines of another count than the first's, or of a count no layout has, are errors.
+template <class Row>
+std::size_t forEachXyzRow(const fs::path& path, Row&& row, double* fraction = nullptr) {
+  FileWindow window(path, 0);
+  std::vector<double> values;
   std::size_t columns = 0, firstLine = 0, lineNumber = 0;
   std::string badWord;
-  for (std::size_t pos = 0; pos < bytes.size();) {
-    std::size_t end = bytes.find('\n', pos);
-    if (end == std::string::npos) end = bytes.size();
-    std::string_view line = std::string_view(bytes).substr(pos, end - pos);
-    pos = end + 1, ++lineNumber;
+  bool more = window.more();
+  for (;;) {
+    std::string_view rest = window.view();
+    std::size_t end = rest.find('\n');
+    if (end == std::string_view::npos && more) {  // the line may go on in the next chunk
+      more = window.more();
+      continue;
+    }
+    if (rest.empty()) return columns;
+    if (end == std::string_view::npos) end = rest.size();
+    std::string_view line = rest.substr(0, end);
+    window.advance(std::min(end + 1, rest.size()));
+    ++lineNumber;
     if (const std::size_t hash = line.find('#'); hash != std::string_view::npos) line = line.substr(0, hash);
     if (!parseXyzLine(line, values, badWord))
       fail(path, "line " + std::to_string(lineNumber) + ": '" + badWord + "' is not a number");
@@ -359,30 +438,70 @@ PointCloud loadXyz(const fs::path& path) {
                      " numbers, line " + std::to_string(firstLine) + " has " + std::to_string(columns) +
                      " (a truncated or mixed file)");
     }
-    rows.insert(rows.end(), values.begin(), values.end());
+    if (fraction) *fraction = window.fraction();
+    if (!row(values)) return columns;
   }
-  PointCloud cloud;
-  cloud.format = ".xyz text";
-  if (columns == 0) return cloud;
-  const bool colors = columns == 9 || (columns == 6 && sixColumnsAreColors(rows));
-  const bool normals = columns == 9 || (columns == 6 && !colors);
-  const std::size_t normalColumn = columns == 9 ? 6 : 3;
-  const std::size_t n = rows.size() / columns;
-  cloud.positions.reserve(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const double* r = rows.data() + i * columns;
-    cloud.positions.emplace_back(r[0], r[1], r[2]);
-    if (colors) {
-      glm::vec4 c(1.0f);
-      for (int k = 0; k < 3; ++k)
-        c[k] = std::isfinite(r[3 + k]) ? float(std::clamp(r[3 + k] / 255.0, 0.0, 1.0)) : 0.0f;
-      cloud.colors.push_back(detail::displayToLinear(c));
+}
+
+// Whether six-column lines carry colors: every value of columns 4-6 an integer in 0..255, some above 1.
+// Read through the whole file first, as the meaning of the columns depends on all of them.
+bool sixColumnsAreColors(const fs::path& path) {
+  bool colors = true, aboveOne = false;
+  const std::size_t columns = forEachXyzRow(path, [&](const std::vector<double>& values) {
+    if (values.size() != 6) return false;
+    for (std::size_t k = 3; k < 6; ++k) {
+      const double c = values[k];
+      if (!(c >= 0.0 && c <= 255.0) || c != std::floor(c)) return colors = false;
+      aboveOne = aboveOne || c > 1.0;
     }
-    if (normals)
-      cloud.normals.emplace_back(float(r[normalColumn]), float(r[normalColumn + 1]),
-                                 float(r[normalColumn + 2]));
-  }
-  return cloud;
+    return true;
+  });
+  return columns == 6 && colors && aboveOne;
+}
+
+PointFileInfo readXyz(const fs::path& path, const PointBatch& emit) {
+  PointFileInfo info;
+  info.format = ".xyz text";
+  double fraction = 0.0;
+  BatchSink sink(path, emit, [&fraction] { return fraction; });
+  bool known = false, sixAreColors = false;
+  forEachXyzRow(path, [&](const std::vector<double>& r) {
+    const std::size_t columns = r.size();
+    if (!known) sixAreColors = columns == 6 && sixColumnsAreColors(path), known = true;
+    info.colors = columns == 9 || (columns == 6 && sixAreColors);
+    info.normals = columns == 9 || (columns == 6 && !sixAreColors);
+    const std::size_t normalColumn = columns == 9 ? 6 : 3;
+    glm::vec4 c(1.0f);
+    if (info.colors) {
+      for (int k = 0; k < 3; ++k)
+        c[k] = std::isfinite(r[3 + std::size_t(k)]) ? float(std::clamp(r[3 + std::size_t(k)] / 255.0, 0.0, 1.0))
+                                                    : 0.0f;
+      c = detail::displayToLinear(c);
+    }
+    glm::vec3 n(0.0f);
+    if (info.normals) n = {float(r[normalColumn]), float(r[normalColumn + 1]), float(r[normalColumn + 2])};
+    sink.add(glm::dvec3(r[0], r[1], r[2]), info.normals ? &n : nullptr, info.colors ? &c : nullptr);
+    return true;
+  }, &fraction);
+  sink.flush();
+  info.points = sink.count();
+  return info;
+}
+
+PointFileInfo readDraco(const fs::path& path, const PointBatch& emit) {
+  PointCloud whole = detail::loadDracoPoints(path);  // Draco decodes a whole buffer at once
+  PointFileInfo info;
+  info.format = whole.format;
+  info.normals = !whole.normals.empty();
+  info.colors = !whole.colors.empty();
+  std::size_t done = 0;
+  BatchSink sink(path, emit, [&] { return double(done) / double(std::max<std::size_t>(whole.positions.size(), 1)); });
+  for (; done < whole.positions.size(); ++done)
+    sink.add(whole.positions[done], info.normals ? &whole.normals[done] : nullptr,
+             info.colors ? &whole.colors[done] : nullptr);
+  sink.flush();
+  info.points = sink.count();
+  return info;
 }
 
 // A PLY header's verdict: vertices and no faces.
@@ -424,24 +543,32 @@ void validatePointCloud(const PointCloud& cloud, const std::string& source) {
   }
 }
 
-PointCloud loadPointCloud(const fs::path& path) {
+PointFileInfo readPointCloud(const fs::path& path, const PointBatch& batch) {
+  checkRegularFile(path);
   const std::string ext = detail::lowerExtension(path);
-  PointCloud cloud;
+  PointFileInfo info;
   if (ext == ".xyz")
-    cloud = loadXyz(path);
+    info = readXyz(path, batch);
   else if (ext == ".ply")
-    cloud = loadPly(path);
+    info = readPly(path, batch);
   else if (ext == ".drc")
-    cloud = detail::loadDracoPoints(path);
+    info = readDraco(path, batch);
   else
     fail(path, "not a point cloud format (.ply, .drc or .xyz)");
+  if (info.points == 0) fail(path, "no points");
+  return info;
+}
+
+PointCloud loadPointCloud(const fs::path& path) {
+  PointCloud cloud;
+  const PointFileInfo info = readPointCloud(path, [&](const PointCloud& batch, std::uint64_t, double) {
+    cloud.positions.insert(cloud.positions.end(), batch.positions.begin(), batch.positions.end());
+    cloud.normals.insert(cloud.normals.end(), batch.normals.begin(), batch.normals.end());
+    cloud.colors.insert(cloud.colors.end(), batch.colors.begin(), batch.colors.end());
+  });
+  cloud.format = info.format;
+  cloud.missing = info.missing;
   validatePointCloud(cloud, path.string());
-  // A normal that is zero or not a number is unknown (scanners leave some so: pond.0.ply has NaNs), kept as
-  // zero and estimated later; the others become unit length.
-  for (glm::vec3& n : cloud.normals) {
-    const float len = glm::length(n);
-    n = std::isfinite(len) && len > 0.0f ? n / len : glm::vec3(0.0f);
-  }
   return cloud;
 }
 

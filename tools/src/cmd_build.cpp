@@ -310,7 +310,7 @@ struct BuildSetup {
 
 BuildSetup setUpBuild(const BuildArgs& args) {
   checkWritableOutput(args.out);
-  if (args.cellLevel >= args.options.levels)
+  if (args.cellLevel >= args.options.levels && (args.levelsGiven || !isPointCloudFile(args.mesh)))
     throw UsageError("--cell-level must be below --levels (" + std::to_string(args.options.levels) + ")");
   BuildSetup setup;
   setup.reportPath = args.report.empty() ? args.out + ".build.json" : args.report;
@@ -320,6 +320,36 @@ BuildSetup setUpBuild(const BuildArgs& args) {
   setup.storeOptions.sliceBytes = std::uint32_t(args.sliceBytes);
   setup.storeOptions.inheritance = setup.options.layout;
   return setup;
+}
+
+// A scan out of core (--memory, --cell-level or --resume): streamed from the file, never held whole. Returns
+// the depth built and whether it has colors.
+std::pair<int, bool> buildPointsOutOfCore(const BuildArgs& args, const BuildSetup& setup,
+                                          std::uint64_t processBytes, BuildOutcome& outcome) {
+  OutOfCoreOptions ooc;
+  ooc.memoryBytes = args.memory;
+  ooc.cellLevel = args.cellLevel;
+  ooc.resume = args.resume;
+  ooc.processBytes = processBytes;
+  ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
+  if (args.memory == 0 && args.cellLevel == 0) {  // --resume alone
+    ooc.memoryBytes = defaultMemoryShare(machineMemory());
+    ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
+  }
+  PointStoreReport built;
+  buildOutOfCore(ooc, outcome, [&](const OutOfCoreOptions& o) {
+    built = buildPointStore(args.mesh, setup.options, setup.storeOptions, o, args.out,
+                            [&](double spacing, const SceneTransform& transform) {
+                              return levelsForScan(args, spacing, transform);
+                            });
+    return built.build;
+  });
+  spdlog::info("{}: {} points ({}{}{}), {} normals estimated", args.mesh, built.file.points, built.file.format,
+               built.file.normals ? ", normals" : "", built.file.colors ? ", colors" : "", built.normalsEstimated);
+  if (built.file.missing > 0)
+    spdlog::warn("{}: the file ends inside point {} of the {} its header declares; built from the {} before",
+                 args.mesh, built.file.points, built.file.points + built.file.missing, built.file.points);
+  return {built.levels, built.file.colors};
 }
 
 void logInput(const std::string& mesh, const TriangleSource& source) {
@@ -410,9 +440,11 @@ void runBuild(const BuildArgs& args) {
   const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
   BuildOutcome outcome;
   if (isPointCloudFile(args.mesh)) {
-    if (args.memory != 0 || args.cellLevel != 0 || args.resume)
-      throw UsageError(args.mesh + ": a point cloud builds in core only (--memory, --cell-level and --resume "
-                                   "are for meshes)");
+    if (args.memory != 0 || args.cellLevel != 0 || args.resume) {
+      const auto [levels, hasColors] = buildPointsOutOfCore(args, setup, processBytes, outcome);
+      writeBuildReport(args, setup.reportPath, 0, hasColors, levels, secondsSince(start), outcome);
+      return;
+    }
     const bool hasColors = buildFromPoints(args, setup.options, setup.storeOptions, outcome);
     writeBuildReport(args, setup.reportPath, 0, hasColors, int(outcome.stats.voxelsPerLevel.size()) - 1,
                      secondsSince(start), outcome);

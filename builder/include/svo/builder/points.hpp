@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -41,6 +42,21 @@ bool isPointCloudFile(const std::filesystem::path& path);
 // naming the file and the problem: missing file, malformed header, truncated data, non-finite position, no
 // points. A normal that is zero or not finite is unknown: zero in `normals`, for estimateNormals.
 PointCloud loadPointCloud(const std::filesystem::path& path);
+
+// What readPointCloud found in the file.
+struct PointFileInfo {
+  std::string format;
+  bool normals = false, colors = false;  // whether the file has them (its batches carry them)
+  std::uint64_t points = 0;              // read
+  std::uint64_t missing = 0;             // as PointCloud::missing
+};
+// Takes each batch of points (positions, and normals and colors where the file has them), the index of its
+// first point in the file and the fraction of the file read.
+using PointBatch = std::function<void(const PointCloud& batch, std::uint64_t first, double fraction)>;
+// loadPointCloud's points streamed in batches of at most 65536, in file order, never holding the file
+// (except a .drc, which Draco decodes whole): the same values and the same errors, a non-finite position
+// as soon as its batch is read. loadPointCloud gathers these batches.
+PointFileInfo readPointCloud(const std::filesystem::path& path, const PointBatch& batch);
 
 // Checks the cloud (finite positions, attribute counts matching) and throws naming `source` and
 // the first bad point. loadPointCloud calls it.
@@ -100,6 +116,35 @@ inline constexpr int kMaxPointLevels = 21;
 // (estimateNormals). Deterministic, whatever the thread count.
 VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transform,
                          const BuildOptions& options, BuildStats* stats = nullptr);
+
+// Throws unless voxelizePoints can build the cloud with these options (levels, points, a normal for each).
+void checkPointBuild(const PointCloud& cloud, const BuildOptions& options);
+
+// The out-of-core scan build's depth, from the points' spacing and the scene cube (2 to kMaxPointLevels).
+using PointLevelChoice = std::function<int(double spacing, const SceneTransform& transform)>;
+struct PointStoreReport {
+  OutOfCoreReport build;
+  PointFileInfo file;
+  double spacing = 0.0;                // estimatePointSpacing's, from the file's sample
+  int levels = 0;                      // chosen
+  std::uint64_t normalsEstimated = 0;  // cells' own points and halos
+};
+// Writes `store` from the scan at `input` within bounded memory, never holding its points: the file is read
+// in batches (readPointCloud) once for its bounds and fingerprint, once for the spacing's sample and the
+// points per cell of level 9 (from which the cell level: the shallowest whose fullest cell fits
+// ooc.memoryBytes, unless ooc.cellLevel), once to bin every point into its cell in the work folder, with
+// copies of the points within kHaloSpacings spacings of a neighbouring cell in that cell's halo. Normals are
+// estimated cell by cell (estimateNormals over the cell's points and halo), breadth first from the highest
+// point's cell, each cell's halo points from cells done before keeping their final normals, so that they
+// orient the cell's as Hoppe's tree would. The levels above the cells come from the cells' sums and
+// points, each cell's subtree from its points (spilled, resumable), and the store from both
+// (StoreFileWriter::appendForest). With the file's normals for every point the store is byte-identical to
+// the in-core build's; with normals estimated the voxels are the same, their normals (and so contours)
+// differ only where a cell's estimate differs from the whole cloud's. Cells are built one at a time, each
+// on all threads.
+PointStoreReport buildPointStore(const std::filesystem::path& input, BuildOptions options,
+                                 const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
+                                 const std::filesystem::path& store, const PointLevelChoice& levels);
 
 // The scene cube of the points (fitSceneCube of their bounds). Throws when they have no extent.
 SceneTransform fitSceneCube(const PointCloud& cloud);
