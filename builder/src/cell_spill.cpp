@@ -2,6 +2,7 @@
 
 #include <cstring>
 #include <fstream>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 
@@ -101,6 +102,27 @@ VoxelTree readCell(const std::filesystem::path& path) {
     throw std::runtime_error(path.string() +
                              ": a spilled cell does not decompress; build again without --resume");
   return tree;
+}
+
+void appendSpilledForest(StoreFileWriter& writer, const VoxelTree& top, int cellLevel,
+                         const std::filesystem::path& work, OutOfCoreReport& report) {
+  BuildStats& stats = report.stats;
+  addTreeStats(top, 0, stats);
+  std::mutex statsMutex;  // cells are loaded on several threads
+  writer.appendForest(top, cellLevel, [&](glm::ivec3 cell, bool counting) {
+    VoxelTree tree = readCell(cellPath(work, cell));
+    if (!counting) {
+      std::lock_guard lock(statsMutex);
+      // The cell's root is already counted by the top as a leaf voxel of the cell level.
+      addTreeStats(tree, cellLevel, stats);
+      --stats.voxelsPerLevel[std::size_t(cellLevel)];
+      --stats.leafVoxels;
+      stats.contours -= tree.voxels[0].hasContour;
+      ++report.cells;
+    }
+    return tree;
+  });
+  report.slices = writer.slices();
 }
 
 }  // namespace svo

@@ -31,4 +31,10 @@ CellRoot rootOf(const CellFileHeader& h);
 // Throws when the cell is missing or damaged.
 VoxelTree readCell(const std::filesystem::path& path);
 
+// The out-of-core store's slices (StoreFileWriter::appendForest) from `top`, the levels down to `cellLevel`,
+// and the cells spilled in `work`. Adds the top's and the cells' voxels to report.stats (a cell's root
+// counted once, as the top's leaf), counts report.cells and sets report.slices.
+void appendSpilledForest(StoreFileWriter& writer, const VoxelTree& top, int cellLevel,
+                         const std::filesystem::path& work, OutOfCoreReport& report);
+
 }  // namespace svo

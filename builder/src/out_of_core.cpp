@@ -268,26 +268,9 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   writeOptions.progress = [&](double f) { progress("write", f); };
   StoreFileWriter writer(store, writeOptions);
   BuildStats& stats = report.stats;
-  addTreeStats(top, 0, stats);
-  std::mutex statsMutex;  // cells are loaded on several threads
   // The cells are loaded and planned on these threads, as many cells in flight.
   tbb::task_arena writing(ooc.writeThreads > 0 ? ooc.writeThreads : concurrency);
-  writing.execute([&] {
-    writer.appendForest(top, report.cellLevel, [&](glm::ivec3 cell, bool counting) {
-      VoxelTree tree = readCell(cellPath(work, cell));
-      if (!counting) {
-        std::lock_guard lock(statsMutex);
-        // The cell's root is already counted by the top as a leaf voxel of the cell level.
-        addTreeStats(tree, report.cellLevel, stats);
-        --stats.voxelsPerLevel[std::size_t(report.cellLevel)];
-        --stats.leafVoxels;
-        stats.contours -= tree.voxels[0].hasContour;
-        ++report.cells;
-      }
-      return tree;
-    });
-  });
-  report.slices = writer.slices();
+  writing.execute([&] { appendSpilledForest(writer, top, report.cellLevel, work, report); });
   writer.finish({transform,
                  storedParameters(options),
                  top.hasColors,

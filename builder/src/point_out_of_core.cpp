@@ -7,7 +7,6 @@
 #include <cmath>
 #include <deque>
 #include <fstream>
-#include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -327,23 +326,7 @@ void writePointStore(const TopLevels& top, const Cells& cells, const SceneTransf
   writeOptions.progress = [&](double f) { progress("write", f); };
   StoreFileWriter writer(store, writeOptions);
   const VoxelTree topTree = top.tree(colors);
-  BuildStats& stats = report.stats;
-  addTreeStats(topTree, 0, stats);
-  std::mutex statsMutex;  // cells are loaded on several threads
-  writer.appendForest(topTree, cells.level, [&](glm::ivec3 cell, bool counting) {
-    VoxelTree tree = readCell(cellPath(work, cell));
-    if (!counting) {
-      std::lock_guard lock(statsMutex);
-      // The cell's root is already counted by the top as a leaf voxel of the cell level.
-      addTreeStats(tree, cells.level, stats);
-      --stats.voxelsPerLevel[std::size_t(cells.level)];
-      --stats.leafVoxels;
-      stats.contours -= tree.voxels[0].hasContour;
-      ++report.cells;
-    }
-    return tree;
-  });
-  report.slices = writer.slices();
+  appendSpilledForest(writer, topTree, cells.level, work, report);
   writer.finish({transform, storedParameters(options), colors, true, topTree.voxels[0].color,
                  topTree.voxels[0].normal});
 }

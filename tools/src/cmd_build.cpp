@@ -64,18 +64,24 @@ int mpiLaunchedRanks() {
   return std::getenv("PMIX_RANK") ? 1 : 0;
 }
 
-// The out-of-core options the command line asks for. With no bound given: in core when its estimated peak
-// fits the machine's default share, else out of core within that share. A resume, and an MPI job, is out
-// of core (the interrupted run's cell level, or one for the share).
-OutOfCoreOptions outOfCoreOptions(const BuildArgs& args, const TriangleSource& source,
-                                  const BuildOptions& options, std::uint64_t processBytes,
-                                  bool outOfCore = false) {
+// The out-of-core options as the command line gives them.
+OutOfCoreOptions givenOutOfCoreOptions(const BuildArgs& args, std::uint64_t processBytes) {
   OutOfCoreOptions ooc;
   ooc.memoryBytes = args.memory;
   ooc.cellLevel = args.cellLevel;
   ooc.resume = args.resume;
   ooc.processBytes = processBytes;
   ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
+  return ooc;
+}
+
+// The out-of-core options the command line asks for. With no bound given: in core when its estimated peak
+// fits the machine's default share, else out of core within that share. A resume, and an MPI job, is out
+// of core (the interrupted run's cell level, or one for the share).
+OutOfCoreOptions outOfCoreOptions(const BuildArgs& args, const TriangleSource& source,
+                                  const BuildOptions& options, std::uint64_t processBytes,
+                                  bool outOfCore = false) {
+  OutOfCoreOptions ooc = givenOutOfCoreOptions(args, processBytes);
   if (args.memory != 0 || args.cellLevel != 0) return ooc;
   const std::uint64_t share = defaultMemoryShare(machineMemory());
   const bool chosen = args.resume || outOfCore;
@@ -326,12 +332,7 @@ BuildSetup setUpBuild(const BuildArgs& args) {
 // the depth built and whether it has colors.
 std::pair<int, bool> buildPointsOutOfCore(const BuildArgs& args, const BuildSetup& setup,
                                           std::uint64_t processBytes, BuildOutcome& outcome) {
-  OutOfCoreOptions ooc;
-  ooc.memoryBytes = args.memory;
-  ooc.cellLevel = args.cellLevel;
-  ooc.resume = args.resume;
-  ooc.processBytes = processBytes;
-  ooc.threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
+  OutOfCoreOptions ooc = givenOutOfCoreOptions(args, processBytes);
   if (args.memory == 0 && args.cellLevel == 0) {  // --resume alone
     ooc.memoryBytes = defaultMemoryShare(machineMemory());
     ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
