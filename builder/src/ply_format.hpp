@@ -22,10 +22,12 @@ enum class Type : std::uint8_t { Int8, UInt8, Int16, UInt16, Int32, UInt32, Floa
 
 inline std::optional<Type> parseType(std::string_view name) {
   static constexpr std::pair<std::string_view, Type> kNames[] = {
-      {"char", Type::Int8},     {"int8", Type::Int8},       {"uchar", Type::UInt8},   {"uint8", Type::UInt8},
-      {"short", Type::Int16},   {"int16", Type::Int16},     {"ushort", Type::UInt16}, {"uint16", Type::UInt16},
-      {"int", Type::Int32},     {"int32", Type::Int32},     {"uint", Type::UInt32},   {"uint32", Type::UInt32},
-      {"float", Type::Float32}, {"float32", Type::Float32}, {"double", Type::Float64}, {"float64", Type::Float64}};
+      {"char", Type::Int8},      {"int8", Type::Int8},       {"uchar", Type::UInt8},
+      {"uint8", Type::UInt8},    {"short", Type::Int16},     {"int16", Type::Int16},
+      {"ushort", Type::UInt16},  {"uint16", Type::UInt16},   {"int", Type::Int32},
+      {"int32", Type::Int32},    {"uint", Type::UInt32},     {"uint32", Type::UInt32},
+      {"float", Type::Float32},  {"float32", Type::Float32}, {"double", Type::Float64},
+      {"float64", Type::Float64}};
   for (const auto& [text, type] : kNames)
     if (name == text) return type;
   return std::nullopt;

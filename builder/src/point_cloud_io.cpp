@@ -296,8 +296,8 @@ class PlyRecords {
     if (*first == '+') ++first;
     const auto [p, ec] = std::from_chars(first, rest.data() + end, v);
     if (ec != std::errc() || p != rest.data() + end)
-      fail(path_, "'" + std::string(rest.substr(0, std::min<std::size_t>(end, 32))) + "' is not a number, in " +
-                      what());
+      fail(path_, "'" + std::string(rest.substr(0, std::min<std::size_t>(end, 32))) +
+                      "' is not a number, in " + what());
     data_.advance(end);
     return v;
   }
@@ -465,24 +465,29 @@ PointFileInfo readXyz(const fs::path& path, const PointBatch& emit) {
   double fraction = 0.0;
   BatchSink sink(path, emit, [&fraction] { return fraction; });
   bool known = false, sixAreColors = false;
-  forEachXyzRow(path, [&](const std::vector<double>& r) {
-    const std::size_t columns = r.size();
-    if (!known) sixAreColors = columns == 6 && sixColumnsAreColors(path), known = true;
-    info.colors = columns == 9 || (columns == 6 && sixAreColors);
-    info.normals = columns == 9 || (columns == 6 && !sixAreColors);
-    const std::size_t normalColumn = columns == 9 ? 6 : 3;
-    glm::vec4 c(1.0f);
-    if (info.colors) {
-      for (int k = 0; k < 3; ++k)
-        c[k] = std::isfinite(r[3 + std::size_t(k)]) ? float(std::clamp(r[3 + std::size_t(k)] / 255.0, 0.0, 1.0))
-                                                    : 0.0f;
-      c = detail::displayToLinear(c);
-    }
-    glm::vec3 n(0.0f);
-    if (info.normals) n = {float(r[normalColumn]), float(r[normalColumn + 1]), float(r[normalColumn + 2])};
-    sink.add(glm::dvec3(r[0], r[1], r[2]), info.normals ? &n : nullptr, info.colors ? &c : nullptr);
-    return true;
-  }, &fraction);
+  forEachXyzRow(
+      path,
+      [&](const std::vector<double>& r) {
+        const std::size_t columns = r.size();
+        if (!known) sixAreColors = columns == 6 && sixColumnsAreColors(path), known = true;
+        info.colors = columns == 9 || (columns == 6 && sixAreColors);
+        info.normals = columns == 9 || (columns == 6 && !sixAreColors);
+        const std::size_t normalColumn = columns == 9 ? 6 : 3;
+        glm::vec4 c(1.0f);
+        if (info.colors) {
+          for (int k = 0; k < 3; ++k)
+            c[k] = std::isfinite(r[3 + std::size_t(k)])
+                       ? float(std::clamp(r[3 + std::size_t(k)] / 255.0, 0.0, 1.0))
+                       : 0.0f;
+          c = detail::displayToLinear(c);
+        }
+        glm::vec3 n(0.0f);
+        if (info.normals)
+          n = {float(r[normalColumn]), float(r[normalColumn + 1]), float(r[normalColumn + 2])};
+        sink.add(glm::dvec3(r[0], r[1], r[2]), info.normals ? &n : nullptr, info.colors ? &c : nullptr);
+        return true;
+      },
+      &fraction);
   sink.flush();
   info.points = sink.count();
   return info;
@@ -495,7 +500,8 @@ PointFileInfo readDraco(const fs::path& path, const PointBatch& emit) {
   info.normals = !whole.normals.empty();
   info.colors = !whole.colors.empty();
   std::size_t done = 0;
-  BatchSink sink(path, emit, [&] { return double(done) / double(std::max<std::size_t>(whole.positions.size(), 1)); });
+  BatchSink sink(path, emit,
+                 [&] { return double(done) / double(std::max<std::size_t>(whole.positions.size(), 1)); });
   for (; done < whole.positions.size(); ++done)
     sink.add(whole.positions[done], info.normals ? &whole.normals[done] : nullptr,
              info.colors ? &whole.colors[done] : nullptr);

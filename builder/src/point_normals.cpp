@@ -1,8 +1,8 @@
 // Normal estimation for point clouds (points.hpp): k nearest neighbours by nanoflann's k-d tree, the tangent
 // plane by Eigen's symmetric 3x3 eigen-solver, orientation along a minimum spanning tree (Hoppe et al. 1992).
 #include <algorithm>
-#include <cstdint>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <numbers>
 #include <numeric>

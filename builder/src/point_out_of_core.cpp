@@ -7,10 +7,13 @@
 #include <cmath>
 #include <deque>
 #include <fstream>
+#include <functional>
+#include <limits>
 #include <optional>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
+#include <vector>
 
 #include <glm/common.hpp>
 #include <nlohmann/json.hpp>
@@ -77,7 +80,8 @@ Survey survey(const std::filesystem::path& input, const std::function<void(doubl
   Survey s;
   Hasher hash;
   s.file = readPointCloud(input, [&](const PointCloud& batch, std::uint64_t, double fraction) {
-    for (const glm::dvec3& p : batch.positions) s.lower = glm::min(s.lower, p), s.upper = glm::max(s.upper, p);
+    for (const glm::dvec3& p : batch.positions)
+      s.lower = glm::min(s.lower, p), s.upper = glm::max(s.upper, p);
     hash.add(batch.positions.data(), batch.positions.size()).add(batch.normals.data(), batch.normals.size());
     hash.add(batch.colors.data(), batch.colors.size());
     progress(fraction);
@@ -124,17 +128,20 @@ int chooseCellLevel(const std::filesystem::path& input,
     fullest = *std::max_element(cells.points.begin(), cells.points.end());
     if (kBytesPerCellPoint * double(fullest) <= perCell) return level;
   }
-  throw std::runtime_error(input.string() + ": " + ooc.memoryOrigin + ": " + std::to_string(ooc.memoryBytes >> 20) +
-                           " MiB is too small for " + std::to_string(levels) + " levels of this scan (its fullest "
-                           "cell of level " + std::to_string(deepest) + " holds " + std::to_string(fullest) +
-                           " points, about " + std::to_string(std::llround(kBytesPerCellPoint * double(fullest) / (1 << 20))) +
-                           " MiB)");
+  throw std::runtime_error(
+      input.string() + ": " + ooc.memoryOrigin + ": " + std::to_string(ooc.memoryBytes >> 20) +
+      " MiB is too small for " + std::to_string(levels) +
+      " levels of this scan (its fullest "
+      "cell of level " +
+      std::to_string(deepest) + " holds " + std::to_string(fullest) + " points, about " +
+      std::to_string(std::llround(kBytesPerCellPoint * double(fullest) / (1 << 20))) + " MiB)");
 }
 
 // Every point into its cell's bin, and into the halo of each neighbouring cell whose cube it lies within
 // `halo` (world units) of. Returns the highest point's cell (largest z, the first such in the file).
-std::uint32_t binPoints(const std::filesystem::path& input, const SceneTransform& transform, const Cells& cells,
-                        double halo, PointBins& bins, const std::function<void(double)>& progress) {
+std::uint32_t binPoints(const std::filesystem::path& input, const SceneTransform& transform,
+                        const Cells& cells, double halo, PointBins& bins,
+                        const std::function<void(double)>& progress) {
   std::vector<std::uint32_t> counts(cells.coords.size(), 0);
   const double cellsPerUnit = std::ldexp(1.0, cells.level) / transform.size;
   const double width = halo * cellsPerUnit;  // in cell widths
@@ -150,7 +157,8 @@ std::uint32_t binPoints(const std::filesystem::path& input, const SceneTransform
       const std::uint32_t cell = *cells.find(coord);
       if (p.position.z > highest) highest = p.position.z, highestCell = cell;
       bins.appendOwn(cell, p);
-      const glm::dvec3 f = (transform.toOctree(p.position) - 1.0) * std::ldexp(1.0, cells.level) - glm::dvec3(coord);
+      const glm::dvec3 f =
+          (transform.toOctree(p.position) - 1.0) * std::ldexp(1.0, cells.level) - glm::dvec3(coord);
       glm::ivec3 lo(0), hi(0);
       for (int a = 0; a < 3; ++a) lo[a] = f[a] < width ? -1 : 0, hi[a] = f[a] > 1.0 - width ? 1 : 0;
       for (int dz = lo.z; dz <= hi.z; ++dz)
@@ -208,7 +216,8 @@ std::uint64_t estimateCellNormals(const PointBins& bins, std::uint32_t cell) {
   PointCloud cloud = cloudOf(bins.readOwn(cell), false);
   const std::size_t own = cloud.positions.size();
   std::vector<HaloPoint> halo = bins.readHalo(cell);
-  std::stable_sort(halo.begin(), halo.end(), [](const HaloPoint& a, const HaloPoint& b) { return a.owner < b.owner; });
+  std::stable_sort(halo.begin(), halo.end(),
+                   [](const HaloPoint& a, const HaloPoint& b) { return a.owner < b.owner; });
   for (std::size_t i = 0; i < halo.size();) {
     std::size_t end = i;
     while (end < halo.size() && halo[end].owner == halo[i].owner) ++end;
@@ -294,7 +303,8 @@ class TopLevels {
  private:
   std::uint32_t at(int level, glm::ivec3 coord) const {
     const auto it = index_[std::size_t(level)].find(keyOf(coord));
-    if (it == index_[std::size_t(level)].end()) throw std::logic_error("TopLevels: a cell without an ancestor");
+    if (it == index_[std::size_t(level)].end())
+      throw std::logic_error("TopLevels: a cell without an ancestor");
     return it->second;
   }
   int cellLevel_;
@@ -306,8 +316,9 @@ class TopLevels {
 using Progress = std::function<void(const char* phase, double fraction)>;
 
 // The top's contours need every cell's points: their extents along the top voxels' normals.
-std::vector<PointBounds> topContours(const PointBins& bins, const Cells& cells, const SceneTransform& transform,
-                                     const BuildOptions& options, TopLevels& top, const Progress& progress) {
+std::vector<PointBounds> topContours(const PointBins& bins, const Cells& cells,
+                                     const SceneTransform& transform, const BuildOptions& options,
+                                     TopLevels& top, const Progress& progress) {
   if (!options.contours) return std::vector<PointBounds>(cells.coords.size());
   for (std::uint32_t c = 0; c < cells.coords.size() && cells.level > 1; ++c) {
     const std::vector<std::uint32_t> ancestors = top.ancestorsOf(cells.coords[c]);
@@ -375,7 +386,8 @@ void buildCells(const PointBins& bins, const Cells& cells, std::uint32_t firstCe
       const VoxelTree tree = treeOfLevels(
           detail::pointLevels(cellCloud(bins, c, colors), transform, options, cells.level, bounds[c], &root),
           colors, true);
-      writeCell(path, tree, CellRoot{tree.voxels[0], {double(root.sums.count), root.sums.color, root.sums.normal}});
+      writeCell(path, tree,
+                CellRoot{tree.voxels[0], {double(root.sums.count), root.sums.color, root.sums.normal}});
       top.setCellRoot(c, tree.voxels[0]);
       voxels += tree.voxels.size();
       if (ooc.cellSpilled) ooc.cellSpilled(cells.coords[c]);
@@ -445,7 +457,8 @@ PointStoreReport buildPointStore(const std::filesystem::path& input, BuildOption
   PointStoreReport report;
   // Bars appear once the build has run a while: a small scan's error stays one line.
   const auto progress = [&](const char* name, double f) {
-    if (ooc.progress && std::chrono::steady_clock::now() - start > kQuietStart) ooc.progress(name, std::min(1.0, f));
+    if (ooc.progress && std::chrono::steady_clock::now() - start > kQuietStart)
+      ooc.progress(name, std::min(1.0, f));
   };
   const auto endPhase = [&](const char* name) {
     progress(name, 1.0);
@@ -483,20 +496,24 @@ PointStoreReport buildPointStore(const std::filesystem::path& input, BuildOption
     cellLevel = (*old)["cellLevel"].get<int>();  // a resume keeps the interrupted run's cells
   if (cellLevel == 0) cellLevel = chooseCellLevel(input, histogram, options.levels, ooc);
   if (cellLevel < 1 || cellLevel >= options.levels || cellLevel > kHistogramLevel)
-    throw std::runtime_error("the cell level must be in [1, " + std::to_string(std::min(options.levels - 1, kHistogramLevel)) +
-                             "], not " + std::to_string(cellLevel));
+    throw std::runtime_error("the cell level must be in [1, " +
+                             std::to_string(std::min(options.levels - 1, kHistogramLevel)) + "], not " +
+                             std::to_string(cellLevel));
   report.build.cellLevel = cellLevel;
   const Cells cells = cellsOf(histogram, cellLevel);
   std::unordered_map<std::uint64_t, std::uint64_t>().swap(histogram);
   endPhase("plan");
   const double halo = kHaloSpacings * report.spacing;
-  const bool reuse = openWorkFolder(old, manifestOf(surveyed, options, write, cellLevel, halo), work, manifestPath);
+  const bool reuse =
+      openWorkFolder(old, manifestOf(surveyed, options, write, cellLevel, halo), work, manifestPath);
 
   // 2. The points binned per cell, with halos (kept from an interrupted run once complete).
-  PointBins bins(work / "points", cells.coords.size());
   const std::filesystem::path binned = work / "points" / "complete";
+  const bool binnedBefore = reuse && std::filesystem::exists(binned);
+  if (!binnedBefore) std::filesystem::remove_all(work / "points");  // a part binned before would repeat
+  PointBins bins(work / "points", cells.coords.size());
   std::uint32_t firstCell = 0;
-  if (reuse && std::filesystem::exists(binned)) {
+  if (binnedBefore) {
     std::ifstream(binned) >> firstCell;
   } else {
     firstCell = binPoints(input, transform, cells, halo, bins, [&](double f) { progress("bin", f); });
@@ -504,10 +521,12 @@ PointStoreReport buildPointStore(const std::filesystem::path& input, BuildOption
       throw std::runtime_error(binned.string() + ": cannot write (disk full?)");
   }
   endPhase("bin");
-  buildCells(bins, cells, firstCell, transform, options, write, ooc, store, work, reuse, report, progress, endPhase);
+  buildCells(bins, cells, firstCell, transform, options, write, ooc, store, work, reuse, report, progress,
+             endPhase);
   std::error_code ignored;
   std::filesystem::remove_all(work, ignored);
-  report.build.stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  report.build.stats.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return report;
 }
 

@@ -16,9 +16,9 @@
 #include <tbb/parallel_sort.h>
 #include <glm/geometric.hpp>
 
+#include "point_voxelize.hpp"
 #include "svo/builder/points.hpp"
 #include "svo/store/format.hpp"
-#include "point_voxelize.hpp"
 #include "voxel_kernels.hpp"
 
 namespace svo {
@@ -125,9 +125,11 @@ void addContours(const PointCloud& cloud, const PointOrder& order, const std::ve
     std::vector<PointBounds> bounds(voxels.size());
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, voxels.size()), [&](const auto& range) {
       for (std::size_t i = range.begin(); i < range.end(); ++i) {
-        bounds[i] = boundsOf(parentBounds[parentOf[i]], parents[parentOf[i]], level - 1, voxels[i].coord, level);
+        bounds[i] =
+            boundsOf(parentBounds[parentOf[i]], parents[parentOf[i]], level - 1, voxels[i].coord, level);
         decideContour(voxels[i], level, bounds[i],
-                      extentOf(cloud, order, runs[k][i], voxels[i], level, transform), minCutAt(options, level));
+                      extentOf(cloud, order, runs[k][i], voxels[i], level, transform),
+                      minCutAt(options, level));
       }
     });
     parentBounds = std::move(bounds);
@@ -201,11 +203,13 @@ PointBounds boundsOf(const PointBounds& parent, const SliceVoxel& parentVoxel, i
 void extend(PointExtent& extent, const SliceVoxel& voxel, int level, glm::dvec3 octreePoint) {
   const glm::ivec3 qn = quantizeContourNormal(glm::dvec3(normalDirection(voxel.normal)));
   const geom::Cube cube = cubeOf(voxel.coord, level);
-  const double d = glm::dot(glm::dvec3(qn) / double(kContourNormalScale), octreePoint - cube.centre()) / cube.size;
+  const double d =
+      glm::dot(glm::dvec3(qn) / double(kContourNormalScale), octreePoint - cube.centre()) / cube.size;
   extent.lo = std::min(extent.lo, d), extent.hi = std::max(extent.hi, d);
 }
 
-void decideContour(SliceVoxel& voxel, int level, const PointBounds& bounds, PointExtent extent, double minCut) {
+void decideContour(SliceVoxel& voxel, int level, const PointBounds& bounds, PointExtent extent,
+                   double minCut) {
   const glm::ivec3 qn = quantizeContourNormal(glm::dvec3(normalDirection(voxel.normal)));
   const std::vector<Direction> direction{{qn, glm::dvec3(qn) / double(kContourNormalScale)}};
   const std::vector<Extent> extents{{extent.lo - kSlabMargin, extent.hi + kSlabMargin}};
@@ -247,7 +251,8 @@ VoxelLevels pointLevels(const PointCloud& cloud, const SceneTransform& transform
 PointNode pointRoot(const PointCloud& cloud, const SceneTransform& transform, int levels, int rootLevel) {
   std::vector<PointNode> nodes = finestNodes(cloud, sortedPoints(cloud, transform, levels));
   for (int level = levels; level > rootLevel; --level) nodes = parentNodes(nodes);
-  if (nodes.size() != 1) throw std::logic_error("pointRoot: the points span several voxels of the root level");
+  if (nodes.size() != 1)
+    throw std::logic_error("pointRoot: the points span several voxels of the root level");
   return nodes[0];
 }
 
@@ -276,7 +281,8 @@ VoxelTree voxelizePoints(const PointCloud& cloud, const SceneTransform& transfor
                          const BuildOptions& options, BuildStats* stats) {
   const auto start = std::chrono::steady_clock::now();
   checkPointBuild(cloud, options);
-  VoxelTree tree = treeOfLevels(detail::pointLevels(cloud, transform, options, 0, {}), !cloud.colors.empty(), true);
+  VoxelTree tree =
+      treeOfLevels(detail::pointLevels(cloud, transform, options, 0, {}), !cloud.colors.empty(), true);
   if (stats) {
     addTreeStats(tree, 0, *stats);
     stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

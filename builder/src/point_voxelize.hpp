@@ -54,7 +54,8 @@ struct PointExtent {
 void extend(PointExtent& extent, const SliceVoxel& voxel, int level, glm::dvec3 octreePoint);
 // The voxel's contour from its points' extent, kept where it trims at least `minCut` voxel widths off the
 // hull its bounds leave (chooseContour); sets voxel.hasContour and voxel.contour.
-void decideContour(SliceVoxel& voxel, int level, const PointBounds& bounds, PointExtent extent, double minCut);
+void decideContour(SliceVoxel& voxel, int level, const PointBounds& bounds, PointExtent extent,
+                   double minCut);
 
 // The points' levels from `rootLevel` (every point in one voxel of it) down to options.levels, each level in
 // Morton order, with contours where options.contours: the root's decided under `rootBounds` (a root of

@@ -471,8 +471,8 @@ class PointsCli : public Points {
   std::pair<int, std::string> build(const fs::path& input, const fs::path& out,
                                     const std::string& args = "") {
     const fs::path err = dir_ / "stderr.txt";
-    const std::string command = svotest::svoBinary() + " build " + input.string() + " -o " + out.string() + " " + args +
-                                " >" + (dir_ / "stdout.txt").string() + " 2>" + err.string();
+    const std::string command = svotest::svoBinary() + " build " + input.string() + " -o " + out.string() +
+                                " " + args + " >" + (dir_ / "stdout.txt").string() + " 2>" + err.string();
     const int status = std::system(command.c_str());
     return {WIFEXITED(status) ? WEXITSTATUS(status) : 128, slurp(err)};
   }
@@ -571,7 +571,6 @@ TEST_F(PointsCli, PlyAndXyzOfTheSamePointsBuildTheSameStore) {
   EXPECT_EQ(slurp(dir_ / "ply.svo"), slurp(dir_ / "xyz.svo"));
 }
 
-
 // The spacing estimate against the analytic spacing of a random sphere sample; the level it picks against
 // the one the analytic spacing gives; that level's surface sealed (no path of empty voxels from outside to
 // the centre) with at least 85% of the leaves the same sphere as a mesh makes (points cover less of each
@@ -592,7 +591,8 @@ TEST_F(Points, LevelsFitThePointSpacing) {
     svo::BuildStats points, triangles;
     const svo::VoxelTree tree = svo::voxelizePoints(c, transform, options, &points);
     svo::voxelize(mesh, transform, options, &triangles);
-    const glm::ivec3 centre(glm::floor((transform.toOctree(glm::dvec3(0.0)) - 1.0) * std::ldexp(1.0, levels)));
+    const glm::ivec3 centre(
+        glm::floor((transform.toOctree(glm::dvec3(0.0)) - 1.0) * std::ldexp(1.0, levels)));
     std::printf("%d levels: %llu leaves from points, %llu from the mesh\n", levels,
                 (unsigned long long)points.leafVoxels, (unsigned long long)triangles.leafVoxels);
     if (levels == fits) {
@@ -616,7 +616,8 @@ TEST_F(PointsCli, LevelsFromThePointSpacing) {
   ASSERT_EQ(code, 0) << err;
   EXPECT_EQ(svo::StoreReader(dir_ / "fit.svo").header().parameters.levels, kFitLevels);
   EXPECT_EQ(err.find("holes"), std::string::npos) << err;
-  const auto [deepCode, deepErr] = build(input, dir_ / "deep.svo", "--levels " + std::to_string(kFitLevels + 2));
+  const auto [deepCode, deepErr] =
+      build(input, dir_ / "deep.svo", "--levels " + std::to_string(kFitLevels + 2));
   ASSERT_EQ(deepCode, 0) << deepErr;
   const std::string said = deepErr + slurp(dir_ / "stdout.txt");
   EXPECT_NE(said.find("the surface will have holes; --levels " + std::to_string(kFitLevels) + " fits"),
@@ -661,7 +662,8 @@ TEST_F(PointsCli, OutOfCoreWithEstimatedNormalsHasTheInCoreVoxels) {
   if (!fs::exists(kPond)) GTEST_SKIP() << kPond << " is missing (assimp-testmodels)";
   const PointCloud pond = svo::loadPointCloud(write("pond.ply", repairedPond().first));
   std::string text;
-  for (const glm::dvec3& p : pond.positions) text += number(p.x) + " " + number(p.y) + " " + number(p.z) + "\n";
+  for (const glm::dvec3& p : pond.positions)
+    text += number(p.x) + " " + number(p.y) + " " + number(p.z) + "\n";
   const fs::path input = write("pond.xyz", text);
   for (const auto& [out, args] : {std::pair{"in.svo", ""}, std::pair{"ooc.svo", "--cell-level 3"}}) {
     const auto [code, err] = build(input, dir_ / out, std::string("--levels 8 ") + args);
@@ -685,7 +687,9 @@ TEST_F(PointsCli, OutOfCoreWithEstimatedNormalsHasTheInCoreVoxels) {
     inAlike += glm::dot(a, f) > 0.0, oocAlike += glm::dot(b, f) > 0.0;
   }
   const double voxels = double(in.size());
-  const auto consistent = [&](std::size_t alike) { return std::max(double(alike), voxels - double(alike)) / voxels; };
+  const auto consistent = [&](std::size_t alike) {
+    return std::max(double(alike), voxels - double(alike)) / voxels;
+  };
   std::printf(
       "pond at 8 levels, cells of level 3: %zu of %zu voxels' normals turned over, %zu otherwise different; "
       "oriented as the scanner's up to one sign: %.1f%% in core, %.1f%% out of core\n",
@@ -705,7 +709,8 @@ TEST_F(Points, OutOfCoreResumesAnInterruptedBuild) {
   svo::OutOfCoreOptions ooc;
   ooc.cellLevel = 2;
   const auto levels = [](double, const svo::SceneTransform&) { return 6; };
-  const svo::PointStoreReport whole = svo::buildPointStore(input, options, {}, ooc, dir_ / "whole.svo", levels);
+  const svo::PointStoreReport whole =
+      svo::buildPointStore(input, options, {}, ooc, dir_ / "whole.svo", levels);
   EXPECT_EQ(whole.build.cellsReused, 0u);
   // A smooth closed surface: the normals estimated cell by cell are the whole cloud's, the store the same.
   PointCloud read = svo::loadPointCloud(input);
@@ -719,11 +724,13 @@ TEST_F(Points, OutOfCoreResumesAnInterruptedBuild) {
   ooc.cellSpilled = [&](glm::ivec3) {
     if (++spilled == 5) throw std::runtime_error("interrupted");
   };
-  EXPECT_THROW(svo::buildPointStore(input, options, {}, ooc, dir_ / "resumed.svo", levels), std::runtime_error);
+  EXPECT_THROW(svo::buildPointStore(input, options, {}, ooc, dir_ / "resumed.svo", levels),
+               std::runtime_error);
   EXPECT_FALSE(fs::exists(dir_ / "resumed.svo"));
   ooc.cellSpilled = nullptr;
   ooc.resume = true;
-  const svo::PointStoreReport resumed = svo::buildPointStore(input, options, {}, ooc, dir_ / "resumed.svo", levels);
+  const svo::PointStoreReport resumed =
+      svo::buildPointStore(input, options, {}, ooc, dir_ / "resumed.svo", levels);
   EXPECT_EQ(resumed.build.cellsReused, 5u);
   EXPECT_EQ(resumed.build.cells, whole.build.cells);
   EXPECT_EQ(slurp(dir_ / "whole.svo"), slurp(dir_ / "resumed.svo"));

@@ -182,7 +182,8 @@ bool buildFromVoxels(const BuildArgs& args, StoreWriteOptions storeOptions, Buil
 int levelsForScan(const BuildArgs& args, double spacing, const SceneTransform& transform) {
   const int levels = args.options.levels, fits = levelsForSpacing(spacing, transform);
   if (args.levelsGiven && levels > kMaxPointLevels)
-    throw UsageError(fmt::format("--levels {}: point clouds build at most {} levels", levels, kMaxPointLevels));
+    throw UsageError(
+        fmt::format("--levels {}: point clouds build at most {} levels", levels, kMaxPointLevels));
   const auto voxelAt = [&](int level) { return std::ldexp(transform.size, -level); };
   if (!args.levelsGiven) {
     spdlog::info("{}: the points lie {:.3g} apart: {} levels (finest voxel {:.3g}, at least {} spacings)",
@@ -190,9 +191,10 @@ int levelsForScan(const BuildArgs& args, double spacing, const SceneTransform& t
     return fits;
   }
   if (levels > fits)
-    spdlog::warn("{}: the points lie {:.3g} apart, too sparse for the finest voxel ({:.3g}) of --levels {}: the "
-                 "surface will have holes; --levels {} fits (a voxel of at least {} spacings)",
-                 args.mesh, spacing, voxelAt(levels), levels, fits, kVoxelsPerSpacing);
+    spdlog::warn(
+        "{}: the points lie {:.3g} apart, too sparse for the finest voxel ({:.3g}) of --levels {}: the "
+        "surface will have holes; --levels {} fits (a voxel of at least {} spacings)",
+        args.mesh, spacing, voxelAt(levels), levels, fits, kVoxelsPerSpacing);
   return levels;
 }
 
@@ -212,10 +214,10 @@ bool buildFromPoints(const BuildArgs& args, BuildOptions options, StoreWriteOpti
   spdlog::info("{}: {} points ({}{}{})", args.mesh, cloud.positions.size(), cloud.format,
                cloud.normals.empty() ? "" : ", normals", cloud.colors.empty() ? "" : ", colors");
   if (cloud.missing > 0)
-    spdlog::warn("{}: the file ends inside point {} of the {} its header declares; building from the {} "
-                 "before",
-                 args.mesh, cloud.positions.size(), cloud.positions.size() + cloud.missing,
-                 cloud.positions.size());
+    spdlog::warn(
+        "{}: the file ends inside point {} of the {} its header declares; building from the {} "
+        "before",
+        args.mesh, cloud.positions.size(), cloud.positions.size() + cloud.missing, cloud.positions.size());
   options.levels = levelsForScan(args, estimatePointSpacing(cloud), transform);
   phaseStart = std::chrono::steady_clock::now();
   const NormalEstimate normals = estimateNormals(cloud);
@@ -345,8 +347,9 @@ std::pair<int, bool> buildPointsOutOfCore(const BuildArgs& args, const BuildSetu
                             });
     return built.build;
   });
-  spdlog::info("{}: {} points ({}{}{}), {} normals estimated", args.mesh, built.file.points, built.file.format,
-               built.file.normals ? ", normals" : "", built.file.colors ? ", colors" : "", built.normalsEstimated);
+  spdlog::info("{}: {} points ({}{}{}), {} normals estimated", args.mesh, built.file.points,
+               built.file.format, built.file.normals ? ", normals" : "", built.file.colors ? ", colors" : "",
+               built.normalsEstimated);
   if (built.file.missing > 0)
     spdlog::warn("{}: the file ends inside point {} of the {} its header declares; built from the {} before",
                  args.mesh, built.file.points, built.file.points + built.file.missing, built.file.points);
