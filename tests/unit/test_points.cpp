@@ -640,7 +640,8 @@ std::map<std::tuple<int, int, int, int>, svo::VoxelRecord> voxelsByPlace(const s
 
 }  // namespace
 
-// With the file's normals the out-of-core store is the in-core one byte for byte, whatever the cells.
+// With the file's normals the out-of-core store is the in-core one byte for byte at these sizes, whatever the
+// cells (a larger store may order its slices otherwise: loadTree is the same).
 TEST_F(PointsCli, OutOfCoreWithFileNormalsIsTheInCoreStore) {
   const fs::path input = write("p.ply", ply(exactCloud(3000), true));
   const auto [code, err] = build(input, dir_ / "in.svo", "--levels 7");

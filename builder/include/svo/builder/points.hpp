@@ -138,10 +138,10 @@ struct PointStoreReport {
 // point's cell, each cell's halo points from cells done before keeping their final normals, so that they
 // orient the cell's as Hoppe's tree would. The levels above the cells come from the cells' sums and
 // points, each cell's subtree from its points (spilled, resumable), and the store from both
-// (StoreFileWriter::appendForest). With the file's normals for every point the store is byte-identical to
-// the in-core build's; with normals estimated the voxels are the same, their normals (and so contours)
-// differ only where a cell's estimate differs from the whole cloud's. Cells are built one at a time, each
-// on all threads.
+// (StoreFileWriter::appendForest). With the file's normals for every point the octree (loadTree) is the
+// in-core build's; with normals estimated the voxels are the same, their normals (and so contours) differ
+// only where a cell's estimate differs from the whole cloud's. Cells are built one at a time, each on all
+// threads.
 PointStoreReport buildPointStore(const std::filesystem::path& input, BuildOptions options,
                                  const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
                                  const std::filesystem::path& store, const PointLevelChoice& levels);
