@@ -154,7 +154,9 @@ std::uint32_t binPoints(const std::filesystem::path& input, const SceneTransform
       if (!batch.normals.empty()) p.normal = batch.normals[i];
       if (!batch.colors.empty()) p.color = batch.colors[i];
       const glm::ivec3 coord = detail::pointVoxel(transform, p.position, cells.level);
-      const std::uint32_t cell = *cells.find(coord);
+      const std::optional<std::uint32_t> found = cells.find(coord);
+      if (!found) throw std::runtime_error(input.string() + ": the file changed while it was being built");
+      const std::uint32_t cell = *found;
       if (p.position.z > highest) highest = p.position.z, highestCell = cell;
       bins.appendOwn(cell, p);
       const glm::dvec3 f =
