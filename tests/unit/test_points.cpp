@@ -30,35 +30,15 @@
 #include <glm/trigonometric.hpp>
 
 #include "command_helpers.hpp"
+#include "points_helpers.hpp"
 #include "reference.hpp"
 #include "svo/builder/points.hpp"
 #include "svo/store/format.hpp"
 #include "svo/store/store_reader.hpp"
 
-namespace fs = std::filesystem;
-using svo::PointCloud;
+using namespace pointtest;
 
 namespace {
-
-// The real scan: assimp-testmodels' pond, 70051 points with normals and colors.
-const fs::path kPond = "/usr/share/assimp/models/PLY/pond.0.ply";
-const fs::path kPoints = "/usr/share/assimp/models/PLY/points.ply";
-
-class Points : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("svo_points_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  fs::path write(const std::string& name, const std::string& bytes) {
-    std::ofstream(dir_ / name, std::ios::binary) << bytes;
-    return dir_ / name;
-  }
-  fs::path dir_;
-};
 
 // Points on the unit sphere (a Fibonacci spiral: nearly even spacing), scaled by `radius`.
 PointCloud sphere(int n, double radius) {
@@ -69,62 +49,6 @@ PointCloud sphere(int n, double radius) {
     c.positions.emplace_back(radius * r * std::cos(a), radius * r * std::sin(a), radius * z);
   }
   return c;
-}
-
-// Points of float precision with colors and normals, for files that keep them exactly.
-PointCloud exactCloud(int n) {
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
-  PointCloud c;
-  for (int i = 0; i < n; ++i) {
-    const glm::vec3 p(u(rng), u(rng), 0.25f * u(rng));
-    c.positions.emplace_back(p);
-    c.normals.push_back(glm::normalize(glm::vec3(0.1f * u(rng), 0.1f * u(rng), 1.0f)));
-    c.colors.emplace_back(float(int(127.5f + 127.0f * p.x)), float(int(127.5f + 127.0f * p.y)), 200.0f, 1.0f);
-  }
-  return c;
-}
-
-std::string number(double v) {
-  char text[64];
-  std::snprintf(text, sizeof text, "%.17g", v);  // a float read back as a double exactly
-  return text;
-}
-
-// A PLY of the cloud; colors as 0..255 codes in `colors` (the cloud's are codes, not linear values).
-std::string ply(const PointCloud& c, bool binary) {
-  std::string out =
-      std::string("ply\nformat ") + (binary ? "binary_little_endian" : "ascii") +
-      " 1.0\ncomment made by test_points\nelement vertex " + std::to_string(c.positions.size()) +
-      "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float "
-      "ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar "
-      "blue\nend_header\n";
-  for (std::size_t i = 0; i < c.positions.size(); ++i) {
-    const float v[6] = {float(c.positions[i].x), float(c.positions[i].y), float(c.positions[i].z),
-                        c.normals[i].x,          c.normals[i].y,          c.normals[i].z};
-    const unsigned char rgb[3] = {(unsigned char)c.colors[i].r, (unsigned char)c.colors[i].g,
-                                  (unsigned char)c.colors[i].b};
-    if (binary) {
-      out.append(reinterpret_cast<const char*>(v), sizeof v);
-      out.append(reinterpret_cast<const char*>(rgb), sizeof rgb);
-    } else {
-      for (float f : v) out += number(f) + " ";
-      out += std::to_string(rgb[0]) + " " + std::to_string(rgb[1]) + " " + std::to_string(rgb[2]) + "\n";
-    }
-  }
-  return out;
-}
-
-std::string xyz(const PointCloud& c) {
-  std::string out = "# x y z r g b nx ny nz\n";
-  for (std::size_t i = 0; i < c.positions.size(); ++i) {
-    const glm::dvec3& p = c.positions[i];
-    const glm::vec3& n = c.normals[i];
-    out += number(p.x) + " " + number(p.y) + " " + number(p.z) + " " + std::to_string(int(c.colors[i].r)) +
-           " " + std::to_string(int(c.colors[i].g)) + " " + std::to_string(int(c.colors[i].b)) + " " +
-           number(n.x) + " " + number(n.y) + " " + number(n.z) + "\n";
-  }
-  return out;
 }
 
 std::string drc(const PointCloud& c) {
@@ -147,24 +71,6 @@ std::string drc(const PointCloud& c) {
   draco::EncoderBuffer buffer;
   EXPECT_TRUE(encoder.EncodePointCloudToBuffer(*pc, &buffer).ok());
   return std::string(buffer.data(), buffer.size());
-}
-
-double degreesBetween(glm::dvec3 a, glm::dvec3 b) {
-  return glm::degrees(std::acos(std::clamp(glm::dot(glm::normalize(a), glm::normalize(b)), -1.0, 1.0)));
-}
-
-// The tree's voxels with their cube coordinates and levels, walked from the root (children in slot order).
-struct Voxel {
-  glm::ivec3 coord;
-  int level;
-  svo::VoxelRecord record;
-};
-void walk(const svo::VoxelTree& t, std::uint32_t i, glm::ivec3 coord, int level, std::vector<Voxel>& out) {
-  const svo::VoxelRecord& r = t.voxels[i];
-  out.push_back({coord, level, r});
-  std::uint32_t child = r.firstChild;
-  for (int s = 0; s < 8; ++s)
-    if (r.childMask >> s & 1) walk(t, child++, svo::childCoord(coord, s), level + 1, out);
 }
 
 using Key = std::tuple<int, int, int>;
@@ -256,17 +162,6 @@ bool sealsInside(const svo::VoxelTree& tree, int levels, glm::ivec3 inside) {
   return at(inside) == 0;
 }
 
-// A random (Poisson) sample of the unit sphere, n points, normals analytic: its spacing is sqrt(4 pi / n).
-PointCloud randomSphere(int n, unsigned seed) {
-  PointCloud c;
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> g;
-  for (int i = 0; i < n; ++i) {
-    c.positions.push_back(glm::normalize(glm::dvec3(g(rng), g(rng), g(rng))));
-    c.normals.emplace_back(c.positions.back());
-  }
-  return c;
-}
 // The sphere at 5 levels with a finest voxel of 4.5 spacings (between kVoxelsPerSpacing and twice it).
 constexpr int kFitLevels = 5;
 constexpr double kSphereCube = 2.0 * 1.03125;  // fitSceneCube's margin of 1/64 a side around [-1, 1]
@@ -384,42 +279,6 @@ TEST_F(Points, PlaneNormalsVoxelsAndContours) {
   EXPECT_LT(checkVoxels(c, 8, [&](glm::dvec3) { return normal; }), 1.0);
 }
 
-// assimp-testmodels' pond.0.ply as packaged is damaged: a CR-LF conversion dropped the 0x0D byte before
-// 0x0A bytes in its binary records (one of its colors reads 13 10 9 once restored), 69 bytes in all, so from
-// its 627th record on the records are misaligned and many read as garbage (non-finite or huge positions).
-// This restores what it can: where a record does not read as a point (finite, within 1000 units, a unit
-// normal), a CR goes back before the LF within a record back that makes it read as one; records that still
-// do not read as points are dropped. Returns the file of the points that read, and their count.
-std::pair<std::string, std::size_t> repairedPond() {
-  std::ifstream in(kPond, std::ios::binary);
-  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  const std::size_t start = bytes.find("end_header\n") + 11, record = 31;  // 6 floats, 3 uchars, a float
-  std::string data = bytes.substr(start);
-  const auto plausible = [&](std::size_t at) {
-    if (at + record > data.size()) return false;
-    float v[6];
-    std::memcpy(v, data.data() + at, sizeof v);
-    for (const float f : v)
-      if (!std::isfinite(f)) return false;
-    const float length = std::sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]);
-    return std::max({std::abs(v[0]), std::abs(v[1]), std::abs(v[2])}) < 1e3f &&
-           std::abs(length - 1.0f) < 1e-3f;
-  };
-  std::string records;
-  std::size_t count = 0;
-  for (std::size_t at = 0; at + record <= data.size(); at += record) {
-    for (std::size_t p = at < record ? 1 : at - record; !plausible(at) && p < at + record; ++p) {
-      if (data[p] != '\n' || data[p - 1] == '\r') continue;
-      data.insert(p, 1, '\r');
-      if (!plausible(at)) data.erase(p, 1);
-    }
-    if (plausible(at)) records.append(data, at, record), ++count;
-  }
-  std::string header = bytes.substr(0, start);
-  header.replace(header.find("70051"), 5, std::to_string(count));
-  return {header + records, count};
-}
-
 // The scan's own normals against PCA's over the same points: the file's normals come from the scanner's
 // software, so agreement is measured with a tolerance, not exact: most points (three in four) within 30
 // degrees as lines, half within 20, and one orientation for 90% of them up to a global sign.
@@ -458,40 +317,6 @@ TEST_F(Points, PondScanNormalsAgreeWithTheFile) {
 }
 
 // ----- the command --------------------------------------------------------------------------------------
-
-namespace {
-
-using svotest::slurp;
-
-}  // namespace
-
-class PointsCli : public Points {
- protected:
-  // `svo build INPUT -o OUT ARGS`: exit status and stderr.
-  std::pair<int, std::string> build(const fs::path& input, const fs::path& out,
-                                    const std::string& args = "") {
-    const fs::path err = dir_ / "stderr.txt";
-    const std::string command = svotest::svoBinary() + " build " + input.string() + " -o " + out.string() +
-                                " " + args + " >" + (dir_ / "stdout.txt").string() + " 2>" + err.string();
-    const int status = std::system(command.c_str());
-    return {WIFEXITED(status) ? WEXITSTATUS(status) : 128, slurp(err)};
-  }
-  // One error line naming the file and mentioning `problem`, a non-zero exit, no crash, nothing at the
-  // target.
-  void expectCleanFailure(const fs::path& input, const std::string& problem, const std::string& args = "") {
-    const fs::path out = dir_ / "o.svo";
-    const auto [code, err] = build(input, out, "--levels 6 " + args);
-    EXPECT_NE(code, 0) << err;
-    EXPECT_LT(code, 128) << "crashed: " << err;
-    EXPECT_NE(err.find(input.filename().string()), std::string::npos) << err;
-    EXPECT_NE(err.find(problem), std::string::npos) << "stderr: " << err;
-    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << "stderr: " << err;
-    EXPECT_EQ(err.find("AddressSanitizer"), std::string::npos) << err;
-    EXPECT_FALSE(fs::exists(out));
-    for (const auto& e : fs::directory_iterator(dir_))
-      EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << "left behind: " << e.path();
-  }
-};
 
 TEST_F(PointsCli, BadPointCloudsGiveOneClearError) {
   const std::string header =
@@ -623,128 +448,4 @@ TEST_F(PointsCli, LevelsFromThePointSpacing) {
   EXPECT_NE(said.find("the surface will have holes; --levels " + std::to_string(kFitLevels) + " fits"),
             std::string::npos)
       << said;
-}
-
-// ----- out of core -------------------------------------------------------------------------------------
-
-namespace {
-
-// Every voxel of a tree by level and coordinates, with its record.
-std::map<std::tuple<int, int, int, int>, svo::VoxelRecord> voxelsByPlace(const svo::VoxelTree& tree) {
-  std::vector<Voxel> all;
-  walk(tree, 0, glm::ivec3(0), 0, all);
-  std::map<std::tuple<int, int, int, int>, svo::VoxelRecord> out;
-  for (const Voxel& v : all) out[{v.level, v.coord.x, v.coord.y, v.coord.z}] = v.record;
-  return out;
-}
-
-}  // namespace
-
-// With the file's normals the out-of-core store is the in-core one byte for byte at these sizes, whatever the
-// cells (a larger store may order its slices otherwise: loadTree is the same).
-TEST_F(PointsCli, OutOfCoreWithFileNormalsIsTheInCoreStore) {
-  const fs::path input = write("p.ply", ply(exactCloud(3000), true));
-  const auto [code, err] = build(input, dir_ / "in.svo", "--levels 7");
-  ASSERT_EQ(code, 0) << err;
-  for (const std::string cells : {"--cell-level 1", "--cell-level 3", "--memory 1G"}) {
-    const auto [oocCode, oocErr] = build(input, dir_ / "ooc.svo", "--levels 7 " + cells);
-    ASSERT_EQ(oocCode, 0) << oocErr;
-    EXPECT_EQ(slurp(dir_ / "in.svo"), slurp(dir_ / "ooc.svo")) << cells;
-    EXPECT_FALSE(fs::exists(dir_ / "ooc.svo.build")) << "the work folder is removed";
-  }
-}
-
-// With normals estimated per cell (a real scan's positions alone): the same voxels, and the same normals
-// up to orientation for all but 2%, but the orientation, grown from each cell's neighbours done before
-// rather than along one spanning tree of the whole cloud, differs on this noisy open scan: measured 3401 of
-// 15701 voxels turned over, 152 otherwise different. Against the scanner's own normals (the file build),
-// orientation agrees up to one global sign for 90.5% of the voxels in core and 85.4% out of core.
-TEST_F(PointsCli, OutOfCoreWithEstimatedNormalsHasTheInCoreVoxels) {
-  if (!fs::exists(kPond)) GTEST_SKIP() << kPond << " is missing (assimp-testmodels)";
-  const PointCloud pond = svo::loadPointCloud(write("pond.ply", repairedPond().first));
-  std::string text;
-  for (const glm::dvec3& p : pond.positions)
-    text += number(p.x) + " " + number(p.y) + " " + number(p.z) + "\n";
-  const fs::path input = write("pond.xyz", text);
-  for (const auto& [out, args] : {std::pair{"in.svo", ""}, std::pair{"ooc.svo", "--cell-level 3"}}) {
-    const auto [code, err] = build(input, dir_ / out, std::string("--levels 8 ") + args);
-    ASSERT_EQ(code, 0) << err;
-  }
-  const auto [code, err] = build(dir_ / "pond.ply", dir_ / "file.svo", "--levels 8");
-  ASSERT_EQ(code, 0) << err;
-  const auto in = voxelsByPlace(svo::StoreReader(dir_ / "in.svo").loadTree());
-  const auto ooc = voxelsByPlace(svo::StoreReader(dir_ / "ooc.svo").loadTree());
-  const auto file = voxelsByPlace(svo::StoreReader(dir_ / "file.svo").loadTree());
-  ASSERT_EQ(in.size(), ooc.size());
-  std::size_t flipped = 0, otherwise = 0, inAlike = 0, oocAlike = 0;
-  for (const auto& [place, r] : in) {
-    const auto it = ooc.find(place);
-    ASSERT_NE(it, ooc.end()) << "a voxel only the in-core build has";
-    EXPECT_EQ(r.childMask, it->second.childMask);
-    const glm::dvec3 a(svo::decodeNormal(r.normal)), b(svo::decodeNormal(it->second.normal)),
-        f(svo::decodeNormal(file.at(place).normal));
-    flipped += glm::dot(a, b) < 0.0;
-    otherwise += glm::dot(a, b) >= 0.0 && r.normal != it->second.normal;
-    inAlike += glm::dot(a, f) > 0.0, oocAlike += glm::dot(b, f) > 0.0;
-  }
-  const double voxels = double(in.size());
-  const auto consistent = [&](std::size_t alike) {
-    return std::max(double(alike), voxels - double(alike)) / voxels;
-  };
-  std::printf(
-      "pond at 8 levels, cells of level 3: %zu of %zu voxels' normals turned over, %zu otherwise different; "
-      "oriented as the scanner's up to one sign: %.1f%% in core, %.1f%% out of core\n",
-      flipped, in.size(), otherwise, 100.0 * consistent(inAlike), 100.0 * consistent(oocAlike));
-  EXPECT_LT(double(otherwise), 0.02 * voxels);
-  EXPECT_GT(consistent(oocAlike), 0.8);
-}
-
-// A build interrupted after some cells resumes from them and writes the store the uninterrupted one does.
-TEST_F(Points, OutOfCoreResumesAnInterruptedBuild) {
-  PointCloud c = randomSphere(20000, 13);
-  c.normals.clear();
-  std::string text;
-  for (const glm::dvec3& p : c.positions) text += number(p.x) + " " + number(p.y) + " " + number(p.z) + "\n";
-  const fs::path input = write("s.xyz", text);
-  svo::BuildOptions options;
-  svo::OutOfCoreOptions ooc;
-  ooc.cellLevel = 2;
-  const auto levels = [](double, const svo::SceneTransform&) { return 6; };
-  const svo::PointStoreReport whole =
-      svo::buildPointStore(input, options, {}, ooc, dir_ / "whole.svo", levels);
-  EXPECT_EQ(whole.build.cellsReused, 0u);
-  // A smooth closed surface: the normals estimated cell by cell are the whole cloud's, the store the same.
-  PointCloud read = svo::loadPointCloud(input);
-  svo::estimateNormals(read);
-  options.levels = 6;
-  const svo::SceneTransform transform = svo::fitSceneCube(read);
-  svo::writeStore(dir_ / "in.svo", svo::voxelizePoints(read, transform, options), transform,
-                  svo::storedParameters(options), {});
-  EXPECT_EQ(slurp(dir_ / "whole.svo"), slurp(dir_ / "in.svo"));
-  int spilled = 0;
-  ooc.cellSpilled = [&](glm::ivec3) {
-    if (++spilled == 5) throw std::runtime_error("interrupted");
-  };
-  EXPECT_THROW(svo::buildPointStore(input, options, {}, ooc, dir_ / "resumed.svo", levels),
-               std::runtime_error);
-  EXPECT_FALSE(fs::exists(dir_ / "resumed.svo"));
-  ooc.cellSpilled = nullptr;
-  ooc.resume = true;
-  const svo::PointStoreReport resumed =
-      svo::buildPointStore(input, options, {}, ooc, dir_ / "resumed.svo", levels);
-  EXPECT_EQ(resumed.build.cellsReused, 5u);
-  EXPECT_EQ(resumed.build.cells, whole.build.cells);
-  EXPECT_EQ(slurp(dir_ / "whole.svo"), slurp(dir_ / "resumed.svo"));
-  // Another depth does not resume the folder: it says so.
-  ooc.cellSpilled = [&](glm::ivec3) { throw std::runtime_error("interrupted"); };
-  ooc.resume = false;
-  EXPECT_THROW(svo::buildPointStore(input, options, {}, ooc, dir_ / "other.svo", levels), std::runtime_error);
-  ooc.resume = true;
-  try {
-    svo::buildPointStore(input, options, {}, ooc, dir_ / "other.svo",
-                         [](double, const svo::SceneTransform&) { return 7; });
-    ADD_FAILURE() << "resumed a build of another depth";
-  } catch (const std::runtime_error& e) {
-    EXPECT_NE(std::string(e.what()).find("another levels"), std::string::npos) << e.what();
-  }
 }
