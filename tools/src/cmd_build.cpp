@@ -490,7 +490,9 @@ void addBuildCommand(CLI::App& app) {
                   ".xyz lines: x y z [r g b] [nx ny nz]) or OpenVDB volume (.vdb)")
       ->required();
   cmd->add_option("-o,--output", args->out, "output .svo file")->required();
-  cmd->add_option("--levels", args->options.levels, "octree depth: finest voxels are 2^-levels of the scene")
+  cmd->add_option("--levels", args->options.levels,
+                  "octree depth: finest voxels are 2^-levels of the scene (a scan without it: the depth its "
+                  "point spacing fits)")
       ->check(CLI::Range(1, kMaxLevels))
       ->capture_default_str();
   cmd->add_flag("--no-contours", args->noContours, "cube voxels only (no contour slabs)");
