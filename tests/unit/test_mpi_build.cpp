@@ -198,4 +198,20 @@ TEST_F(MpiBuild, FullDiskWhileSpillingFailsCleanlyAndResumes) {
   EXPECT_TRUE(bytesOf(store) == single) << "the resumed store differs from the single-process one";
 }
 
+TEST_F(MpiBuild, AFullDiskWhileBinningTheInputFailsCleanly) {
+  const fs::path disk = dir_ / "tiny", store = disk / "s.svo";
+  fs::create_directories(disk);
+  // Too small for the ranks' binned triangles: the job fails in the pass every rank shares.
+  if (run("mount -t tmpfs -o size=96k tmpfs " + disk.string()).find("exit 0") == std::string::npos)
+    GTEST_SKIP() << "cannot mount a small file system here";
+  struct Unmount {
+    fs::path at;
+    ~Unmount() { svotest::runShell("umount " + at.string()); }
+  } unmount{disk};
+  const std::string full = mpi(3, "build " + mesh_.string() + " --levels 9 --cell-level 3 --threads 1 -o " + store.string());
+  EXPECT_EQ(full.find("exit 0"), std::string::npos) << full;
+  EXPECT_NE(full.find("cannot write (disk full?)"), std::string::npos) << full;
+  EXPECT_FALSE(fs::exists(store));
+}
+
 }  // namespace
