@@ -342,23 +342,29 @@ std::uint64_t readPlyVertices(const fs::path& path, PlyRecords& records, const P
   return 0;
 }
 
+// What the header says of the points: their format and which attributes they carry.
+PointFileInfo plyPointInfo(const PlyHeader& header, const PlyElement& vertex) {
+  const PointProperties props = pointProperties(vertex);
+  PointFileInfo info;
+  info.format = header.format == PlyFormat::Ascii ? "PLY point cloud (ASCII)" : "PLY point cloud (binary)";
+  info.normals = props.normal[0] >= 0 && props.normal[1] >= 0 && props.normal[2] >= 0;
+  info.colors = props.color[0] >= 0 && props.color[1] >= 0 && props.color[2] >= 0;
+  return info;
+}
+
 PointFileInfo readPly(const fs::path& path, const PointBatch& emit) {
   std::string error;
   const std::optional<PlyHeader> header = parsePlyHeader(readHead(path, kMaxHeaderBytes + kReadChunk), error);
   if (!header) fail(path, error);
   FileWindow window(path, header->bytes);
   PlyRecords records(path, window, header->format);
-  PointFileInfo info;
-  info.format = header->format == PlyFormat::Ascii ? "PLY point cloud (ASCII)" : "PLY point cloud (binary)";
   BatchSink sink(path, emit, [&window] { return window.fraction(); });
   std::vector<double> skipped;
   for (const PlyElement& e : header->elements) {
     if ((e.name == "face" || e.name == "tristrips") && e.count > 0)
       fail(path, "the PLY file has faces: a mesh, not a point cloud");
     if (e.name == "vertex") {
-      const PointProperties props = pointProperties(e);
-      info.normals = props.normal[0] >= 0 && props.normal[1] >= 0 && props.normal[2] >= 0;
-      info.colors = props.color[0] >= 0 && props.color[1] >= 0 && props.color[2] >= 0;
+      PointFileInfo info = plyPointInfo(*header, e);
       info.missing = readPlyVertices(path, records, e, sink);
       sink.flush();
       info.points = sink.count();
@@ -563,6 +569,22 @@ PointFileInfo readPointCloud(const fs::path& path, const PointBatch& batch) {
     fail(path, "not a point cloud format (.ply, .drc or .xyz)");
   if (info.points == 0) fail(path, "no points");
   return info;
+}
+
+PointFileInfo surveyPointFile(const fs::path& path) {
+  if (detail::lowerExtension(path) != ".ply")
+    return readPointCloud(path, [](const PointCloud&, std::uint64_t, double) {});
+  checkRegularFile(path);
+  std::string error;
+  const std::optional<PlyHeader> header = parsePlyHeader(readHead(path, kMaxHeaderBytes + kReadChunk), error);
+  if (!header) fail(path, error);
+  for (const PlyElement& e : header->elements) {
+    if (e.name != "vertex") continue;
+    PointFileInfo info = plyPointInfo(*header, e);
+    info.points = e.count;
+    return info;
+  }
+  fail(path, "the PLY file has no vertex element");
 }
 
 PointCloud loadPointCloud(const fs::path& path) {

@@ -451,6 +451,17 @@ bool openWorkFolder(const std::optional<nlohmann::json>& old, const nlohmann::js
 
 }  // namespace
 
+std::uint64_t estimateInCorePointBuildBytes(std::uint64_t points) {
+  return std::uint64_t(kInCoreBytesPerPoint * double(points));
+}
+
+PointBuildPlan planPointBuild(std::uint64_t points, std::uint64_t processBytes, std::uint64_t share) {
+  PointBuildPlan plan;
+  plan.inCoreBytes = processBytes + estimateInCorePointBuildBytes(points);
+  plan.outOfCore = plan.inCoreBytes > share;
+  return plan;
+}
+
 PointStoreReport buildPointStore(const std::filesystem::path& input, BuildOptions options,
                                  const StoreWriteOptions& write, const OutOfCoreOptions& ooc,
                                  const std::filesystem::path& store, const PointLevelChoice& chooseLevels) {

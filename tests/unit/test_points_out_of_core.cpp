@@ -136,3 +136,56 @@ TEST_F(Points, OutOfCoreResumesAnInterruptedBuild) {
     EXPECT_NE(std::string(e.what()).find("another levels"), std::string::npos) << e.what();
   }
 }
+
+// A scan with no bound given: out of core when the program and the in-core estimate exceed the default share.
+// The estimate covers the peaks measured in core on 2M points (kInCoreBytesPerPoint's comment).
+TEST(PointsPlan, OutOfCoreWhenTheInCoreEstimateExceedsTheShare) {
+  constexpr std::uint64_t kMiB = std::uint64_t(1) << 20, program = 150 * kMiB;
+  constexpr double kMeasuredPeakPerPoint = 357.0, kMeasuredPoints = 2e6;
+  EXPECT_GE(double(svo::estimateInCorePointBuildBytes(std::uint64_t(kMeasuredPoints))),
+            kMeasuredPeakPerPoint * kMeasuredPoints);
+  // 10M points take 3.6 GB in core, or up to twice that: over a 2 GiB share, within an 8 GiB one.
+  const svo::PointBuildPlan big = svo::planPointBuild(10'000'000, program, 2048 * kMiB);
+  EXPECT_TRUE(big.outOfCore);
+  EXPECT_GE(double(big.inCoreBytes), double(program) + 10e6 * kMeasuredPeakPerPoint);
+  EXPECT_LE(double(big.inCoreBytes), double(program) + 2 * 10e6 * kMeasuredPeakPerPoint);
+  EXPECT_FALSE(svo::planPointBuild(10'000'000, program, 8192 * kMiB).outOfCore);
+  // At the share exactly it fits; a byte less does not; the program alone counts.
+  EXPECT_FALSE(svo::planPointBuild(10'000'000, program, big.inCoreBytes).outOfCore);
+  EXPECT_TRUE(svo::planPointBuild(10'000'000, program, big.inCoreBytes - 1).outOfCore);
+  EXPECT_TRUE(svo::planPointBuild(1, 3 * kMiB, 2 * kMiB).outOfCore);
+  EXPECT_EQ(svo::planPointBuild(0, program, program).inCoreBytes, program);
+}
+
+// The survey that plans a build reads a PLY's header alone: the declared count and attributes, even of a
+// file cut short; other formats are counted through.
+TEST_F(Points, SurveyReadsAPlyHeaderAndCountsOtherFormats) {
+  const PointCloud c = exactCloud(300);
+  const std::string bytes = ply(c, true);
+  const svo::PointFileInfo whole = svo::surveyPointFile(write("p.ply", bytes));
+  EXPECT_EQ(whole.points, 300u);
+  EXPECT_TRUE(whole.normals);
+  EXPECT_TRUE(whole.colors);
+  EXPECT_EQ(svo::surveyPointFile(write("cut.ply", bytes.substr(0, bytes.size() / 2))).points, 300u);
+  const svo::PointFileInfo text = svo::surveyPointFile(write("p.xyz", xyz(c)));
+  EXPECT_EQ(text.points, 300u);
+  EXPECT_TRUE(text.normals);
+  EXPECT_THROW(svo::surveyPointFile(dir_ / "absent.ply"), std::runtime_error);
+}
+
+// A --levels no scan builds is refused in one line before any pass reads the file (whose second point
+// would be an error), in core and out of core, and nothing is written.
+TEST_F(PointsCli, LevelsOutOfRangeAreRefusedBeforeReading) {
+  const fs::path input = write("nan.xyz", "0 0 0\nnan 0 0\n1 1 1\n");
+  for (const std::string bound : {"", " --memory 1G"})
+    for (const int levels : {1, 22}) {
+      const auto [code, err] = build(input, dir_ / "o.svo", "--levels " + std::to_string(levels) + bound);
+      EXPECT_NE(code, 0) << err;
+      EXPECT_LT(code, 128) << err;
+      EXPECT_NE(err.find("--levels " + std::to_string(levels) + ": point clouds build 2 to 21 levels"),
+                std::string::npos)
+          << err;
+      EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+      EXPECT_FALSE(fs::exists(dir_ / "o.svo"));
+    }
+}

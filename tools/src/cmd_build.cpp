@@ -75,6 +75,22 @@ OutOfCoreOptions givenOutOfCoreOptions(const BuildArgs& args, std::uint64_t proc
   return ooc;
 }
 
+// What the out-of-core build calls a bound the command line did not give.
+constexpr const char* kDefaultMemoryOrigin =
+    "the default memory bound (half of the available memory; --memory sets it)";
+
+// Says in one line how a build with no bound given runs, from its in-core estimate and the default share.
+void sayMemoryChoice(bool outOfCore, std::uint64_t estimate, std::uint64_t share) {
+  if (outOfCore)
+    spdlog::info(
+        "building out of core within {}: in core would take about {}, more than half of the available "
+        "memory (--memory sets the bound)",
+        formatBytes(share), formatBytes(estimate));
+  else
+    spdlog::info("building in core: about {} of the {} default bound (half of the available memory)",
+                 formatBytes(estimate), formatBytes(share));
+}
+
 // The out-of-core options the command line asks for. With no bound given: in core when its estimated peak
 // fits the machine's default share, else out of core within that share. A resume, and an MPI job, is out
 // of core (the interrupted run's cell level, or one for the share).
@@ -88,16 +104,9 @@ OutOfCoreOptions outOfCoreOptions(const BuildArgs& args, const TriangleSource& s
   const std::uint64_t estimate = chosen ? 0 : processBytes + estimateInCoreBuildBytes(source, options);
   if (chosen || estimate > share) {
     ooc.memoryBytes = share;
-    ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
-    if (!chosen)
-      spdlog::info(
-          "building out of core within {}: in core would take about {}, more than half of the available "
-          "memory (--memory sets the bound)",
-          formatBytes(share), formatBytes(estimate));
-  } else {
-    spdlog::info("building in core: about {} of the {} default bound (half of the available memory)",
-                 formatBytes(estimate), formatBytes(share));
+    ooc.memoryOrigin = kDefaultMemoryOrigin;
   }
+  if (!chosen) sayMemoryChoice(estimate > share, estimate, share);
   return ooc;
 }
 
@@ -181,9 +190,6 @@ bool buildFromVoxels(const BuildArgs& args, StoreWriteOptions storeOptions, Buil
 // small for the points to cover), or else the level the spacing fits.
 int levelsForScan(const BuildArgs& args, double spacing, const SceneTransform& transform) {
   const int levels = args.options.levels, fits = levelsForSpacing(spacing, transform);
-  if (args.levelsGiven && levels > kMaxPointLevels)
-    throw UsageError(
-        fmt::format("--levels {}: point clouds build at most {} levels", levels, kMaxPointLevels));
   const auto voxelAt = [&](int level) { return std::ldexp(transform.size, -level); };
   if (!args.levelsGiven) {
     spdlog::info("{}: the points lie {:.3g} apart: {} levels (finest voxel {:.3g}, at least {} spacings)",
@@ -330,15 +336,34 @@ BuildSetup setUpBuild(const BuildArgs& args) {
   return setup;
 }
 
-// A scan out of core (--memory, --cell-level or --resume): streamed from the file, never held whole. Returns
-// the depth built and whether it has colors.
-std::pair<int, bool> buildPointsOutOfCore(const BuildArgs& args, const BuildSetup& setup,
-                                          std::uint64_t processBytes, BuildOutcome& outcome) {
+// A scan's --levels, refused before any pass reads the file.
+void checkScanLevels(const BuildArgs& args) {
+  const int levels = args.options.levels;
+  if (args.levelsGiven && (levels < kMinPointLevels || levels > kMaxPointLevels))
+    throw UsageError(fmt::format("--levels {}: point clouds build {} to {} levels", levels, kMinPointLevels,
+                                 kMaxPointLevels));
+}
+
+// A scan's out-of-core options: as given, or with none given (or --resume alone) within the default share;
+// nullopt (in core) where no bound is given and the in-core build's estimated peak fits that share.
+std::optional<OutOfCoreOptions> scanOutOfCoreOptions(const BuildArgs& args, std::uint64_t processBytes) {
   OutOfCoreOptions ooc = givenOutOfCoreOptions(args, processBytes);
-  if (args.memory == 0 && args.cellLevel == 0) {  // --resume alone
-    ooc.memoryBytes = defaultMemoryShare(machineMemory());
-    ooc.memoryOrigin = "the default memory bound (half of the available memory; --memory sets it)";
+  if (args.memory != 0 || args.cellLevel != 0) return ooc;
+  const std::uint64_t share = defaultMemoryShare(machineMemory());
+  if (!args.resume) {
+    const PointBuildPlan plan = planPointBuild(surveyPointFile(args.mesh).points, processBytes, share);
+    sayMemoryChoice(plan.outOfCore, plan.inCoreBytes, share);
+    if (!plan.outOfCore) return std::nullopt;
   }
+  ooc.memoryBytes = share;
+  ooc.memoryOrigin = kDefaultMemoryOrigin;
+  return ooc;
+}
+
+// A scan out of core: streamed from the file, never held whole. Returns the depth built and whether it has
+// colors.
+std::pair<int, bool> buildPointsOutOfCore(const BuildArgs& args, const BuildSetup& setup,
+                                          const OutOfCoreOptions& ooc, BuildOutcome& outcome) {
   PointStoreReport built;
   buildOutOfCore(ooc, outcome, [&](const OutOfCoreOptions& o) {
     built = buildPointStore(args.mesh, setup.options, setup.storeOptions, o, args.out,
@@ -444,8 +469,9 @@ void runBuild(const BuildArgs& args) {
   const std::uint64_t processBytes = residentBytes();  // the program and its libraries, before any input
   BuildOutcome outcome;
   if (isPointCloudFile(args.mesh)) {
-    if (args.memory != 0 || args.cellLevel != 0 || args.resume) {
-      const auto [levels, hasColors] = buildPointsOutOfCore(args, setup, processBytes, outcome);
+    checkScanLevels(args);
+    if (const std::optional<OutOfCoreOptions> ooc = scanOutOfCoreOptions(args, processBytes)) {
+      const auto [levels, hasColors] = buildPointsOutOfCore(args, setup, *ooc, outcome);
       writeBuildReport(args, setup.reportPath, 0, hasColors, levels, secondsSince(start), outcome);
       return;
     }
