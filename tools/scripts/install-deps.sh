@@ -3,7 +3,7 @@
 set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config git
-  libopenvdb-dev libopenvdb-tools libboost-iostreams-dev libtbb-dev
+  libopenvdb-dev libopenvdb-tools libnanovdb-dev libboost-iostreams-dev libtbb-dev
   libdraco-dev libassimp-dev assimp-testmodels
   libopenimageio-dev openimageio-tools libglm-dev libzstd-dev libxxhash-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
