@@ -1,5 +1,6 @@
 // What the OpenVDB import and export share (volume_io.cpp): the library's one-time set-up, errors naming the
-// file, and a file opened for reading with its grids listed from their metadata.
+// file, a file opened for reading with its grids listed from their metadata, the shape grid chosen, the
+// attribute grids sampled, and coarser octree levels made from the finest.
 #pragma once
 
 #include <filesystem>
@@ -8,6 +9,9 @@
 #include <vector>
 
 #include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
+#include <glm/vec3.hpp>
+#include <glm/vec4.hpp>
 
 #include "svo/builder/volume.hpp"
 
@@ -20,6 +24,8 @@ inline constexpr const char* kLevelsMetadata = "svo_levels";
 // OpenVDB's grid types registered, once per process.
 void initialize();
 [[noreturn]] void fail(const std::filesystem::path& path, const std::string& what);
+// The grid's voxel width; throws naming the file unless its transform is linear, axis-aligned and cubic.
+double cubicVoxelSize(const std::filesystem::path& path, const openvdb::GridBase& grid);
 
 class Reader {
  public:
@@ -35,5 +41,38 @@ class Reader {
   std::unique_ptr<openvdb::io::File> file_;
   std::vector<VolumeGridInfo> grids_;
 };
+
+// The shape grid the options pick (chooseVolumeGrid's rule) among the file's `grids`.
+VolumeGridInfo choose(const std::filesystem::path& path, const std::vector<VolumeGridInfo>& grids,
+                      const VolumeImportOptions& options);
+// The level set or fog volume the options pick, read whole, and the value of its surface. Throws naming the
+// file when the pick is a voxel mask or the density threshold is not a number.
+struct SurfaceGrid {
+  VolumeGridKind kind = VolumeGridKind::LevelSet;
+  openvdb::GridBase::Ptr grid;  // float or double
+  double isovalue = 0.0;        // 0 for a level set, the density threshold for a fog volume
+};
+SurfaceGrid readSurfaceGrid(Reader& file, const VolumeImportOptions& options);
+// The vec3 grid the options name, or the first default name present (color, Cd; normal, N); null when none is
+// named and none is present. Throws naming the file when the named one is missing or not a vec3 grid.
+openvdb::GridBase::Ptr colorGrid(Reader& file, const VolumeImportOptions& options);
+openvdb::GridBase::Ptr normalGrid(Reader& file, const VolumeImportOptions& options);
+
+// Samples a vec3 grid at world positions (trilinear), whatever its value precision; false when there is none.
+class Vec3Sampler {
+ public:
+  explicit Vec3Sampler(openvdb::GridBase::Ptr grid);
+  explicit operator bool() const { return bool(grid_); }
+  glm::vec3 at(const glm::dvec3& world) const;
+
+ private:
+  openvdb::Vec3SGrid::Ptr grid_;
+};
+// A color grid's value as the builder takes it: clamped to [0, 1], what is not a number black.
+glm::vec4 colorOf(glm::vec3 rgb);
+
+// The levels above the finest (levels.back(), in Morton order, filled): each parent once, in Morton order,
+// with its children's mean color and normal.
+void addCoarserLevels(VoxelLevels& levels, bool hasColors, bool hasNormals);
 
 }  // namespace svo::volume_file

@@ -53,88 +53,6 @@ bool isShape(VolumeGridKind kind) {
          kind == VolumeGridKind::Voxels;
 }
 
-VolumeGridInfo choose(const fs::path& path, const std::vector<VolumeGridInfo>& grids,
-                      const VolumeImportOptions& options) {
-  if (!options.grid.empty()) {
-    const auto named = std::find_if(grids.begin(), grids.end(),
-                                    [&](const VolumeGridInfo& g) { return g.name == options.grid; });
-    if (named == grids.end())
-      volume_file::fail(path, "no grid named '" + options.grid + "'; the file has " + describe(grids));
-    if (!isShape(named->kind))
-      volume_file::fail(path, "grid '" + options.grid + "' is a " + named->type +
-                                  " grid; svo builds from level sets and fog volumes (float or double) and "
-                                  "masks (mask or bool)");
-    return *named;
-  }
-  std::vector<VolumeGridInfo> shapes;
-  std::copy_if(grids.begin(), grids.end(), std::back_inserter(shapes),
-               [](const VolumeGridInfo& g) { return isShape(g.kind); });
-  if (shapes.empty())
-    volume_file::fail(path,
-                      "no level set, fog volume or mask grid to build from; the file has " + describe(grids));
-  if (shapes.size() > 1)
-    volume_file::fail(path, "several grids to build from (--grid NAME picks one): " + describe(shapes));
-  return shapes.front();
-}
-
-// The vec3 grid `name`, or the first of `defaults` present; null when none is named and none is present.
-openvdb::GridBase::Ptr attributeGrid(volume_file::Reader& file, const std::vector<VolumeGridInfo>& grids,
-                                     const std::string& name, std::span<const char* const> defaults,
-                                     const char* what) {
-  auto found = grids.end();
-  if (!name.empty()) {
-    found = std::find_if(grids.begin(), grids.end(), [&](const VolumeGridInfo& g) { return g.name == name; });
-    if (found == grids.end())
-      volume_file::fail(file.path(),
-                        fmt::format("no {} grid named '{}'; the file has {}", what, name, describe(grids)));
-  } else {
-    for (const char* candidate : defaults) {
-      found = std::find_if(grids.begin(), grids.end(), [&](const VolumeGridInfo& g) {
-        return g.name == candidate && g.kind == VolumeGridKind::Attribute;
-      });
-      if (found != grids.end()) break;
-    }
-    if (found == grids.end()) return nullptr;
-  }
-  if (found->kind != VolumeGridKind::Attribute)
-    volume_file::fail(file.path(), fmt::format("the {} grid '{}' is a {} grid, not a vec3 one", what,
-                                               found->name, found->type));
-  return file.read(found->name);
-}
-
-// Samples a vec3 grid at world positions (trilinear), whatever its value precision.
-class Vec3Sampler {
- public:
-  explicit Vec3Sampler(openvdb::GridBase::Ptr grid) {
-    if (!grid) return;
-    if (grid->isType<openvdb::Vec3DGrid>()) {
-      const auto& doubles = *openvdb::gridPtrCast<openvdb::Vec3DGrid>(grid);
-      auto floats = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
-      floats->setTransform(doubles.transform().copy());
-      for (auto it = doubles.cbeginValueOn(); it; ++it)
-        floats->tree().setValueOn(it.getCoord(), openvdb::Vec3s(*it));
-      grid_ = floats;
-    } else {
-      grid_ = openvdb::gridPtrCast<openvdb::Vec3SGrid>(grid);
-    }
-  }
-  explicit operator bool() const { return bool(grid_); }
-  glm::vec3 at(const glm::dvec3& world) const {
-    const openvdb::Vec3s v = openvdb::tools::BoxSampler::sample(
-        grid_->tree(), grid_->transform().worldToIndex(openvdb::Vec3d(world.x, world.y, world.z)));
-    return {v.x(), v.y(), v.z()};
-  }
-
- private:
-  openvdb::Vec3SGrid::Ptr grid_;
-};
-
-// A color grid's value as the builder takes it; what is not a number is black.
-glm::vec4 colorOf(glm::vec3 rgb) {
-  if (!std::isfinite(rgb.r + rgb.g + rgb.b)) rgb = glm::vec3(0.0f);
-  return {glm::clamp(rgb, glm::vec3(0.0f), glm::vec3(1.0f)), 1.0f};
-}
-
 template <class Grid>
 void meshSurface(const Grid& grid, double isovalue, Mesh& mesh) {
   std::vector<openvdb::Vec3s> points;
@@ -180,6 +98,18 @@ namespace volume_file {
   throw std::runtime_error(path.string() + ": " + what);
 }
 
+double cubicVoxelSize(const fs::path& path, const openvdb::GridBase& grid) {
+  const openvdb::math::Transform& transform = grid.transform();
+  const openvdb::Vec3d step =
+      transform.indexToWorld(openvdb::Vec3d(1, 1, 1)) - transform.indexToWorld(openvdb::Vec3d(0));
+  const double voxelSize = transform.voxelSize()[0];
+  if (!transform.isLinear() || !transform.hasUniformScale() || !(voxelSize > 0.0) ||
+      (step - openvdb::Vec3d(voxelSize)).length() > 1e-9 * voxelSize)
+    fail(path, "grid '" + grid.getName() +
+                   "' has a rotated, sheared or non-uniform transform; svo takes axis-aligned cubic voxels");
+  return voxelSize;
+}
+
 void initialize() {
   static const bool initialized = (openvdb::initialize(), true);
   (void)initialized;
@@ -220,48 +150,89 @@ openvdb::GridBase::Ptr Reader::read(const std::string& name) {
   }
 }
 
-}  // namespace volume_file
-
-std::vector<VolumeGridInfo> listVolumeGrids(const fs::path& path) {
-  return volume_file::Reader(path).grids();
-}
-
-VolumeGridInfo chooseVolumeGrid(const fs::path& path, const VolumeImportOptions& options) {
-  return choose(path, listVolumeGrids(path), options);
-}
-
-Mesh loadVolumeSurface(const fs::path& path, const VolumeImportOptions& options) {
-  volume_file::Reader file(path);
-  const VolumeGridInfo chosen = choose(path, file.grids(), options);
-  if (chosen.kind == VolumeGridKind::Voxels)
-    volume_file::fail(path, "grid '" + chosen.name + "' is a voxel mask, built voxel for voxel, not meshed");
-  if (chosen.kind == VolumeGridKind::FogVolume && !std::isfinite(options.densityThreshold))
-    volume_file::fail(path, "the density threshold is not a finite number");
-  const openvdb::GridBase::Ptr grid = file.read(chosen.name);
-  const bool levelSet = chosen.kind == VolumeGridKind::LevelSet;
-  const double isovalue = levelSet ? 0.0 : double(options.densityThreshold);
-  Mesh mesh;
-  if (grid->isType<openvdb::FloatGrid>())
-    meshSurface(*openvdb::gridPtrCast<openvdb::FloatGrid>(grid), isovalue, mesh);
-  else
-    meshSurface(*openvdb::gridPtrCast<openvdb::DoubleGrid>(grid), isovalue, mesh);
-  if (mesh.triangles.empty())
-    volume_file::fail(path, fmt::format("grid '{}' has no surface ({} {})", chosen.name,
-                                        levelSet ? "no zero crossing in its" : "no density crossing",
-                                        levelSet ? "narrow band" : std::to_string(isovalue)));
-  const Vec3Sampler colors(attributeGrid(file, file.grids(), options.colorGrid, kColorGridNames, "color"));
-  if (colors) {
-    mesh.colors.reserve(mesh.positions.size());
-    for (const glm::dvec3& p : mesh.positions) mesh.colors.push_back(colorOf(colors.at(p)));
+VolumeGridInfo choose(const fs::path& path, const std::vector<VolumeGridInfo>& grids,
+                      const VolumeImportOptions& options) {
+  if (!options.grid.empty()) {
+    const auto named = std::find_if(grids.begin(), grids.end(),
+                                    [&](const VolumeGridInfo& g) { return g.name == options.grid; });
+    if (named == grids.end())
+      fail(path, "no grid named '" + options.grid + "'; the file has " + describe(grids));
+    if (!isShape(named->kind))
+      fail(path, "grid '" + options.grid + "' is a " + named->type +
+                     " grid; svo builds from level sets and fog volumes (float or double) and masks (mask or "
+                     "bool)");
+    return *named;
   }
-  validateMesh(mesh, path.string());
-  return mesh;
+  std::vector<VolumeGridInfo> shapes;
+  std::copy_if(grids.begin(), grids.end(), std::back_inserter(shapes),
+               [](const VolumeGridInfo& g) { return isShape(g.kind); });
+  if (shapes.empty())
+    fail(path, "no level set, fog volume or mask grid to build from; the file has " + describe(grids));
+  if (shapes.size() > 1)
+    fail(path, "several grids to build from (--grid NAME picks one): " + describe(shapes));
+  return shapes.front();
 }
 
 namespace {
 
-// The finest voxels' levels above them: each parent once, in Morton order, with its children's mean color
-// and normal.
+openvdb::GridBase::Ptr attributeGrid(Reader& file, const std::vector<VolumeGridInfo>& grids,
+                                     const std::string& name, std::span<const char* const> defaults,
+                                     const char* what) {
+  auto found = grids.end();
+  if (!name.empty()) {
+    found = std::find_if(grids.begin(), grids.end(), [&](const VolumeGridInfo& g) { return g.name == name; });
+    if (found == grids.end())
+      fail(file.path(), fmt::format("no {} grid named '{}'; the file has {}", what, name, describe(grids)));
+  } else {
+    for (const char* candidate : defaults) {
+      found = std::find_if(grids.begin(), grids.end(), [&](const VolumeGridInfo& g) {
+        return g.name == candidate && g.kind == VolumeGridKind::Attribute;
+      });
+      if (found != grids.end()) break;
+    }
+    if (found == grids.end()) return nullptr;
+  }
+  if (found->kind != VolumeGridKind::Attribute)
+    fail(file.path(),
+         fmt::format("the {} grid '{}' is a {} grid, not a vec3 one", what, found->name, found->type));
+  return file.read(found->name);
+}
+
+}  // namespace
+
+openvdb::GridBase::Ptr colorGrid(Reader& file, const VolumeImportOptions& options) {
+  return attributeGrid(file, file.grids(), options.colorGrid, kColorGridNames, "color");
+}
+
+openvdb::GridBase::Ptr normalGrid(Reader& file, const VolumeImportOptions& options) {
+  return attributeGrid(file, file.grids(), options.normalGrid, kNormalGridNames, "normal");
+}
+
+Vec3Sampler::Vec3Sampler(openvdb::GridBase::Ptr grid) {
+  if (!grid) return;
+  if (grid->isType<openvdb::Vec3DGrid>()) {
+    const auto& doubles = *openvdb::gridPtrCast<openvdb::Vec3DGrid>(grid);
+    auto floats = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
+    floats->setTransform(doubles.transform().copy());
+    for (auto it = doubles.cbeginValueOn(); it; ++it)
+      floats->tree().setValueOn(it.getCoord(), openvdb::Vec3s(*it));
+    grid_ = floats;
+  } else {
+    grid_ = openvdb::gridPtrCast<openvdb::Vec3SGrid>(grid);
+  }
+}
+
+glm::vec3 Vec3Sampler::at(const glm::dvec3& world) const {
+  const openvdb::Vec3s v = openvdb::tools::BoxSampler::sample(
+      grid_->tree(), grid_->transform().worldToIndex(openvdb::Vec3d(world.x, world.y, world.z)));
+  return {v.x(), v.y(), v.z()};
+}
+
+glm::vec4 colorOf(glm::vec3 rgb) {
+  if (!std::isfinite(rgb.r + rgb.g + rgb.b)) rgb = glm::vec3(0.0f);
+  return {glm::clamp(rgb, glm::vec3(0.0f), glm::vec3(1.0f)), 1.0f};
+}
+
 void addCoarserLevels(VoxelLevels& levels, bool hasColors, bool hasNormals) {
   for (int level = int(levels.size()) - 2; level >= 0; --level) {
     std::vector<SliceVoxel>& parents = levels[level];
@@ -292,6 +263,53 @@ void addCoarserLevels(VoxelLevels& levels, bool hasColors, bool hasNormals) {
   }
 }
 
+SurfaceGrid readSurfaceGrid(Reader& file, const VolumeImportOptions& options) {
+  const VolumeGridInfo chosen = choose(file.path(), file.grids(), options);
+  if (chosen.kind == VolumeGridKind::Voxels)
+    fail(file.path(), "grid '" + chosen.name + "' is a voxel mask, built voxel for voxel, not as a surface");
+  if (chosen.kind == VolumeGridKind::FogVolume && !std::isfinite(options.densityThreshold))
+    fail(file.path(), "the density threshold is not a finite number");
+  SurfaceGrid out;
+  out.kind = chosen.kind;
+  out.grid = file.read(chosen.name);
+  out.isovalue = chosen.kind == VolumeGridKind::LevelSet ? 0.0 : double(options.densityThreshold);
+  return out;
+}
+
+}  // namespace volume_file
+
+std::vector<VolumeGridInfo> listVolumeGrids(const fs::path& path) {
+  return volume_file::Reader(path).grids();
+}
+
+VolumeGridInfo chooseVolumeGrid(const fs::path& path, const VolumeImportOptions& options) {
+  return volume_file::choose(path, listVolumeGrids(path), options);
+}
+
+Mesh loadVolumeSurface(const fs::path& path, const VolumeImportOptions& options) {
+  volume_file::Reader file(path);
+  const volume_file::SurfaceGrid surface = volume_file::readSurfaceGrid(file, options);
+  const bool levelSet = surface.kind == VolumeGridKind::LevelSet;
+  Mesh mesh;
+  if (surface.grid->isType<openvdb::FloatGrid>())
+    meshSurface(*openvdb::gridPtrCast<openvdb::FloatGrid>(surface.grid), surface.isovalue, mesh);
+  else
+    meshSurface(*openvdb::gridPtrCast<openvdb::DoubleGrid>(surface.grid), surface.isovalue, mesh);
+  if (mesh.triangles.empty())
+    volume_file::fail(path, fmt::format("grid '{}' has no surface ({} {})", surface.grid->getName(),
+                                        levelSet ? "no zero crossing in its" : "no density crossing",
+                                        levelSet ? "narrow band" : std::to_string(surface.isovalue)));
+  const volume_file::Vec3Sampler colors(volume_file::colorGrid(file, options));
+  if (colors) {
+    mesh.colors.reserve(mesh.positions.size());
+    for (const glm::dvec3& p : mesh.positions) mesh.colors.push_back(volume_file::colorOf(colors.at(p)));
+  }
+  validateMesh(mesh, path.string());
+  return mesh;
+}
+
+namespace {
+
 template <class Grid>
 std::vector<glm::ivec3> activeVoxels(const Grid& grid, const fs::path& path) {
   if (grid.activeVoxelCount() > kMaxMaskVoxels)
@@ -310,20 +328,12 @@ std::vector<glm::ivec3> activeVoxels(const Grid& grid, const fs::path& path) {
 
 VoxelVolume loadVolumeVoxels(const fs::path& path, const VolumeImportOptions& options) {
   volume_file::Reader file(path);
-  const VolumeGridInfo chosen = choose(path, file.grids(), options);
+  const VolumeGridInfo chosen = volume_file::choose(path, file.grids(), options);
   if (chosen.kind != VolumeGridKind::Voxels)
     volume_file::fail(path, "grid '" + chosen.name + "' is a " + nameOf(chosen.kind) + ", not a voxel mask");
   const openvdb::GridBase::Ptr grid = file.read(chosen.name);
   const openvdb::math::Transform& transform = grid->transform();
-  const openvdb::Vec3d step =
-      transform.indexToWorld(openvdb::Vec3d(1, 1, 1)) - transform.indexToWorld(openvdb::Vec3d(0));
-  const double voxelSize = transform.voxelSize()[0];
-  if (!transform.isLinear() || !transform.hasUniformScale() || !(voxelSize > 0.0) ||
-      (step - openvdb::Vec3d(voxelSize)).length() > 1e-9 * voxelSize)
-    volume_file::fail(path,
-                      "grid '" + chosen.name +
-                          "' has a rotated, sheared or non-uniform transform; svo takes axis-aligned cubic "
-                          "voxels");
+  const double voxelSize = volume_file::cubicVoxelSize(path, *grid);
   std::vector<glm::ivec3> coords = grid->isType<openvdb::MaskGrid>()
                                        ? activeVoxels(*openvdb::gridPtrCast<openvdb::MaskGrid>(grid), path)
                                        : activeVoxels(*openvdb::gridPtrCast<openvdb::BoolGrid>(grid), path);
@@ -360,9 +370,8 @@ VoxelVolume loadVolumeVoxels(const fs::path& path, const VolumeImportOptions& op
   std::sort(tree.back().begin(), tree.back().end(),
             [](const SliceVoxel& a, const SliceVoxel& b) { return mortonLess(a.coord, b.coord); });
 
-  const Vec3Sampler colors(attributeGrid(file, file.grids(), options.colorGrid, kColorGridNames, "color"));
-  const Vec3Sampler normals(
-      attributeGrid(file, file.grids(), options.normalGrid, kNormalGridNames, "normal"));
+  const volume_file::Vec3Sampler colors(volume_file::colorGrid(file, options));
+  const volume_file::Vec3Sampler normals(volume_file::normalGrid(file, options));
   const auto worldOf = [&](const glm::ivec3& local) {
     const openvdb::Vec3d w =
         transform.indexToWorld(openvdb::Vec3d(local.x + lower.x, local.y + lower.y, local.z + lower.z));
@@ -370,14 +379,14 @@ VoxelVolume loadVolumeVoxels(const fs::path& path, const VolumeImportOptions& op
   };
   for (SliceVoxel& v : tree.back()) {
     const glm::dvec3 world = worldOf(v.coord);
-    if (colors) v.color = encodeColor(colorOf(colors.at(world)));
+    if (colors) v.color = encodeColor(volume_file::colorOf(colors.at(world)));
     if (normals) {
       const glm::vec3 n = normals.at(world);
       v.normal = latticeNormal(std::isfinite(glm::dot(n, n)) && glm::dot(n, n) > 0.0f ? glm::normalize(n)
                                                                                       : glm::vec3(0, 0, 1));
     }
   }
-  addCoarserLevels(tree, bool(colors), bool(normals));
+  volume_file::addCoarserLevels(tree, bool(colors), bool(normals));
 
   VoxelVolume volume;
   for (const auto& level : tree) volume.voxels += level.size();

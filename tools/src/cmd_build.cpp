@@ -42,6 +42,7 @@ struct BuildArgs {
   int cellLevel = 0;
   bool resume = false;
   VolumeImportOptions volume;  // a .vdb input
+  bool volumeViaMesh = false;  // a level set or fog volume meshed (volumeToMesh) and voxelized as a mesh
   bool levelsGiven = false;    // --levels on the command line (a voxel mask brings its own)
 };
 
@@ -202,6 +203,29 @@ int levelsForScan(const BuildArgs& args, double spacing, const SceneTransform& t
         "surface will have holes; --levels {} fits (a voxel of at least {} spacings)",
         args.mesh, spacing, voxelAt(levels), levels, fits, kVoxelsPerSpacing);
   return levels;
+}
+
+// A level set or fog volume voxelized from its field, in core. Returns whether it has colors.
+bool buildFromVolumeSurface(const BuildArgs& args, BuildOptions options, StoreWriteOptions storeOptions,
+                            BuildOutcome& outcome) {
+  auto phaseStart = std::chrono::steady_clock::now();
+  SurfaceVolume volume;
+  {
+    ProgressBar bar("voxelize");
+    options.progress = [&bar](double f) { bar.update(f); };
+    volume = voxelizeVolumeSurface(args.mesh, args.volume, options, &outcome.stats);
+  }
+  outcome.phases["voxelize"] = secondsSince(phaseStart);
+  spdlog::info("{}: {} finest voxels on the surface", args.mesh, outcome.stats.leafVoxels);
+  phaseStart = std::chrono::steady_clock::now();
+  {
+    ProgressBar bar("write");
+    storeOptions.progress = [&bar](double f) { bar.update(f); };
+    outcome.slices =
+        writeStore(args.out, volume.tree, volume.transform, storedParameters(options), storeOptions);
+  }
+  outcome.phases["write"] = secondsSince(phaseStart);
+  return volume.tree.hasColors;
 }
 
 // A point cloud (scan): normals estimated where the file has none, each point in a finest voxel, contours
@@ -486,6 +510,16 @@ void runBuild(const BuildArgs& args) {
                      secondsSince(start), outcome);
     return;
   }
+  // A level set or fog volume in core, without an error-driven stop: voxelized from its field.
+  const bool outOfCore = args.memory != 0 || args.cellLevel != 0 || args.resume;
+  const BuildOptions& given = setup.options;
+  const bool errorDriven = given.geometryError > 0.0f || given.colorError > 0.0f || given.normalError > 0.0f;
+  if (isVolumeFile(args.mesh) && !args.volumeViaMesh && !outOfCore && !errorDriven) {
+    const bool hasColors = buildFromVolumeSurface(args, setup.options, setup.storeOptions, outcome);
+    writeBuildReport(args, setup.reportPath, 0, hasColors, setup.options.levels, secondsSince(start),
+                     outcome);
+    return;
+  }
   std::optional<Mesh> volumeSurface;
   std::unique_ptr<TriangleSource> source = openInput(args, volumeSurface);
   outcome.phases["load"] = secondsSince(start);
@@ -564,6 +598,10 @@ void addBuildCommand(CLI::App& app) {
                   ".vdb: vec3 grid of linear RGB colors (default: one named color or Cd, if present)");
   cmd->add_option("--normal-grid", args->volume.normalGrid,
                   ".vdb masks: vec3 grid of normals (default: one named normal or N, if present)");
+  cmd->add_flag("--volume-via-mesh", args->volumeViaMesh,
+                ".vdb level sets and fog volumes: mesh the surface (OpenVDB's volumeToMesh) and voxelize the "
+                "mesh, instead of voxelizing the field directly (also taken out of core and with "
+                "--geometry-error)");
   cmd->add_option("--density-threshold", args->volume.densityThreshold,
                   ".vdb fog volumes: voxels of at least this density are occupied")
       ->capture_default_str();

@@ -1,6 +1,6 @@
-// OpenVDB files in and out: level sets and fog volumes become surfaces the builder voxelizes, voxel masks
-// become octree levels voxel for voxel, and a store's level becomes a mask grid (or a level set) with color
-// and normal grids beside it.
+// OpenVDB files in and out: level sets and fog volumes become octree levels straight from their field (or
+// surfaces the mesh builder voxelizes), voxel masks become octree levels voxel for voxel, and a store's level
+// becomes a mask grid (or a level set) with color and normal grids beside it.
 #pragma once
 
 #include <cstdint>
@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "svo/builder/build.hpp"
 #include "svo/builder/mesh.hpp"
 #include "svo/store/block.hpp"
 #include "svo/store/store_reader.hpp"
@@ -53,6 +54,25 @@ VolumeGridInfo chooseVolumeGrid(const std::filesystem::path& path, const VolumeI
 // A level set's zero crossing or a fog volume's threshold surface as triangles (OpenVDB's volumeToMesh at
 // the grid's own resolution), outward-facing, with colors sampled from the color grid at the vertices.
 Mesh loadVolumeSurface(const std::filesystem::path& path, const VolumeImportOptions& options);
+
+// A level set's zero crossing or a fog volume's threshold surface voxelized straight from the grid, without a
+// mesh. The surface is the zero set of the grid's trilinear field (a fog volume's: density minus the
+// threshold); the scene cube is fitted to it as to a mesh (fitSceneCube), so the finest voxels need not be
+// the grid's: a finest voxel is occupied where the trilinear field changes sign within it, which is exact at
+// any ratio of the two widths (the field over a box within one grid cell is the trilinear interpolation of
+// its values at the box's corners). A finest voxel's normal is the field's normalized gradient (central
+// differences a grid voxel either way) at the mean of the points where the surface crosses the edges of its
+// pieces of grid cells, its color the color grid's there; its contour (options.contours) is the slab along
+// its normal holding those points, kept as the mesh builder keeps one. Coarser voxels average their
+// children's colors and normals and fit their contours to their finest voxels' points. Every leaf is at the
+// finest level (the error-driven stop is the mesh builder's). Throws naming the file on a grid that is not a
+// level set or fog volume, has no surface, or has a rotated or non-cubic transform.
+struct SurfaceVolume {
+  VoxelTree tree;
+  SceneTransform transform;
+};
+SurfaceVolume voxelizeVolumeSurface(const std::filesystem::path& path, const VolumeImportOptions& import,
+                                    const BuildOptions& options, BuildStats* stats = nullptr);
 
 // A mask or bool grid as octree levels, one finest voxel per active voxel: the octree's depth is the grid's
 // (from `svo export`'s metadata, else the smallest power of two holding the active voxels), coarser voxels
