@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <fstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include <fmt/format.h>
+#include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/VolumeToMesh.h>
@@ -115,12 +117,22 @@ void initialize() {
   (void)initialized;
 }
 
+// OpenVDB's file reader takes the bytes a truncated file lacks for values (a grid name's length among them)
+// and can spin for minutes on one; a stream that throws at the first short read finds such files first.
+void checkComplete(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  in.exceptions(std::ios::failbit | std::ios::badbit);
+  openvdb::io::Stream stream(in, false);
+  (void)stream.getGrids();
+}
+
 Reader::Reader(const fs::path& path) : path_(path) {
   initialize();
   std::error_code ec;
   if (!fs::exists(path, ec)) fail(path, "no such file");
   if (!fs::is_regular_file(path, ec)) fail(path, "not a regular file");
   try {
+    checkComplete(path);
     file_ = std::make_unique<openvdb::io::File>(path.string());
     file_->open(false);  // read now: nothing maps the file after we return
     const openvdb::GridPtrVecPtr metadata = file_->readAllGridMetadata();
