@@ -2,7 +2,8 @@
 // the octants below the root it overlaps; two passes over each octant's triangles gather the contour
 // candidates, extents and attribute sums of the levels above the cells; the top is decided from those, and
 // each cell is voxelized from its binned triangles. The processes of a job share the pass over the source
-// (each bins its share of the triangles) and the octants (each gathers some), then rank 0 decides the top.
+// (each reads and bins only its share of the triangles) and the octants (each gathers some), then rank 0
+// decides the top.
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -269,16 +270,15 @@ class CellVoxelizer {
         self(self, child, t, s);
       }
     };
-    std::uint64_t ordinal = 0;
-    source_.read([&](std::span<const SourceTriangle> batch) {
+    std::uint64_t ordinal = first;
+    source_.readRange(first, last, [&](std::span<const SourceTriangle> batch) {
       for (const SourceTriangle& s : batch) {
         const std::uint64_t at = ordinal++;
-        if (at < first || at >= last) continue;
         // Ordered by their place in the input, as Voxelizer orders them (ties between equal pieces).
         if (const std::optional<Triangle> t = makeTriangle(s.positions, transform_, std::uint32_t(at)))
           binDown(binDown, 0, *t, s);
       }
-      progress("partition", double(ordinal) / double(std::max<std::uint64_t>(total, 1)));
+      progress("partition", double(ordinal - first) / double(std::max<std::uint64_t>(last - first, 1)));
     });
     cells.flush();
     cells.keep();  // read by whichever process builds each cell; the scratch folder goes with the build

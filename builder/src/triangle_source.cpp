@@ -19,6 +19,8 @@
 #include <string>
 #include <vector>
 
+#include <sys/types.h>
+
 #include <glm/common.hpp>
 #include <glm/gtc/type_precision.hpp>
 
@@ -41,6 +43,9 @@ namespace fs = std::filesystem;
 constexpr std::size_t kBatchTriangles = std::size_t(1) << 14;
 // Bytes read from the file at a time.
 constexpr std::size_t kReadChunk = std::size_t(4) << 20;
+// A streamed PLY notes where its faces are every this many triangles, so that a read of a range starts at
+// most this many triangles before it (a rank's share of the input in a distributed build); ~24 bytes each.
+constexpr std::uint64_t kCheckpointTriangles = std::uint64_t(1) << 16;
 
 [[noreturn]] void fail(const fs::path& path, const std::string& what) {
   throw std::runtime_error(path.string() + ": " + what);
@@ -112,10 +117,11 @@ class MeshSource : public SummarizedSource {
                              bytesOf(mesh.triangles) + bytesOf(mesh.triangleMaterials);
   }
 
-  void read(const std::function<void(std::span<const SourceTriangle>)>& batch) const override {
+  void readRange(std::uint64_t first, std::uint64_t last, const Batch& batch) const override {
+    last = std::min<std::uint64_t>(last, mesh_.triangles.size());
     std::vector<SourceTriangle> out;
-    out.reserve(std::min<std::size_t>(kBatchTriangles, mesh_.triangles.size()));
-    for (std::size_t i = 0; i < mesh_.triangles.size(); ++i) {
+    out.reserve(std::size_t(std::min<std::uint64_t>(kBatchTriangles, last - std::min(first, last))));
+    for (std::size_t i = std::size_t(first); i < last; ++i) {
       const glm::uvec3 t = mesh_.triangles[i];
       SourceTriangle s;
       for (int k = 0; k < 3; ++k) {
@@ -213,12 +219,15 @@ std::optional<PlyLayout> parsePlyHeader(std::FILE* file, std::string& header) {
 // Sequential reads through a chunk buffer; `need` makes `n` bytes available at `data()`.
 class ChunkReader {
  public:
-  ChunkReader(std::FILE* file, Hasher* fingerprint) : file_(file), fingerprint_(fingerprint) {
+  // `offset`: where in the file `file` stands.
+  ChunkReader(std::FILE* file, Hasher* fingerprint, std::uint64_t offset)
+      : file_(file), fingerprint_(fingerprint), bufferOffset_(offset) {
     buffer_.resize(kReadChunk);
   }
   bool need(std::size_t n) {
     if (end_ - pos_ >= n) return true;
     std::memmove(buffer_.data(), buffer_.data() + pos_, end_ - pos_);
+    bufferOffset_ += pos_;
     end_ -= pos_, pos_ = 0;
     if (buffer_.size() < n) buffer_.resize(n);
     while (end_ < n) {
@@ -231,10 +240,12 @@ class ChunkReader {
   }
   const char* data() const { return buffer_.data() + pos_; }
   void skip(std::size_t n) { pos_ += n; }
+  std::uint64_t offset() const { return bufferOffset_ + pos_; }  // the file offset of data()
 
  private:
   std::FILE* file_;
   Hasher* fingerprint_;
+  std::uint64_t bufferOffset_;  // the file offset of buffer_[0]
   std::vector<char> buffer_;
   std::size_t pos_ = 0, end_ = 0;
 };
@@ -251,41 +262,63 @@ class PlySource : public SummarizedSource {
     summary_.format = "PLY (binary, streamed)";
     Hasher fingerprint;
     fingerprint.add(header.data(), header.size());
-    ChunkReader reader(file.get(), &fingerprint);
+    ChunkReader reader(file.get(), &fingerprint, header.size());
     readVertices(reader);
-    // Everything but the vertex table is read again per pass; this first pass counts, bounds and hashes.
-    summary_.dropped = scanFaces(reader, [&](const SourceTriangle& t) {
+    // Everything but the vertex table is read again per pass; this first pass counts, bounds and hashes, and
+    // notes where each kCheckpointTriangles-th triangle's face begins.
+    checkpoints_.push_back({0, reader.offset(), 0});
+    const auto atFace = [&](std::uint64_t face) {
+      if (summary_.triangles >= checkpoints_.back().ordinal + kCheckpointTriangles)
+        checkpoints_.push_back({face, reader.offset(), summary_.triangles});
+    };
+    summary_.dropped = scanFaces(reader, 0, atFace, [&](const SourceTriangle& t) {
       ++summary_.triangles;
       for (int k = 0; k < 3; ++k) {
         summary_.lower = glm::min(summary_.lower, t.positions[k]);
         summary_.upper = glm::max(summary_.upper, t.positions[k]);
         summary_.color |= t.colors[k] != glm::vec4(1.0f);
       }
+      return true;
     });
     while (reader.need(1)) reader.skip(1);  // the fingerprint covers the whole file
     summary_.fingerprint = fingerprint.digest();
-    summary_.residentBytes = bytesOf(floatPositions_) + bytesOf(doublePositions_) + bytesOf(colors_);
+    summary_.residentBytes =
+        bytesOf(floatPositions_) + bytesOf(doublePositions_) + bytesOf(colors_) + bytesOf(checkpoints_);
     if (summary_.triangles == 0)
       fail(path_, "mesh has no triangles" +
                       (summary_.dropped ? " (all " + std::to_string(summary_.dropped) + " are degenerate)"
                                         : std::string()));
   }
 
-  void read(const std::function<void(std::span<const SourceTriangle>)>& batch) const override {
+  void readRange(std::uint64_t first, std::uint64_t last, const Batch& batch) const override {
+    last = std::min(last, summary_.triangles);
+    if (first >= last) return;
+    // The last face noted at or before the range's first triangle.
+    const Checkpoint& from = *std::prev(std::upper_bound(
+        checkpoints_.begin(), checkpoints_.end(), first,
+        [](std::uint64_t ordinal, const Checkpoint& c) { return ordinal < c.ordinal; }));
     File file(std::fopen(path_.c_str(), "rb"));
-    if (!file || std::fseek(file.get(), long(layout_.faceOffset), SEEK_SET) != 0)
+    if (!file || fseeko(file.get(), off_t(from.offset), SEEK_SET) != 0)
       fail(path_, "cannot read the file again");
-    ChunkReader reader(file.get(), nullptr);
+    ChunkReader reader(file.get(), nullptr, from.offset);
     std::vector<SourceTriangle> out;
-    out.reserve(kBatchTriangles);
-    scanFaces(reader, [&](const SourceTriangle& t) {
+    out.reserve(std::size_t(std::min<std::uint64_t>(kBatchTriangles, last - first)));
+    std::uint64_t ordinal = from.ordinal;
+    scanFaces(reader, from.face, [](std::uint64_t) {}, [&](const SourceTriangle& t) {
+      if (ordinal++ < first) return true;
       out.push_back(t);
       if (out.size() == kBatchTriangles) batch(out), out.clear();
+      return ordinal < last;
     });
     if (!out.empty()) batch(out);
   }
 
  private:
+  // Where face `face`, whose first triangle is the `ordinal`-th, begins in the file.
+  struct Checkpoint {
+    std::uint64_t face = 0, offset = 0, ordinal = 0;
+  };
+
   struct Channel {
     std::size_t offset = 0;
     PlyType type = PlyType::UInt8;
@@ -371,15 +404,17 @@ class PlySource : public SummarizedSource {
     return {linear_[c.r].r, linear_[c.g].g, linear_[c.b].b, linear_[c.a].a};
   }
 
-  // Visits every non-degenerate triangle in file order (polygons fanned from their first corner); returns
-  // how many degenerate ones it dropped.
-  template <class Visit>
-  std::size_t scanFaces(ChunkReader& reader, Visit&& visit) const {
+  // Visits the non-degenerate triangles of the faces from `firstFace` on, whose records `reader` starts at,
+  // in file order (polygons fanned from their first corner), calling `atFace(face)` as each face begins;
+  // stops when `visit` returns false. Returns how many degenerate triangles it dropped.
+  template <class AtFace, class Visit>
+  std::size_t scanFaces(ChunkReader& reader, std::uint64_t firstFace, AtFace&& atFace, Visit&& visit) const {
     std::size_t dropped = 0;
     const PlyElement& f = layout_.face;
     const std::size_t nv = vertexCount();
     std::vector<std::uint32_t> corners;
-    for (std::uint64_t face = 0; face < f.count; ++face) {
+    for (std::uint64_t face = firstFace; face < f.count; ++face) {
+      atFace(face);
       corners.clear();
       for (const PlyProperty& p : f.properties) {
         const auto truncated = [&] {
@@ -418,7 +453,7 @@ class PlySource : public SummarizedSource {
           continue;
         }
         if (!colors_.empty()) t.colors = {color(a), color(b), color(c)};
-        visit(t);
+        if (!visit(t)) return dropped;
       }
     }
     return dropped;
@@ -426,6 +461,7 @@ class PlySource : public SummarizedSource {
 
   fs::path path_;
   PlyLayout layout_;
+  std::vector<Checkpoint> checkpoints_;  // ascending; the first is the first face's
   std::vector<glm::vec3> floatPositions_;    // when x, y, z are floats
   std::vector<glm::dvec3> doublePositions_;  // otherwise
   std::vector<glm::u8vec4> colors_;

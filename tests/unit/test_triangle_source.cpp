@@ -1,5 +1,6 @@
 // The streaming triangle source: binary PLY read batch by batch from the file, compared with what loadMesh
 // loads from the same file and with PLY bytes the test wrote itself.
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
@@ -7,6 +8,7 @@
 #include <span>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -135,6 +137,71 @@ TEST(TriangleSource, BinaryPlyFansPolygonsSkipsUnknownPropertiesAndDecodesColors
   EXPECT_NEAR(c.r, 0.0, 1e-6);
   EXPECT_NEAR(c.b, srgbToLinearRef(64 / 255.0), 1e-5);
   EXPECT_NEAR(c.a, 128 / 255.0, 1e-6);
+}
+
+// A range of a streamed PLY starts at the face noted nearest before it (every 2^16 triangles) and must give
+// exactly that stretch of the whole read: polygons fanned across the noted faces, degenerate faces dropped.
+TEST(TriangleSource, ARangeIsThatStretchOfTheWholeRead) {
+  TempDir dir;
+  constexpr int kSide = 300;  // a height field's grid of vertices
+  constexpr std::uint32_t kFaces = 80000;
+  const std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " +
+                             std::to_string(kSide * kSide) +
+                             "\nproperty float x\nproperty float y\nproperty float z\nelement face " +
+                             std::to_string(kFaces) + "\nproperty list uchar int vertex_indices\nend_header\n";
+  PlyBytes b;
+  for (int y = 0; y < kSide; ++y)
+    for (int x = 0; x < kSide; ++x) b.put(float(x)).put(float(y)).put(float((x * 7 + y * 13) % 5));
+  const auto at = [](int x, int y) { return std::int32_t(y * kSide + x); };
+  std::uint64_t expected = 0;
+  for (std::uint32_t f = 0; f < kFaces; ++f) {
+    const int x = int(f % (kSide - 2)), y = int(f / (kSide - 2) % (kSide - 2));
+    if (f % 1000 == 999) {  // degenerate
+      b.put(std::uint8_t(3)).put(at(x, y)).put(at(x, y)).put(at(x + 1, y));
+    } else if (f % 3 == 0) {  // a pentagon: 3 triangles
+      b.put(std::uint8_t(5)).put(at(x, y)).put(at(x + 1, y)).put(at(x + 2, y + 1)).put(at(x + 1, y + 2));
+      b.put(at(x, y + 1));
+      expected += 3;
+    } else if (f % 3 == 1) {  // a quad: 2 triangles
+      b.put(std::uint8_t(4)).put(at(x, y)).put(at(x + 1, y)).put(at(x + 1, y + 1)).put(at(x, y + 1));
+      expected += 2;
+    } else {
+      b.put(std::uint8_t(3)).put(at(x, y)).put(at(x + 1, y)).put(at(x, y + 1));
+      expected += 1;
+    }
+  }
+  const auto source = svo::openTriangleSource(dir.file("polygons.ply", header + b.bytes));
+  const std::vector<svo::SourceTriangle> all = readAll(*source);
+  ASSERT_EQ(all.size(), expected);
+  ASSERT_EQ(source->triangleCount(), expected);
+  ASSERT_GT(expected, 2u << 16);  // three stretches between noted faces at least
+  const std::uint64_t n = expected, kNoted = 1u << 16;
+  const std::vector<std::pair<std::uint64_t, std::uint64_t>> ranges = {
+      {0, 1}, {5, 5}, {kNoted - 1, kNoted + 2}, {kNoted + 1, 2 * kNoted + 7}, {100, n - 100},
+      {n / 3, 2 * n / 3}, {n - 1, n}, {n - 3, n + 50}, {0, n}};
+  for (const auto& [first, last] : ranges) {
+    std::vector<svo::SourceTriangle> got;
+    source->readRange(first, last, [&](std::span<const svo::SourceTriangle> batch) {
+      got.insert(got.end(), batch.begin(), batch.end());
+    });
+    const std::uint64_t end = std::min(last, n);
+    ASSERT_EQ(got.size(), end - std::min(first, end)) << first << ".." << last;
+    std::size_t differing = 0;
+    for (std::size_t k = 0; k < got.size(); ++k)
+      differing += got[k].positions != all[std::size_t(first) + k].positions;
+    EXPECT_EQ(differing, 0u) << first << ".." << last;
+  }
+  // A mesh in memory gives the same stretches.
+  const svo::Mesh mesh = svo::loadMesh(dir.path() / "polygons.ply");
+  const auto inMemory = svo::meshTriangleSource(mesh);
+  std::vector<svo::SourceTriangle> stretch;
+  inMemory->readRange(kNoted - 1, kNoted + 2, [&](std::span<const svo::SourceTriangle> batch) {
+    stretch.insert(stretch.end(), batch.begin(), batch.end());
+  });
+  const std::vector<svo::SourceTriangle> whole = readAll(*inMemory);
+  ASSERT_EQ(stretch.size(), 3u);
+  for (std::size_t k = 0; k < stretch.size(); ++k)
+    EXPECT_EQ(stretch[k].positions, whole[std::size_t(kNoted) - 1 + k].positions);
 }
 
 TEST(TriangleSource, BadBinaryPlyGivesOneLineErrors) {

@@ -98,8 +98,12 @@ class TriangleSource {
   virtual std::size_t residentBytes() const = 0;  // what the source holds in memory
   // The whole mesh when the source holds it in memory (formats read whole), else null.
   virtual const Mesh* wholeMesh() const { return nullptr; }
+  using Batch = std::function<void(std::span<const SourceTriangle>)>;
   // Calls `batch` with consecutive triangles, first to last.
-  virtual void read(const std::function<void(std::span<const SourceTriangle>)>& batch) const = 0;
+  void read(const Batch& batch) const { readRange(0, triangleCount(), batch); }
+  // Calls `batch` with the triangles [first, last) of that order, first to last, reading no more of the
+  // input than it must (a process of a distributed build reads only its share).
+  virtual void readRange(std::uint64_t first, std::uint64_t last, const Batch& batch) const = 0;
 };
 
 // Binary PLY is streamed from the file, holding only its vertices (positions in the file's precision and
