@@ -196,11 +196,10 @@ std::vector<std::string> allGather(const std::string& mine, int size) {
 
 // A rank other than 0: builds the cells rank 0 hands it until told to stop. Throws MpiJobFailed when the
 // job failed (this rank's own failure is reported to rank 0, which reports it).
-void buildHandedCells(const TriangleSource& source, const BuildOptions& options, const OutOfCoreOptions& ooc,
-                      const std::filesystem::path& store, int ranks) {
+void buildHandedCells(const TriangleSource& source, const BuildOptions& options, const std::filesystem::path& work,
+                      int ranks) {
   const SceneTransform transform = fitSceneCube(source.lower(), source.upper());
-  const BinnedTriangles binned(scratchOf(workFolderOf(ooc, store)), ranks, source);
-  const std::filesystem::path work = workFolderOf(ooc, store);
+  const BinnedTriangles binned(scratchOf(work), ranks, source);
   Report report;
   std::string error;
   for (;;) {
@@ -269,7 +268,8 @@ std::optional<MpiBuildReport> MpiJob::build(const TriangleSource* source, const 
   const std::vector<std::string> agreements =
       gather(agreementOf(source, openError, options, write, ooc, store).dump(), rank_, size_);
   settle(rank_ == 0 ? disagreement(agreements, hosts) : std::string(), rank_);
-  settle(unsharedFolder(workFolderOf(ooc, store), rank_, hosts), rank_);
+  const std::filesystem::path work = workFolderOf(ooc, store);
+  settle(unsharedFolder(work, rank_, hosts), rank_);
   TopSharing sharing;
   sharing.rank = rank_, sharing.ranks = size_;
   sharing.exchange = [&](const std::string& mine) { return allGather(mine, size_); };
@@ -279,9 +279,8 @@ std::optional<MpiBuildReport> MpiJob::build(const TriangleSource* source, const 
     if (start.cellLevel == 0) throw MpiJobFailed();
     const SceneTransform transform = fitSceneCube(source->lower(), source->upper());
     // When the job failed there, rank 0 stops this rank at its first report.
-    shareTopLevels(*source, transform, options, start.cellLevel, scratchOf(workFolderOf(ooc, store)),
-                   sharing);
-    buildHandedCells(*source, options, ooc, store, size_);
+    shareTopLevels(*source, transform, options, start.cellLevel, scratchOf(work), sharing);
+    buildHandedCells(*source, options, work, size_);
     return std::nullopt;
   }
   bool started = false;

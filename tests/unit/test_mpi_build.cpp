@@ -47,7 +47,10 @@ class MpiBuild : public ::testing::Test {
     ASSERT_NE(run(std::string(SVO_BINARY) + " gen sphere --triangles 20k -o " + mesh_.string()).find("exit 0"),
               std::string::npos);
   }
-  void TearDown() override { fs::remove_all(dir_); }
+  void TearDown() override {
+    for (const fs::path& disk : disks_) run("umount " + disk.string());
+    fs::remove_all(dir_);
+  }
 
   static std::string run(const std::string& command) { return svotest::runShell(command); }
   // `svo ARGS` under mpirun with `ranks` ranks.
@@ -63,7 +66,19 @@ class MpiBuild : public ::testing::Test {
     return store;
   }
 
+  // A tmpfs of `size` (mount's notation) at dir_/name, unmounted after the test; false when this process may
+  // not mount one.
+  bool smallDisk(const std::string& name, const std::string& size) {
+    const fs::path disk = dir_ / name;
+    fs::create_directories(disk);
+    if (run("mount -t tmpfs -o size=" + size + " tmpfs " + disk.string()).find("exit 0") == std::string::npos)
+      return false;
+    disks_.push_back(disk);
+    return true;
+  }
+
   fs::path dir_, mesh_;
+  std::vector<fs::path> disks_;  // mounted by smallDisk
 };
 
 TEST_F(MpiBuild, StoreIsByteIdenticalToTheSingleProcessBuildForOneToFourRanks) {
@@ -180,14 +195,8 @@ TEST_F(MpiBuild, FullDiskWhileSpillingFailsCleanlyAndResumes) {
   const std::string options = " --levels 9 --cell-level 3 --threads 1";
   const std::string single = bytesOf(reference(options));
   const fs::path disk = dir_ / "disk", store = disk / "s.svo";
-  fs::create_directories(disk);
   // Room for the binned triangles but not for every spilled cell of this sphere (about 1 MiB of each).
-  if (run("mount -t tmpfs -o size=1600k tmpfs " + disk.string()).find("exit 0") == std::string::npos)
-    GTEST_SKIP() << "cannot mount a small file system here";
-  struct Unmount {
-    fs::path at;
-    ~Unmount() { svotest::runShell("umount " + at.string()); }
-  } unmount{disk};
+  if (!smallDisk("disk", "1600k")) GTEST_SKIP() << "cannot mount a small file system here";
   const std::string full = mpi(2, "build " + mesh_.string() + options + " -o " + store.string());
   EXPECT_EQ(full.find("exit 0"), std::string::npos) << full;
   EXPECT_NE(full.find("cannot write (disk full?)"), std::string::npos) << full;
@@ -199,15 +208,9 @@ TEST_F(MpiBuild, FullDiskWhileSpillingFailsCleanlyAndResumes) {
 }
 
 TEST_F(MpiBuild, AFullDiskWhileBinningTheInputFailsCleanly) {
-  const fs::path disk = dir_ / "tiny", store = disk / "s.svo";
-  fs::create_directories(disk);
+  const fs::path store = dir_ / "tiny" / "s.svo";
   // Too small for the ranks' binned triangles: the job fails in the pass every rank shares.
-  if (run("mount -t tmpfs -o size=96k tmpfs " + disk.string()).find("exit 0") == std::string::npos)
-    GTEST_SKIP() << "cannot mount a small file system here";
-  struct Unmount {
-    fs::path at;
-    ~Unmount() { svotest::runShell("umount " + at.string()); }
-  } unmount{disk};
+  if (!smallDisk("tiny", "96k")) GTEST_SKIP() << "cannot mount a small file system here";
   const std::string full = mpi(3, "build " + mesh_.string() + " --levels 9 --cell-level 3 --threads 1 -o " + store.string());
   EXPECT_EQ(full.find("exit 0"), std::string::npos) << full;
   EXPECT_NE(full.find("cannot write (disk full?)"), std::string::npos) << full;
