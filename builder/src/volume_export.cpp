@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <fmt/format.h>
+#include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/TopologyToLevelSet.h>
 

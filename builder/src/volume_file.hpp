@@ -1,5 +1,5 @@
 // What the OpenVDB import and export share (volume_io.cpp): the library's one-time set-up, errors naming the
-// file, a file opened for reading with its grids listed from their metadata, the shape grid chosen, the
+// file, a file read once with its grids listed, the shape grid chosen, the
 // attribute grids sampled, and coarser octree levels made from the finest.
 #pragma once
 
@@ -8,7 +8,6 @@
 #include <string>
 #include <vector>
 
-#include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 #include <glm/vec3.hpp>
 #include <glm/vec4.hpp>
@@ -27,6 +26,8 @@ void initialize();
 // The grid's voxel width; throws naming the file unless its transform is linear, axis-aligned and cubic.
 double cubicVoxelSize(const std::filesystem::path& path, const openvdb::GridBase& grid);
 
+// A file's grids, read whole once; a grid the reader hands out is freed with the last of the reader and the
+// caller's pointers.
 class Reader {
  public:
   // Throws naming the file when it is missing or not a readable OpenVDB file.
@@ -34,12 +35,12 @@ class Reader {
   ~Reader();
   const std::filesystem::path& path() const { return path_; }
   const std::vector<VolumeGridInfo>& grids() const { return grids_; }
-  openvdb::GridBase::Ptr read(const std::string& name);  // the first grid of that name, whole
+  openvdb::GridBase::Ptr read(const std::string& name) const;  // the first grid of that name
 
  private:
   std::filesystem::path path_;
-  std::unique_ptr<openvdb::io::File> file_;
   std::vector<VolumeGridInfo> grids_;
+  openvdb::GridPtrVec content_;  // grids_'s grids, in file order
 };
 
 // The shape grid the options pick (chooseVolumeGrid's rule) among the file's `grids`.
@@ -52,11 +53,11 @@ struct SurfaceGrid {
   openvdb::GridBase::Ptr grid;  // float or double
   double isovalue = 0.0;        // 0 for a level set, the density threshold for a fog volume
 };
-SurfaceGrid readSurfaceGrid(Reader& file, const VolumeImportOptions& options);
+SurfaceGrid readSurfaceGrid(const Reader& file, const VolumeImportOptions& options);
 // The vec3 grid the options name, or the first default name present (color, Cd; normal, N); null when none is
 // named and none is present. Throws naming the file when the named one is missing or not a vec3 grid.
-openvdb::GridBase::Ptr colorGrid(Reader& file, const VolumeImportOptions& options);
-openvdb::GridBase::Ptr normalGrid(Reader& file, const VolumeImportOptions& options);
+openvdb::GridBase::Ptr colorGrid(const Reader& file, const VolumeImportOptions& options);
+openvdb::GridBase::Ptr normalGrid(const Reader& file, const VolumeImportOptions& options);
 
 // Samples a vec3 grid at world positions (trilinear), whatever its value precision; false when there is none.
 class Vec3Sampler {

@@ -1,4 +1,4 @@
-// OpenVDB in (volume.hpp): the file's grids listed from their metadata alone, the shape grid chosen, then
+// OpenVDB in (volume.hpp): the file's grids read once and listed, the shape grid chosen, then
 // either meshed (level sets, fog volumes) for the mesh builder or taken voxel for voxel (masks).
 #include <algorithm>
 #include <bit>
@@ -6,6 +6,7 @@
 #include <fstream>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
@@ -117,35 +118,26 @@ void initialize() {
   (void)initialized;
 }
 
-// OpenVDB's file reader takes the bytes a truncated file lacks for values (a grid name's length among them)
-// and can spin for minutes on one; a stream that throws at the first short read finds such files first.
-void checkComplete(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  in.exceptions(std::ios::failbit | std::ios::badbit);
-  openvdb::io::Stream stream(in, false);
-  (void)stream.getGrids();
-}
-
 Reader::Reader(const fs::path& path) : path_(path) {
   initialize();
   std::error_code ec;
   if (!fs::exists(path, ec)) fail(path, "no such file");
   if (!fs::is_regular_file(path, ec)) fail(path, "not a regular file");
   try {
-    checkComplete(path);
-    file_ = std::make_unique<openvdb::io::File>(path.string());
-    file_->open(false);  // read now: nothing maps the file after we return
-    const openvdb::GridPtrVecPtr metadata = file_->readAllGridMetadata();
-    for (const openvdb::GridBase::Ptr& grid : *metadata) {
+    // Through io::Stream on a stream that throws at the first short read: io::File takes the bytes a
+    // truncated file lacks for values (a grid name's length among them) and can spin for minutes on one.
+    std::ifstream in(path, std::ios::binary);
+    in.exceptions(std::ios::failbit | std::ios::badbit);
+    openvdb::io::Stream stream(in, false);
+    for (const openvdb::GridBase::Ptr& grid : *stream.getGrids()) {
       VolumeGridInfo info;
       info.name = grid->getName();
       info.type = grid->valueType();
       info.kind = kindOf(*grid);
-      if (const auto count =
-              grid->getMetadata<openvdb::Int64Metadata>(openvdb::GridBase::META_FILE_VOXEL_COUNT))
-        info.activeVoxels = std::uint64_t(std::max<openvdb::Int64>(count->value(), 0));
+      info.activeVoxels = std::uint64_t(grid->activeVoxelCount());
       info.voxelSize = grid->voxelSize()[0];
       grids_.push_back(std::move(info));
+      content_.push_back(grid);
     }
   } catch (const std::exception& e) {
     fail(path, std::string("not a readable OpenVDB file (") + e.what() + ")");
@@ -154,12 +146,10 @@ Reader::Reader(const fs::path& path) : path_(path) {
 
 Reader::~Reader() = default;
 
-openvdb::GridBase::Ptr Reader::read(const std::string& name) {
-  try {
-    return file_->readGrid(name);
-  } catch (const std::exception& e) {
-    fail(path_, "grid '" + name + "' cannot be read (" + e.what() + ")");
-  }
+openvdb::GridBase::Ptr Reader::read(const std::string& name) const {
+  for (const openvdb::GridBase::Ptr& grid : content_)
+    if (grid->getName() == name) return grid;
+  fail(path_, "has no grid named '" + name + "'");
 }
 
 VolumeGridInfo choose(const fs::path& path, const std::vector<VolumeGridInfo>& grids,
@@ -187,7 +177,7 @@ VolumeGridInfo choose(const fs::path& path, const std::vector<VolumeGridInfo>& g
 
 namespace {
 
-openvdb::GridBase::Ptr attributeGrid(Reader& file, const std::vector<VolumeGridInfo>& grids,
+openvdb::GridBase::Ptr attributeGrid(const Reader& file, const std::vector<VolumeGridInfo>& grids,
                                      const std::string& name, std::span<const char* const> defaults,
                                      const char* what) {
   auto found = grids.end();
@@ -212,11 +202,11 @@ openvdb::GridBase::Ptr attributeGrid(Reader& file, const std::vector<VolumeGridI
 
 }  // namespace
 
-openvdb::GridBase::Ptr colorGrid(Reader& file, const VolumeImportOptions& options) {
+openvdb::GridBase::Ptr colorGrid(const Reader& file, const VolumeImportOptions& options) {
   return attributeGrid(file, file.grids(), options.colorGrid, kColorGridNames, "color");
 }
 
-openvdb::GridBase::Ptr normalGrid(Reader& file, const VolumeImportOptions& options) {
+openvdb::GridBase::Ptr normalGrid(const Reader& file, const VolumeImportOptions& options) {
   return attributeGrid(file, file.grids(), options.normalGrid, kNormalGridNames, "normal");
 }
 
@@ -275,7 +265,7 @@ void addCoarserLevels(VoxelLevels& levels, bool hasColors, bool hasNormals) {
   }
 }
 
-SurfaceGrid readSurfaceGrid(Reader& file, const VolumeImportOptions& options) {
+SurfaceGrid readSurfaceGrid(const Reader& file, const VolumeImportOptions& options) {
   const VolumeGridInfo chosen = choose(file.path(), file.grids(), options);
   if (chosen.kind == VolumeGridKind::Voxels)
     fail(file.path(), "grid '" + chosen.name + "' is a voxel mask, built voxel for voxel, not as a surface");

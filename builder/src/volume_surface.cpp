@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <optional>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
@@ -389,12 +390,15 @@ SurfaceVolume voxelizeVolumeSurface(const fs::path& path, const VolumeImportOpti
                                     const BuildOptions& options, BuildStats* stats) {
   const auto start = std::chrono::steady_clock::now();
   voxel::checkLevels(options);
-  volume_file::Reader file(path);
-  volume_file::SurfaceGrid surface = volume_file::readSurfaceGrid(file, import);
+  // The grids it needs; the file's others go with the reader.
+  auto [surface, colorValues] = [&] {
+    const volume_file::Reader file(path);
+    return std::pair(volume_file::readSurfaceGrid(file, import), volume_file::colorGrid(file, import));
+  }();
   // A fog volume's denser side is inside: its field is the threshold less the density.
   const double sign = surface.kind == VolumeGridKind::LevelSet ? 1.0 : -1.0;
   openvdb::GridBase::Ptr grid = std::move(surface.grid);
-  volume_file::Vec3Sampler colors(volume_file::colorGrid(file, import));
+  volume_file::Vec3Sampler colors(std::move(colorValues));
   // The typed pointer is the grid's only owner: voxelizeGrid lets it go before the octree levels are made.
   SurfaceVolume out;
   if (auto floats = openvdb::gridPtrCast<openvdb::FloatGrid>(grid)) {
