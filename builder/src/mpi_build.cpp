@@ -2,6 +2,7 @@
 // loop, and rank 0's build with its cells shared out (mpi_dispatch.cpp).
 #include "svo/builder/mpi_build.hpp"
 
+#include <sched.h>
 #include <sys/resource.h>
 
 #include <algorithm>
@@ -14,6 +15,7 @@
 
 #include <tbb/info.h>
 #include <nlohmann/json.hpp>
+#include <spdlog/spdlog.h>
 
 #include "cell_spill.hpp"
 #include "mpi_dispatch.hpp"
@@ -171,6 +173,31 @@ std::string unsharedFolder(const std::filesystem::path& work, int rank, const st
   return {};
 }
 
+// The CPUs this process may run on (mpirun binds a rank to a core or a socket by default).
+int coresAvailable() {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  return sched_getaffinity(0, sizeof set, &set) == 0 ? CPU_COUNT(&set) : 0;
+}
+
+// One line when ranks may run on fewer cores than their --threads (`cores`: each rank's, at rank 0): their
+// builders would share them, and rank 0 writes the store on its own.
+void warnOfFewCores(const std::vector<std::string>& cores, const std::vector<std::string>& hosts, int threads) {
+  std::size_t short_ = 0, fewest = 0;
+  for (std::size_t r = 0; r < cores.size(); ++r) {
+    const int n = std::stoi(cores[r]);
+    if (n <= 0 || n >= threads) continue;
+    if (short_++ == 0 || n < std::stoi(cores[fewest])) fewest = r;
+  }
+  if (short_ == 0) return;
+  spdlog::warn(
+      "{} of {} ranks may run on fewer cores than --threads {} (rank {} on {}: {} {}); mpirun binds each rank to "
+      "a core or a socket by default: give each its cores with mpirun --map-by slot:PE={} (or --bind-to none; "
+      "under Slurm, --cpus-per-task={})",
+      short_, cores.size(), threads, fewest, hosts[fewest], cores[fewest], cores[fewest] == "1" ? "core" : "cores",
+      threads, threads);
+}
+
 // Every rank's message, at every rank, by rank; waits without spinning a core (ranks still binning on the
 // same host need it).
 std::vector<std::string> allGather(const std::string& mine, int size) {
@@ -265,6 +292,8 @@ std::optional<MpiBuildReport> MpiJob::build(const TriangleSource* source, const 
                                             const BuildOptions& options, const StoreWriteOptions& write,
                                             const OutOfCoreOptions& ooc, const std::filesystem::path& store) {
   const std::vector<std::string> hosts = gather(host_, rank_, size_);
+  const std::vector<std::string> cores = gather(std::to_string(coresAvailable()), rank_, size_);
+  if (rank_ == 0) warnOfFewCores(cores, hosts, ooc.threads);
   const std::vector<std::string> agreements =
       gather(agreementOf(source, openError, options, write, ooc, store).dump(), rank_, size_);
   settle(rank_ == 0 ? disagreement(agreements, hosts) : std::string(), rank_);

@@ -89,6 +89,7 @@ TEST_F(MpiBuild, StoreIsByteIdenticalToTheSingleProcessBuildForOneToFourRanks) {
     const fs::path store = dir_ / ("mpi" + std::to_string(ranks) + ".svo");
     const std::string out = mpi(ranks, "build " + mesh_.string() + options + " -o " + store.string());
     ASSERT_NE(out.find("exit 0"), std::string::npos) << out;
+    EXPECT_EQ(out.find("fewer cores"), std::string::npos) << "one thread a rank fits any binding: " << out;
     EXPECT_TRUE(bytesOf(store) == single) << ranks << " ranks: the store differs from the single-process one";
     EXPECT_FALSE(fs::exists(store.string() + ".build")) << "work folder left behind";
     // The report: one entry per rank, their cells adding up to the cells built.
@@ -205,6 +206,19 @@ TEST_F(MpiBuild, FullDiskWhileSpillingFailsCleanlyAndResumes) {
   const std::string resumed = mpi(2, "build " + mesh_.string() + options + " -o " + store.string() + " --resume");
   ASSERT_NE(resumed.find("exit 0"), std::string::npos) << resumed;
   EXPECT_TRUE(bytesOf(store) == single) << "the resumed store differs from the single-process one";
+}
+
+// Ranks bound to one core each (mpirun --bind-to core) with --threads 2: rank 0 says how to give them their
+// cores, in one line, and the job still builds.
+TEST_F(MpiBuild, RanksBoundToFewerCoresThanTheirThreadsAreToldHow) {
+  const fs::path store = dir_ / "s.svo";
+  const std::string out = run(kMpirun + " --bind-to core:overload-allowed -n 2 " + SVO_BINARY + " build " +
+                              mesh_.string() + " --levels 7 --cell-level 2 --threads 2 -o " + store.string());
+  ASSERT_NE(out.find("exit 0"), std::string::npos) << out;
+  EXPECT_NE(out.find("2 of 2 ranks may run on fewer cores than --threads 2 (rank 0 on "), std::string::npos)
+      << out;
+  EXPECT_NE(out.find("mpirun --map-by slot:PE=2"), std::string::npos) << out;
+  EXPECT_TRUE(fs::exists(store));
 }
 
 TEST_F(MpiBuild, AFullDiskWhileBinningTheInputFailsCleanly) {
