@@ -182,19 +182,18 @@ int coresAvailable() {
 
 // One line when ranks may run on fewer cores than their --threads (`cores`: each rank's, at rank 0): their
 // builders would share them, and rank 0 writes the store on its own.
-void warnOfFewCores(const std::vector<std::string>& cores, const std::vector<std::string>& hosts, int threads) {
-  std::size_t short_ = 0, fewest = 0;
+void warnOfFewCores(const std::vector<int>& cores, const std::vector<std::string>& hosts, int threads) {
+  std::size_t fewer = 0, fewest = 0;
   for (std::size_t r = 0; r < cores.size(); ++r) {
-    const int n = std::stoi(cores[r]);
-    if (n <= 0 || n >= threads) continue;
-    if (short_++ == 0 || n < std::stoi(cores[fewest])) fewest = r;
+    if (cores[r] <= 0 || cores[r] >= threads) continue;
+    if (fewer++ == 0 || cores[r] < cores[fewest]) fewest = r;
   }
-  if (short_ == 0) return;
+  if (fewer == 0) return;
   spdlog::warn(
       "{} of {} ranks may run on fewer cores than --threads {} (rank {} on {}: {} {}); mpirun binds each rank to "
       "a core or a socket by default: give each its cores with mpirun --map-by slot:PE={} (or --bind-to none; "
       "under Slurm, --cpus-per-task={})",
-      short_, cores.size(), threads, fewest, hosts[fewest], cores[fewest], cores[fewest] == "1" ? "core" : "cores",
+      fewer, cores.size(), threads, fewest, hosts[fewest], cores[fewest], cores[fewest] == 1 ? "core" : "cores",
       threads, threads);
 }
 
@@ -292,7 +291,9 @@ std::optional<MpiBuildReport> MpiJob::build(const TriangleSource* source, const 
                                             const BuildOptions& options, const StoreWriteOptions& write,
                                             const OutOfCoreOptions& ooc, const std::filesystem::path& store) {
   const std::vector<std::string> hosts = gather(host_, rank_, size_);
-  const std::vector<std::string> cores = gather(std::to_string(coresAvailable()), rank_, size_);
+  const int mine = coresAvailable();
+  std::vector<int> cores(static_cast<std::size_t>(size_));
+  MPI_Gather(&mine, 1, MPI_INT, cores.data(), 1, MPI_INT, 0, MPI_COMM_WORLD);
   if (rank_ == 0) warnOfFewCores(cores, hosts, ooc.threads);
   const std::vector<std::string> agreements =
       gather(agreementOf(source, openError, options, write, ooc, store).dump(), rank_, size_);
