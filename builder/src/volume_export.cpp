@@ -1,6 +1,6 @@
 // OpenVDB out (volume.hpp): one walk over the store's slices fills a mask grid with the level's voxels (and
-// the cubes of coarser leaves), vec3 grids with their colors and normals, then the file is written beside
-// its target and renamed.
+// the cubes of coarser leaves), vec3 grids with their colors and normals, a float grid with their densities
+// (the colors' alpha) where some are below 1, then the file is written beside its target and renamed.
 #include <cstdio>
 #include <stdexcept>
 #include <string>
@@ -28,6 +28,8 @@ constexpr int kLevelSetHalfWidth = 3;
 struct ExportGrids {
   openvdb::MaskGrid::Ptr occupancy = openvdb::MaskGrid::create();
   openvdb::Vec3SGrid::Ptr colors, normals;
+  openvdb::FloatGrid::Ptr densities;  // the colors' alpha; kept only when some voxel's is below 1
+  bool translucent = false;
 };
 
 openvdb::Vec3SGrid::Ptr vectorGrid(const char* name, openvdb::VecType type,
@@ -44,39 +46,50 @@ void fillGrids(const StoreReader& store, int level, ExportGrids& grids,
                const std::function<void(double)>& progress) {
   auto occupancy = grids.occupancy->getAccessor();
   std::optional<openvdb::Vec3SGrid::Accessor> colors, normals;
-  if (grids.colors) colors = grids.colors->getAccessor();
+  std::optional<openvdb::FloatGrid::Accessor> densities;
+  if (grids.colors) colors = grids.colors->getAccessor(), densities = grids.densities->getAccessor();
   if (grids.normals) normals = grids.normals->getAccessor();
-  const auto put = [&](const SliceVoxel& v, const openvdb::Coord& ijk) {
-    occupancy.setValueOn(ijk);
+  struct Values {
+    openvdb::Vec3s color, normal;
+    float density = 1.0f;
+  };
+  const auto valuesOf = [&](const SliceVoxel& v) {
+    Values out;
     if (colors) {
       const glm::vec4 c = decodeColor(v.color);
-      colors->setValueOn(ijk, openvdb::Vec3s(c.r, c.g, c.b));
+      out.color = openvdb::Vec3s(c.r, c.g, c.b), out.density = c.a;
+      grids.translucent |= c.a < 1.0f;
     }
     if (normals) {
       const glm::vec3 n = decodeNormal(v.normal);
-      normals->setValueOn(ijk, openvdb::Vec3s(n.x, n.y, n.z));
+      out.normal = openvdb::Vec3s(n.x, n.y, n.z);
     }
+    return out;
+  };
+  const auto put = [&](const SliceVoxel& v) {
+    const openvdb::Coord ijk(v.coord.x, v.coord.y, v.coord.z);
+    const Values values = valuesOf(v);
+    occupancy.setValueOn(ijk);
+    if (colors) colors->setValueOn(ijk, values.color), densities->setValueOn(ijk, values.density);
+    if (normals) normals->setValueOn(ijk, values.normal);
   };
   const auto fillCube = [&](const SliceVoxel& v, int voxelLevel) {
     const int shift = level - voxelLevel;
     const openvdb::Coord lower(v.coord.x << shift, v.coord.y << shift, v.coord.z << shift);
     const openvdb::CoordBBox box(lower, lower.offsetBy((1 << shift) - 1));
+    const Values values = valuesOf(v);
     grids.occupancy->tree().fill(box, true, true);
-    if (grids.colors) {
-      const glm::vec4 c = decodeColor(v.color);
-      grids.colors->tree().fill(box, openvdb::Vec3s(c.r, c.g, c.b), true);
-    }
-    if (grids.normals) {
-      const glm::vec3 n = decodeNormal(v.normal);
-      grids.normals->tree().fill(box, openvdb::Vec3s(n.x, n.y, n.z), true);
-    }
+    if (colors)
+      grids.colors->tree().fill(box, values.color, true),
+          grids.densities->tree().fill(box, values.density, true);
+    if (normals) grids.normals->tree().fill(box, values.normal, true);
   };
   const std::vector<SliceInfo>& slices = store.slices();
   std::size_t walked = 0;
   store.walk(
       [&](std::uint32_t slice, std::span<const SliceVoxel>, std::span<const SliceVoxel> voxels) {
         if (slices[slice].voxelLevel == level)
-          for (const SliceVoxel& v : voxels) put(v, openvdb::Coord(v.coord.x, v.coord.y, v.coord.z));
+          for (const SliceVoxel& v : voxels) put(v);
       },
       [&](std::uint32_t slice, std::span<const SliceVoxel>, std::span<const SliceVoxel> voxels) {
         const int voxelLevel = slices[slice].voxelLevel;
@@ -119,7 +132,14 @@ VolumeExportReport exportVolume(const StoreReader& store, const fs::path& output
 
   ExportGrids grids;
   grids.occupancy->setTransform(transform);
-  if (header.hasColors) grids.colors = vectorGrid("color", openvdb::VEC_INVARIANT, transform);
+  if (header.hasColors) {
+    grids.colors = vectorGrid("color", openvdb::VEC_INVARIANT, transform);
+    grids.densities = openvdb::FloatGrid::create(0.0f);
+    grids.densities->setName(volume_file::kDensityGridName);
+    grids.densities->setGridClass(openvdb::GRID_FOG_VOLUME);
+    grids.densities->insertMeta(volume_file::kAttributeMetadata, openvdb::StringMetadata("density"));
+    grids.densities->setTransform(transform);
+  }
   if (header.hasNormals) grids.normals = vectorGrid("normal", openvdb::VEC_COVARIANT_NORMALIZE, transform);
   fillGrids(store, options.level, grids, options.progress);
 
@@ -137,6 +157,7 @@ VolumeExportReport exportVolume(const StoreReader& store, const fs::path& output
   }
   openvdb::GridPtrVec out{shape};
   if (grids.colors) out.push_back(grids.colors);
+  if (grids.translucent) out.push_back(grids.densities);
   if (grids.normals) out.push_back(grids.normals);
   for (const openvdb::GridBase::Ptr& grid : out) grid->pruneGrid();
   writeAtomically(output, out);

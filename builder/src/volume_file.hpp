@@ -19,6 +19,11 @@ namespace svo::volume_file {
 // Metadata `svo export` gives its shape grid: the octree depth whose voxels the grid's voxels are, with the
 // scene cube's corner at index (0, 0, 0).
 inline constexpr const char* kLevelsMetadata = "svo_levels";
+// Metadata naming what an attribute grid of `svo export` holds ("density"), so that it is never taken for a
+// shape to build from.
+inline constexpr const char* kAttributeMetadata = "svo_attribute";
+// The scalar grid a voxel mask's densities come from: svo export's name, OpenVDB's and Houdini's.
+inline constexpr const char* kDensityGridName = "density";
 
 // OpenVDB's grid types registered, once per process.
 void initialize();
@@ -69,8 +74,28 @@ class Vec3Sampler {
  private:
   openvdb::Vec3SGrid::Ptr grid_;
 };
+// The float or double grid named kDensityGridName; null when there is none. Throws naming the file when that
+// grid is of another type.
+openvdb::FloatGrid::Ptr densityGrid(const Reader& file);
+// Samples a float grid at world positions (trilinear); false when there is none.
+class ScalarSampler {
+ public:
+  explicit ScalarSampler(openvdb::FloatGrid::Ptr grid) : grid_(std::move(grid)) {}
+  explicit operator bool() const { return bool(grid_); }
+  float at(const glm::dvec3& world) const;
+
+ private:
+  openvdb::FloatGrid::Ptr grid_;
+};
+
 // A color grid's value as the builder takes it: clamped to [0, 1], what is not a number black.
 glm::vec4 colorOf(glm::vec3 rgb);
+// A voxel's color carrying a density as its alpha (clamped to [0, 1], what is not a number 0): the color
+// grid's where there is one, else neutral grey.
+std::uint32_t colorWithDensity(const Vec3Sampler& colors, const glm::dvec3& world, double density);
+// Keeps the leaves' densities (their colors' alpha) where they differ; where all are alike the alpha becomes
+// 255 and, without a color grid, the scene carries no colors. Returns whether the scene carries colors.
+bool keepDensityWhereItVaries(std::vector<SliceVoxel>& leaves, bool hasColorGrid);
 
 // The levels above the finest (levels.back(), in Morton order, filled): each parent once, in Morton order,
 // with its children's mean color and normal.

@@ -34,6 +34,8 @@ constexpr const char* kNormalGridNames[] = {"normal", "N"};
 constexpr std::uint64_t kMaxMaskVoxels = std::uint64_t(1) << 30;
 
 VolumeGridKind kindOf(const openvdb::GridBase& grid) {
+  if (grid.getMetadata<openvdb::StringMetadata>(volume_file::kAttributeMetadata))
+    return VolumeGridKind::Attribute;
   if (grid.isType<openvdb::FloatGrid>() || grid.isType<openvdb::DoubleGrid>())
     return grid.getGridClass() == openvdb::GRID_LEVEL_SET ? VolumeGridKind::LevelSet
                                                           : VolumeGridKind::FogVolume;
@@ -84,7 +86,7 @@ const char* nameOf(VolumeGridKind kind) {
     case VolumeGridKind::Voxels:
       return "voxel mask";
     case VolumeGridKind::Attribute:
-      return "vector attribute";
+      return "attribute";
     case VolumeGridKind::Other:
       return "unsupported";
   }
@@ -177,6 +179,11 @@ VolumeGridInfo choose(const fs::path& path, const std::vector<VolumeGridInfo>& g
 
 namespace {
 
+bool isVec3(const VolumeGridInfo& grid) {
+  return grid.type == openvdb::typeNameAsString<openvdb::Vec3s>() ||
+         grid.type == openvdb::typeNameAsString<openvdb::Vec3d>();
+}
+
 openvdb::GridBase::Ptr attributeGrid(const Reader& file, const std::vector<VolumeGridInfo>& grids,
                                      const std::string& name, std::span<const char* const> defaults,
                                      const char* what) {
@@ -187,14 +194,13 @@ openvdb::GridBase::Ptr attributeGrid(const Reader& file, const std::vector<Volum
       fail(file.path(), fmt::format("no {} grid named '{}'; the file has {}", what, name, describe(grids)));
   } else {
     for (const char* candidate : defaults) {
-      found = std::find_if(grids.begin(), grids.end(), [&](const VolumeGridInfo& g) {
-        return g.name == candidate && g.kind == VolumeGridKind::Attribute;
-      });
+      found = std::find_if(grids.begin(), grids.end(),
+                           [&](const VolumeGridInfo& g) { return g.name == candidate && isVec3(g); });
       if (found != grids.end()) break;
     }
     if (found == grids.end()) return nullptr;
   }
-  if (found->kind != VolumeGridKind::Attribute)
+  if (!isVec3(*found))
     fail(file.path(),
          fmt::format("the {} grid '{}' is a {} grid, not a vec3 one", what, found->name, found->type));
   return file.read(found->name);
@@ -208,6 +214,27 @@ openvdb::GridBase::Ptr colorGrid(const Reader& file, const VolumeImportOptions& 
 
 openvdb::GridBase::Ptr normalGrid(const Reader& file, const VolumeImportOptions& options) {
   return attributeGrid(file, file.grids(), options.normalGrid, kNormalGridNames, "normal");
+}
+
+openvdb::FloatGrid::Ptr densityGrid(const Reader& file) {
+  const auto found = std::find_if(file.grids().begin(), file.grids().end(),
+                                  [](const VolumeGridInfo& g) { return g.name == kDensityGridName; });
+  if (found == file.grids().end()) return nullptr;
+  const openvdb::GridBase::Ptr grid = file.read(found->name);
+  if (const auto floats = openvdb::gridPtrCast<openvdb::FloatGrid>(grid)) return floats;
+  const auto doubles = openvdb::gridPtrCast<openvdb::DoubleGrid>(grid);
+  if (!doubles)
+    fail(file.path(), fmt::format("the density grid '{}' is a {} grid, not a float or double one",
+                                  found->name, found->type));
+  auto floats = openvdb::FloatGrid::create(float(doubles->background()));
+  floats->setTransform(doubles->transform().copy());
+  for (auto it = doubles->cbeginValueOn(); it; ++it) floats->tree().setValueOn(it.getCoord(), float(*it));
+  return floats;
+}
+
+float ScalarSampler::at(const glm::dvec3& world) const {
+  return openvdb::tools::BoxSampler::sample(
+      grid_->tree(), grid_->transform().worldToIndex(openvdb::Vec3d(world.x, world.y, world.z)));
 }
 
 Vec3Sampler::Vec3Sampler(openvdb::GridBase::Ptr grid) {
@@ -233,6 +260,21 @@ glm::vec3 Vec3Sampler::at(const glm::dvec3& world) const {
 glm::vec4 colorOf(glm::vec3 rgb) {
   if (!std::isfinite(rgb.r + rgb.g + rgb.b)) rgb = glm::vec3(0.0f);
   return {glm::clamp(rgb, glm::vec3(0.0f), glm::vec3(1.0f)), 1.0f};
+}
+
+std::uint32_t colorWithDensity(const Vec3Sampler& colors, const glm::dvec3& world, double density) {
+  const glm::vec3 rgb = colors ? glm::vec3(colorOf(colors.at(world))) : glm::vec3(kNeutralGreyAlbedo);
+  return encodeColor(glm::vec4(rgb, std::isfinite(density) ? std::clamp(float(density), 0.0f, 1.0f) : 0.0f));
+}
+
+bool keepDensityWhereItVaries(std::vector<SliceVoxel>& leaves, bool hasColorGrid) {
+  constexpr std::uint32_t kAlpha = 0xFF000000u;
+  const bool varies = std::any_of(leaves.begin(), leaves.end(), [&](const SliceVoxel& v) {
+    return (v.color & kAlpha) != (leaves.front().color & kAlpha);
+  });
+  if (varies) return true;
+  for (SliceVoxel& v : leaves) v.color |= kAlpha;
+  return hasColorGrid;
 }
 
 void addCoarserLevels(VoxelLevels& levels, bool hasColors, bool hasNormals) {
@@ -374,6 +416,7 @@ VoxelVolume loadVolumeVoxels(const fs::path& path, const VolumeImportOptions& op
 
   const volume_file::Vec3Sampler colors(volume_file::colorGrid(file, options));
   const volume_file::Vec3Sampler normals(volume_file::normalGrid(file, options));
+  const volume_file::ScalarSampler densities(volume_file::densityGrid(file));
   const auto worldOf = [&](const glm::ivec3& local) {
     const openvdb::Vec3d w =
         transform.indexToWorld(openvdb::Vec3d(local.x + lower.x, local.y + lower.y, local.z + lower.z));
@@ -381,19 +424,24 @@ VoxelVolume loadVolumeVoxels(const fs::path& path, const VolumeImportOptions& op
   };
   for (SliceVoxel& v : tree.back()) {
     const glm::dvec3 world = worldOf(v.coord);
-    if (colors) v.color = encodeColor(volume_file::colorOf(colors.at(world)));
+    if (densities)
+      v.color = volume_file::colorWithDensity(colors, world, densities.at(world));
+    else if (colors)
+      v.color = encodeColor(volume_file::colorOf(colors.at(world)));
     if (normals) {
       const glm::vec3 n = normals.at(world);
       v.normal = latticeNormal(std::isfinite(glm::dot(n, n)) && glm::dot(n, n) > 0.0f ? glm::normalize(n)
                                                                                       : glm::vec3(0, 0, 1));
     }
   }
-  volume_file::addCoarserLevels(tree, bool(colors), bool(normals));
+  const bool hasColors =
+      densities ? volume_file::keepDensityWhereItVaries(tree.back(), bool(colors)) : bool(colors);
+  volume_file::addCoarserLevels(tree, hasColors, bool(normals));
 
   VoxelVolume volume;
   for (const auto& level : tree) volume.voxels += level.size();
   volume.leafVoxels = tree.back().size();
-  volume.tree = treeOfLevels(tree, bool(colors), bool(normals));
+  volume.tree = treeOfLevels(tree, hasColors, bool(normals));
   // The cube's corner is the lower voxel's corner: half a voxel below its centre.
   volume.transform.origin = worldOf(glm::ivec3(0)) - 0.5 * voxelSize;
   volume.transform.size = voxelSize * double(side);

@@ -1,13 +1,14 @@
 // A level set's zero crossing (or a fog volume's threshold surface) voxelized straight from the grid
 // (volume.hpp): the grid cells the surface crosses, the octree's finest voxels those cells' trilinear field
 // changes sign in, each voxel's normal from the field's gradient and contour from the points where the
-// surface crosses the voxel's (and its cells') edges; coarser voxels as a voxel mask's, with contours fitted
-// to their finest voxels' points.
+// surface crosses the voxel's (and its cells') edges, a fog volume's voxel its densest point as its color's
+// alpha; coarser voxels as a voxel mask's, with contours fitted to their finest voxels' points.
 #include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <tuple>
 #include <utility>
@@ -97,6 +98,8 @@ class Field {
   Field(const Grid& grid, double isovalue, double sign)
       : accessor_(grid.getConstAccessor()), isovalue_(isovalue), sign_(sign) {}
   double at(const openvdb::Coord& ijk) const { return sign_ * (double(accessor_.getValue(ijk)) - isovalue_); }
+  // The grid's value where the field is `field` (at's inverse).
+  double valueOf(double field) const { return isovalue_ + sign_ * field; }
   Corners corners(const openvdb::Coord& lower) const {
     Corners v;
     for (int k = 0; k < 8; ++k) v[k] = at(lower.offsetBy(k & 1, k >> 1 & 1, k >> 2 & 1));
@@ -230,11 +233,14 @@ struct SurfacePoints {
   }
 };
 
-// The finest voxels (Morton order) with their normals and colors, and their surface points.
+// The finest voxels (Morton order) with their normals and colors, and their surface points. With
+// `densities` (a fog volume), a voxel's color carries the highest density the trilinear field reaches in its
+// cube as alpha: exact, as a trilinear field's extremes over a box lie at its corners.
 template <class Grid>
 SurfacePoints leafAttributes(const Field<Grid>& prototype, const Resampling& grid,
                              const openvdb::math::Transform& transform,
-                             const volume_file::Vec3Sampler& colors, std::vector<SliceVoxel>& leaves) {
+                             const volume_file::Vec3Sampler& colors, bool densities,
+                             std::vector<SliceVoxel>& leaves) {
   const std::size_t count = leaves.size(), tasks = (count + kLeavesPerTask - 1) / kLeavesPerTask;
   SurfacePoints out;
   out.chunks.resize(tasks);
@@ -249,14 +255,20 @@ SurfacePoints leafAttributes(const Field<Grid>& prototype, const Resampling& gri
       const glm::ivec3 firstCell(glm::floor(boxLo)), lastCell = glm::ivec3(glm::ceil(boxHi)) - 1;
       const std::size_t begin = chunk.size();
       dvec3 sum(0.0);
+      double densest = -std::numeric_limits<double>::infinity();
       for (int z = firstCell.z; z <= lastCell.z; ++z)
         for (int y = firstCell.y; y <= lastCell.y; ++y)
           for (int x = firstCell.x; x <= lastCell.x; ++x) {
             const openvdb::Coord k(x, y, z);
             const Corners v = field.corners(k);
+            const bool crossed = changesSign(v);
             dvec3 lo, hi;
-            if (!changesSign(v) || !grid.overlap(leaf.coord, k, lo, hi)) continue;
-            edgeCrossings(boxCorners(v, lo, hi), lo, hi, [&](const dvec3& p) {
+            if ((!crossed && !densities) || !grid.overlap(leaf.coord, k, lo, hi)) continue;
+            const Corners box = boxCorners(v, lo, hi);
+            if (densities)
+              for (const double f : box) densest = std::max(densest, field.valueOf(f));
+            if (!crossed) continue;
+            edgeCrossings(box, lo, hi, [&](const dvec3& p) {
               const dvec3 local =
                   glm::clamp((dvec3(x, y, z) + p - grid.offset) / grid.ratio - centre, -0.5, 0.5);
               sum += local;
@@ -273,9 +285,10 @@ SurfacePoints leafAttributes(const Field<Grid>& prototype, const Resampling& gri
       const double length = glm::length(g);
       leaf.normal = latticeNormal(length > 0.0 && std::isfinite(length) ? glm::vec3(g / length)
                                                                         : glm::vec3(0.0f, 0.0f, 1.0f));
-      if (colors) {
+      if (colors || densities) {
         const openvdb::Vec3d world = transform.indexToWorld(openvdb::Vec3d(surface.x, surface.y, surface.z));
-        leaf.color = encodeColor(volume_file::colorOf(colors.at({world.x(), world.y(), world.z()})));
+        leaf.color = volume_file::colorWithDensity(colors, {world.x(), world.y(), world.z()},
+                                                   densities ? densest : 1.0);
       }
     }
     chunk.shrink_to_fit();
@@ -340,8 +353,12 @@ void addContours(const SurfacePoints& points, const BuildOptions& options, Voxel
 // The grid's surface as octree levels; the grid and the color grid are let go once the finest voxels have
 // their attributes.
 template <class Grid>
-SurfaceVolume voxelizeGrid(const fs::path& path, typename Grid::Ptr grid, double isovalue, double sign,
-                           volume_file::Vec3Sampler colors, const BuildOptions& options) {
+SurfaceVolume voxelizeGrid(const fs::path& path, typename Grid::Ptr grid, double isovalue,
+                           VolumeGridKind kind, volume_file::Vec3Sampler colors,
+                           const BuildOptions& options) {
+  // A fog volume's denser side is inside: its field is the threshold less the density.
+  const bool fog = kind == VolumeGridKind::FogVolume;
+  const double sign = fog ? -1.0 : 1.0;
   const double voxelSize = volume_file::cubicVoxelSize(path, *grid);
   const auto progress = [&](double f) {
     if (options.progress) options.progress(f);
@@ -370,9 +387,10 @@ SurfaceVolume voxelizeGrid(const fs::path& path, typename Grid::Ptr grid, double
     for (const glm::ivec3& c : crossedVoxels(cells, field, resampling))
       levels.back().push_back(SliceVoxel{c});
     progress(0.4);
-    points = leafAttributes(field, resampling, transform, colors, levels.back());
+    points = leafAttributes(field, resampling, transform, colors, fog, levels.back());
   }
-  const bool hasColors = bool(colors);
+  const bool hasColors =
+      fog ? volume_file::keepDensityWhereItVaries(levels.back(), bool(colors)) : bool(colors);
   grid.reset(), colors = volume_file::Vec3Sampler(nullptr);
   progress(0.7);
   volume_file::addCoarserLevels(levels, hasColors, true);
@@ -395,20 +413,18 @@ SurfaceVolume voxelizeVolumeSurface(const fs::path& path, const VolumeImportOpti
     const volume_file::Reader file(path);
     return std::pair(volume_file::readSurfaceGrid(file, import), volume_file::colorGrid(file, import));
   }();
-  // A fog volume's denser side is inside: its field is the threshold less the density.
-  const double sign = surface.kind == VolumeGridKind::LevelSet ? 1.0 : -1.0;
   openvdb::GridBase::Ptr grid = std::move(surface.grid);
   volume_file::Vec3Sampler colors(std::move(colorValues));
   // The typed pointer is the grid's only owner: voxelizeGrid lets it go before the octree levels are made.
   SurfaceVolume out;
   if (auto floats = openvdb::gridPtrCast<openvdb::FloatGrid>(grid)) {
     grid.reset();
-    out = voxelizeGrid<openvdb::FloatGrid>(path, std::move(floats), surface.isovalue, sign, std::move(colors),
-                                           options);
+    out = voxelizeGrid<openvdb::FloatGrid>(path, std::move(floats), surface.isovalue, surface.kind,
+                                           std::move(colors), options);
   } else {
     auto doubles = openvdb::gridPtrCast<openvdb::DoubleGrid>(grid);
     grid.reset();
-    out = voxelizeGrid<openvdb::DoubleGrid>(path, std::move(doubles), surface.isovalue, sign,
+    out = voxelizeGrid<openvdb::DoubleGrid>(path, std::move(doubles), surface.isovalue, surface.kind,
                                             std::move(colors), options);
   }
   if (stats) {

@@ -8,6 +8,7 @@
 // has that build), a non-zero exit and nothing written.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <fstream>
 #include <map>
@@ -17,6 +18,7 @@
 #include <tuple>
 
 #include <openvdb/openvdb.h>
+#include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetSphere.h>
 #include <openvdb/tools/LevelSetUtil.h>
 #include <glm/geometric.hpp>
@@ -120,6 +122,11 @@ TEST_F(Volume, ExportedMaskHoldsTheLevelsVoxelsAndImportRebuildsThem) {
     const auto colors = readGrid<openvdb::Vec3SGrid>(vdb, "color");
     const auto normals = readGrid<openvdb::Vec3SGrid>(vdb, "normal");
     ASSERT_TRUE(occupancy && colors && normals);
+    {
+      openvdb::io::File file(vdb.string());
+      file.open();
+      EXPECT_FALSE(file.hasGrid("density")) << "opaque colors carry no densities";
+    }
     EXPECT_EQ(occupancy->activeVoxelCount(), openvdb::Index64(expected.size()));
     const double width = scene.size / double(1 << level);
     EXPECT_NEAR(occupancy->voxelSize()[0], width, 1e-12 * scene.size);
@@ -267,6 +274,136 @@ TEST_F(Volume, FogVolumeBuildsOnItsDensityThreshold) {
   options.densityThreshold = 0.5f;
   expectSphere(vdb, options, s, s.radius - 0.5 * bandWidth, false);
   EXPECT_EQ(svo::chooseVolumeGrid(vdb, {}).kind, svo::VolumeGridKind::FogVolume);
+}
+
+// The highest value the grid's trilinear field (OpenVDB's BoxSampler) takes on a lattice of points spanning
+// the world box [lo, lo + width]^3: an independent estimate of the maximum the builder finds exactly.
+double sampledMaximum(const openvdb::FloatGrid& grid, const glm::dvec3& lo, double width) {
+  constexpr int kSteps = 16;
+  const auto accessor = grid.getConstAccessor();
+  double best = -1e300;
+  for (int z = 0; z <= kSteps; ++z)
+    for (int y = 0; y <= kSteps; ++y)
+      for (int x = 0; x <= kSteps; ++x) {
+        const glm::dvec3 p = lo + glm::dvec3(x, y, z) * (width / kSteps);
+        const openvdb::Vec3d index = grid.worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
+        best = std::max(best, double(openvdb::tools::BoxSampler::sample(accessor, index)));
+      }
+  return best;
+}
+
+std::uint8_t alphaOf(std::uint32_t abgr) {
+  return std::uint8_t(abgr >> 24);
+}
+
+TEST_F(Volume, FogDensityRidesInTheColorsAlphaAndSurvivesExport) {
+  // A fog sphere whose density grows along x: its surface voxels' densest points differ.
+  const SphereFile s;
+  const auto fog = sphereGrid(s);
+  openvdb::tools::sdfToFogVolume(*fog);
+  constexpr double kLowFactor = 0.55;
+  for (auto it = fog->beginValueOn(); it; ++it) {
+    const double x = fog->indexToWorld(it.getCoord()).x();
+    const double t = std::clamp((x - (s.centre.x - s.radius)) / (2.0 * s.radius), 0.0, 1.0);
+    it.setValue(float(*it * (kLowFactor + (1.0 - kLowFactor) * t)));
+  }
+  const fs::path vdb = dir.path() / "fog.vdb";
+  writeGrids(vdb, {fog});
+  svo::VolumeImportOptions options;
+  options.densityThreshold = 0.3f;
+  svo::BuildOptions build;
+  build.levels = 7;
+  const svo::SurfaceVolume volume = svo::voxelizeVolumeSurface(vdb, options, build);
+  ASSERT_TRUE(volume.tree.hasColors);
+
+  // Each leaf's alpha is its cube's densest point, against the field sampled on a lattice over the cube.
+  // The lattice misses the maximum by at most the field's steepest slope (the band's 1 per 3 grid voxels
+  // along each axis) over half a lattice cell's diagonal.
+  const std::map<Key, Values> leaves = levelVoxels(volume.tree, build.levels);
+  const double width = volume.transform.size / double(1 << build.levels);
+  const double latticeMiss = std::sqrt(3.0) / (3.0 * s.voxelSize) * 0.5 * std::sqrt(3.0) * width / 16.0;
+  const double quantum = 0.5 / 255.0 + 1e-6;
+  std::set<int> alphas;
+  constexpr std::size_t kEveryNthLeaf = 37;  // keeps the lattice sampling to a second
+  std::size_t seen = 0, checked = 0;
+  for (const auto& [key, values] : leaves) {
+    if (seen++ % kEveryNthLeaf != 0) continue;
+    const glm::dvec3 lo =
+        volume.transform.origin + glm::dvec3(std::get<0>(key), std::get<1>(key), std::get<2>(key)) * width;
+    const double sampled = std::clamp(sampledMaximum(*fog, lo, width), 0.0, 1.0);
+    const double alpha = alphaOf(values.color) / 255.0;
+    EXPECT_GE(alpha, sampled - quantum);
+    EXPECT_LE(alpha, std::min(1.0, sampled + latticeMiss) + quantum);
+    // No color grid: neutral grey, so the density changes no image.
+    EXPECT_EQ(values.color & 0xFFFFFFu, svo::encodeColor(glm::vec4(svo::kNeutralGreyAlbedo)) & 0xFFFFFFu);
+    alphas.insert(alphaOf(values.color));
+    ++checked;
+  }
+  EXPECT_GT(checked, 100u);
+  EXPECT_GT(alphas.size(), 20u) << "the densities should differ along x";
+
+  // Export writes the alphas as a density grid marked as an attribute: the file still has one shape, and
+  // building it back gives the same alphas.
+  const fs::path store = dir.path() / "fog.svo";
+  svo::BuildParameters parameters;
+  parameters.levels = build.levels;
+  svo::writeStore(store, volume.tree, volume.transform, parameters);
+  const svo::StoreReader reader(store);
+  const std::map<Key, Values> stored = levelVoxels(reader.loadTree(), build.levels);
+  const fs::path exported = dir.path() / "fog-export.vdb";
+  svo::exportVolume(reader, exported, {build.levels, false, nullptr});
+  const auto densities = readGrid<openvdb::FloatGrid>(exported, "density");
+  ASSERT_TRUE(densities);
+  EXPECT_EQ(densities->activeVoxelCount(), openvdb::Index64(stored.size()));
+  const auto densityAt = densities->getConstAccessor();
+  for (const auto& [key, values] : stored)
+    ASSERT_EQ(densityAt.getValue(openvdb::Coord(std::get<0>(key), std::get<1>(key), std::get<2>(key))),
+              float(alphaOf(values.color)) / 255.0f);
+  EXPECT_EQ(svo::chooseVolumeGrid(exported, {}).name, "occupancy");
+  const svo::VoxelVolume back = svo::loadVolumeVoxels(exported, {});
+  ASSERT_TRUE(back.tree.hasColors);
+  const std::map<Key, Values> rebuilt = levelVoxels(back.tree, build.levels);
+  ASSERT_EQ(rebuilt.size(), stored.size());
+  for (const auto& [key, values] : stored) ASSERT_EQ(rebuilt.at(key).color, values.color);
+}
+
+TEST_F(Volume, MaskDensitiesAreKeptOnlyWhereTheyDiffer) {
+  auto mask = openvdb::MaskGrid::create();
+  mask->setName("occupancy");
+  auto density = openvdb::FloatGrid::create(0.0f);
+  density->setName("density");
+  std::map<Key, float> expected;
+  for (int z = 0; z < 4; ++z)
+    for (int y = 0; y < 4; ++y)
+      for (int x = 0; x < 4; ++x) {
+        mask->tree().setValueOn(openvdb::Coord(x, y, z));
+        const float d = float(x + 2 * y + 4 * z) / 28.0f;
+        density->tree().setValueOn(openvdb::Coord(x, y, z), d);
+        expected[{x, y, z}] = d;
+      }
+  const fs::path varying = dir.path() / "varying.vdb";
+  writeGrids(varying, {mask, density});
+  svo::VolumeImportOptions pick;
+  pick.grid = "occupancy";  // the density grid is a fog volume too
+  const svo::VoxelVolume volume = svo::loadVolumeVoxels(varying, pick);
+  ASSERT_TRUE(volume.tree.hasColors);
+  const std::map<Key, Values> leaves = levelVoxels(volume.tree, volume.parameters.levels);
+  ASSERT_EQ(leaves.size(), expected.size());
+  for (const auto& [key, d] : expected)
+    EXPECT_EQ(leaves.at(key).color, svo::encodeColor(glm::vec4(glm::vec3(svo::kNeutralGreyAlbedo), d)));
+
+  // The same density everywhere is no attribute: no colors at all, or opaque ones beside a color grid.
+  density->tree().fill(openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(3)), 0.5f, true);
+  const fs::path uniform = dir.path() / "uniform.vdb";
+  writeGrids(uniform, {mask, density});
+  EXPECT_FALSE(svo::loadVolumeVoxels(uniform, pick).tree.hasColors);
+  auto colors = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.25f, 0.5f, 1.0f));
+  colors->setName("color");
+  writeGrids(uniform, {mask, density, colors});
+  const svo::VoxelVolume colored = svo::loadVolumeVoxels(uniform, pick);
+  ASSERT_TRUE(colored.tree.hasColors);
+  for (const auto& [key, values] : levelVoxels(colored.tree, colored.parameters.levels))
+    EXPECT_EQ(values.color, svo::encodeColor(glm::vec4(0.25f, 0.5f, 1.0f, 1.0f)));
 }
 
 TEST_F(Volume, BadFilesAndGridsAreOneClearError) {

@@ -602,8 +602,10 @@ void addBuildCommand(CLI::App& app) {
                 ".vdb level sets and fog volumes: mesh the surface (OpenVDB's volumeToMesh) and voxelize the "
                 "mesh, instead of voxelizing the field directly (also taken out of core and with "
                 "--geometry-error)");
-  cmd->add_option("--density-threshold", args->volume.densityThreshold,
-                  ".vdb fog volumes: voxels of at least this density are occupied")
+  cmd->add_option(
+         "--density-threshold", args->volume.densityThreshold,
+         ".vdb fog volumes: voxels of at least this density are occupied (each keeps its densest point as "
+         "its color's alpha where those differ)")
       ->capture_default_str();
   cmd->callback([args, cmd] {
     args->levelsGiven = cmd->count("--levels") > 0;

@@ -25,7 +25,7 @@ enum class VolumeGridKind : std::uint8_t {
   LevelSet,   // scalar, class level set: the surface is its zero crossing
   FogVolume,  // scalar, any other class: occupied above the density threshold
   Voxels,     // mask or bool: each active voxel is a finest voxel
-  Attribute,  // vec3: colors or normals for another grid
+  Attribute,  // vec3, or marked by svo export: colors, normals or densities for another grid
   Other,      // nothing svo reads
 };
 const char* nameOf(VolumeGridKind kind);
@@ -63,8 +63,11 @@ Mesh loadVolumeSurface(const std::filesystem::path& path, const VolumeImportOpti
 // its values at the box's corners). A finest voxel's normal is the field's normalized gradient (central
 // differences a grid voxel either way) at the mean of the points where the surface crosses the edges of its
 // pieces of grid cells, its color the color grid's there; its contour (options.contours) is the slab along
-// its normal holding those points, kept as the mesh builder keeps one. Coarser voxels average their
-// children's colors and normals and fit their contours to their finest voxels' points. Every leaf is at the
+// its normal holding those points, kept as the mesh builder keeps one. A fog volume's finest voxel carries,
+// as its color's alpha, the highest density the field reaches in its cube (clamped to [0, 1]; the color
+// neutral grey without a color grid), where those densities differ: a scene whose densities are all alike
+// carries none. Coarser voxels average their children's colors and normals and fit their contours to their
+// finest voxels' points. Every leaf is at the
 // finest level (the error-driven stop is the mesh builder's). Throws naming the file on a grid that is not a
 // level set or fog volume, has no surface, or has a rotated or non-cubic transform.
 struct SurfaceVolume {
@@ -76,7 +79,8 @@ SurfaceVolume voxelizeVolumeSurface(const std::filesystem::path& path, const Vol
 
 // A mask or bool grid as octree levels, one finest voxel per active voxel: the octree's depth is the grid's
 // (from `svo export`'s metadata, else the smallest power of two holding the active voxels), coarser voxels
-// average their children's colors and normals, and there are no contours.
+// average their children's colors and normals, and there are no contours. A float grid named "density"
+// gives the colors' alpha, as for a fog volume's surface.
 struct VoxelVolume {
   VoxelTree tree;
   SceneTransform transform;
@@ -86,9 +90,10 @@ struct VoxelVolume {
 VoxelVolume loadVolumeVoxels(const std::filesystem::path& path, const VolumeImportOptions& options);
 
 // `svo export`: one level of a store as an OpenVDB file. The occupancy grid ("occupancy", a mask; or a
-// narrow-band level set around the voxels, OpenVDB's topologyToLevelSet), and vec3 grids "color" (linear RGB,
-// when the store has colors) and "normal", in the scene's world frame: a voxel of the level is one VDB
-// voxel. A store leaf coarser than the level covers all its cube's voxels there.
+// narrow-band level set around the voxels, OpenVDB's topologyToLevelSet), vec3 grids "color" (linear RGB,
+// when the store has colors) and "normal", and a float grid "density" (the colors' alpha, when some is below
+// 1; marked as an attribute so that it is not taken for a shape), in the scene's world frame: a voxel of the
+// level is one VDB voxel. A store leaf coarser than the level covers all its cube's voxels there.
 struct VolumeExportOptions {
   int level = 0;  // 1 .. the store's levels
   bool levelSet = false;

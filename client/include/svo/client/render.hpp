@@ -14,6 +14,7 @@
 
 #include "svo/client/beam.hpp"
 #include "svo/client/raycast.hpp"
+#include "svo/store/format.hpp"
 #include "svo/store/store_types.hpp"
 
 namespace svo {
@@ -110,8 +111,6 @@ void applyFilter(Frame& frame, const RenderOptions& options);
 // nullopt for a miss.
 std::optional<int> hitLevel(const Frame& frame, std::size_t pixel, double pixelAngle, double sceneSize);
 
-// Albedo of a scene without colors.
-inline constexpr float kNeutralGreyAlbedo = 0.8f;
 // The renderer's Phong model (one white directional light, `lightDirection` unit and pointing into the scene,
 // `viewDirection` unit from the eye); the normal is flipped to face the viewer. Shared with reference
 // renders.

@@ -117,8 +117,12 @@ bool encodeContour(glm::ivec3 qn, double lo, double hi, std::uint32_t& bits);
 constexpr std::uint32_t packABGR(std::uint8_t r, std::uint8_t g, std::uint8_t b, std::uint8_t a = 255) {
   return (std::uint32_t(a) << 24) | (std::uint32_t(b) << 16) | (std::uint32_t(g) << 8) | r;
 }
+// Alpha is the voxel's coverage: 255 for a surface, a fog volume's density where it varies (volume import).
 std::uint32_t encodeColor(glm::vec4 rgba);  // components in [0, 1], rounded
 glm::vec4 decodeColor(std::uint32_t abgr);
+// The albedo a voxel without a color shows. A store that carries a fog volume's density but no colors gives
+// its colors this grey, so the density changes no image.
+inline constexpr float kNeutralGreyAlbedo = 0.8f;
 
 // Normal as a point on the unit cube: [31:29] face (axis * 2 + negative), [28:14] u (15 bits), [13:0] v
 // (14 bits); u, v are the two remaining coordinates in [-1, 1] in axis order.
