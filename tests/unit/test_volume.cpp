@@ -3,9 +3,11 @@
 // OpenVDB's own reader; import of that mask rebuilds a store with the same voxels, attributes and scene
 // cube (mesh -> svo -> vdb -> svo). A level-set sphere and a fog-volume sphere made by OpenVDB build, from
 // the field directly and through volumeToMesh, to voxels on the analytic sphere (radius R, and R less the fog
-// threshold's depth) with outward normals and the color grid's color. Bad files and ambiguous or unusable
-// grids are one clear error naming the file; through the `svo` command (under AddressSanitizer when the suite
-// has that build), a non-zero exit and nothing written.
+// threshold's depth) with outward normals and the color grid's color. A fog volume's leaves carry the densest
+// point of their cube as their colors' alpha (against the field sampled over the cube), which export writes
+// as a density grid and import reads back; a mask's density grid gives alphas, kept only where they differ.
+// Bad files and ambiguous or unusable grids are one clear error naming the file; through the `svo` command
+// (under AddressSanitizer when the suite has that build), a non-zero exit and nothing written.
 #include <gtest/gtest.h>
 
 #include <algorithm>
