@@ -140,26 +140,61 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   return hit;
 }
 
+SiblingAttribute::SiblingAttribute(const BlockView& block, AttachmentType raw)
+    : block_(&block),
+      raw_(raw),
+      units_(raw == AttachmentType::Color ? AttachmentType::ColorUnits : AttachmentType::NormalUnits),
+      rawEntry_(block.attachment(raw)),
+      // Every block of a scene (a pool's regions too) lays its attributes out alike: the root block's
+      // directory says whether a parent holds units, without a look-up through its page.
+      hasUnits_(block.attachment(units_) != nullptr) {}
+
+void SiblingAttribute::select(const ChildDescriptor* parent) {
+  if (parent == parent_) return;
+  parent_ = parent;
+  unit_ = hasUnits_ ? BlockView::unit(parent, units_) : std::nullopt;
+  own_ = !unit_ && rawEntry_ ? BlockView::attributes(parent, raw_) : BlockView::Attributes{};
+  inherited_.reset();
+}
+
+std::uint32_t SiblingAttribute::value(const CastHit& hit) {
+  if (!rawEntry_ || !hit.hit) return 0;
+  select(hit.parent);
+  if (const auto own = own_.at(hit.childSlot)) return *own;
+  if (!inherited_) {
+    inherited_ = rawEntry_->rootValue;
+    for (int s = hit.scale + 1; s < kScaleMax; ++s) {
+      if (auto v = BlockView::attribute(hit.pathParent[s], hit.pathSlot[s], raw_)) {
+        inherited_ = *v;
+        break;
+      }
+    }
+  }
+  return *inherited_;
+}
+
+glm::vec3 SiblingAttribute::color(const CastHit& hit) {
+  select(hit.parent);
+  if (unit_) return glm::vec3(decodeColor(unit_->color(hit.childSlot)));
+  return glm::vec3(decodeColor(value(hit)));
+}
+
+glm::vec3 SiblingAttribute::normal(const CastHit& hit) {
+  select(hit.parent);
+  if (unit_) return unit_->normal(hit.childSlot);
+  return decodeNormal(value(hit));
+}
+
 glm::vec3 hitColor(const BlockView& block, const CastHit& hit) {
-  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::ColorUnits))
-    return glm::vec3(decodeColor(unit->color(hit.childSlot)));
-  return glm::vec3(decodeColor(hitAttribute(block, hit, AttachmentType::Color)));
+  return SiblingAttribute(block, AttachmentType::Color).color(hit);
 }
 
 glm::vec3 hitNormal(const BlockView& block, const CastHit& hit) {
-  if (const auto unit = BlockView::unit(hit.parent, AttachmentType::NormalUnits))
-    return unit->normal(hit.childSlot);
-  return decodeNormal(hitAttribute(block, hit, AttachmentType::Normal));
+  return SiblingAttribute(block, AttachmentType::Normal).normal(hit);
 }
 
 std::uint32_t hitAttribute(const BlockView& block, const CastHit& hit, AttachmentType type) {
-  const AttachmentEntry* entry = block.attachment(type);
-  if (!entry || !hit.hit) return 0;
-  if (auto v = BlockView::attribute(hit.parent, hit.childSlot, type)) return *v;
-  for (int s = hit.scale + 1; s < kScaleMax; ++s) {
-    if (auto v = BlockView::attribute(hit.pathParent[s], hit.pathSlot[s], type)) return *v;
-  }
-  return entry->rootValue;
+  return SiblingAttribute(block, type).value(hit);
 }
 
 }  // namespace svo

@@ -37,8 +37,13 @@ inline Floats maxOf(Floats a, Floats b) {
 inline Floats absOf(Floats a) {
   return a < Floats{} ? -a : a;
 }
+// The lanes of a mask as the bits of an integer, lane l as bit l: loops over them visit only the set lanes, one
+// branch a lane instead of an unpredictable one for each of the eight.
+inline unsigned lanesOf(Ints mask) {
+  return unsigned(_mm256_movemask_ps(__m256(mask)));
+}
 inline bool any(Ints mask) {
-  return _mm256_movemask_ps(__m256(mask)) != 0;
+  return lanesOf(mask) != 0;
 }
 
 // {f(p[0]), ..., f(p[N - 1])} as 32-bit lanes.
@@ -93,6 +98,24 @@ struct Lanes {
   }
 }
 
+// clipToContour for the `clip` lanes, given each lane's decoded contour: raises t_min, lowers tv_max.
+[[gnu::always_inline]] inline void clipLanes(const Lanes& s, Ints clip, Floats nx, Floats ny, Floats nz,
+                                             Floats position, Floats thickness, Floats tx_center,
+                                             Floats ty_center, Floats tz_center, Floats& t_min,
+                                             Floats& tv_max) {
+  const Floats den = nx * s.dx + ny * s.dy + nz * s.dz;
+  const Floats num =
+      nx * s.dx * tx_center + ny * s.dy * ty_center + nz * s.dz * tz_center + s.scale_exp2 * position;
+  const Floats halfWidth = 0.5f * s.scale_exp2 * thickness;
+  const Ints crossing = clip & (absOf(den) > kParallelContour);
+  const Floats inv = 1.0f / (crossing ? den : Floats{} + 1.0f);
+  const Floats tmid = num * inv, tdiff = absOf(halfWidth * inv);
+  t_min = crossing ? maxOf(t_min, tmid - tdiff) : t_min;
+  tv_max = crossing ? minOf(tv_max, tmid + tdiff) : tv_max;
+  const Ints outside = clip & ~crossing & (absOf(num) > halfWidth);
+  tv_max = outside ? Floats{} - 1.0f : tv_max;  // parallel and outside: the voxel's shape is not on this ray
+}
+
 // clipToContour for the `clip` lanes: their contour words gathered and decoded as decodeContour decodes one.
 [[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
                                                   Floats tx_center, Floats ty_center, Floats tz_center,
@@ -110,17 +133,7 @@ struct Lanes {
   const Floats nz = __builtin_convertvector((bits << 12) >> 26, Floats) / kContourNormalScale;
   const Floats position = __builtin_convertvector((bits << 18) >> 25, Floats) * kContourPositionStep;
   const Floats thickness = __builtin_convertvector(bits & 127, Floats) * kContourThicknessStep;
-  const Floats den = nx * s.dx + ny * s.dy + nz * s.dz;
-  const Floats num =
-      nx * s.dx * tx_center + ny * s.dy * ty_center + nz * s.dz * tz_center + s.scale_exp2 * position;
-  const Floats halfWidth = 0.5f * s.scale_exp2 * thickness;
-  const Ints crossing = clip & (absOf(den) > kParallelContour);
-  const Floats inv = 1.0f / (crossing ? den : Floats{} + 1.0f);
-  const Floats tmid = num * inv, tdiff = absOf(halfWidth * inv);
-  s.t_min = crossing ? maxOf(s.t_min, tmid - tdiff) : s.t_min;
-  tv_max = crossing ? minOf(tv_max, tmid + tdiff) : tv_max;
-  const Ints outside = clip & ~crossing & (absOf(num) > halfWidth);
-  tv_max = outside ? Floats{} - 1.0f : tv_max;  // parallel and outside: the voxel's shape is not on this ray
+  clipLanes(s, clip, nx, ny, nz, position, thickness, tx_center, ty_center, tz_center, s.t_min, tv_max);
 }
 
 // The child each `meets` lane enters: a leaf (or a stub) is the lane's hit, else PUSH. Returns the lanes
@@ -128,8 +141,8 @@ struct Lanes {
 [[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints nonLeaf, Ints topology, Ints slot,
                                         CastHit* hits) {
   Ints pushed{};
-  for (int l = 0; l < N; ++l) {
-    if (!meets[l]) continue;
+  for (unsigned lanes = lanesOf(meets); lanes != 0; lanes &= lanes - 1) {
+    const int l = __builtin_ctz(lanes);
     const ChildDescriptor* child = nullptr;
     if (nonLeaf[l]) {
       const ChildDescriptor* run = s.parent[l] + (std::uint32_t(topology[l]) >> 17);
@@ -154,8 +167,8 @@ struct Lanes {
 
 // POP for the `pop` lanes, which left their parent: the new scale from the highest differing bit.
 [[gnu::always_inline]] inline void pop(Lanes& s, Ints pop, Ints step_mask) {
-  for (int l = 0; l < N; ++l) {
-    if (!pop[l]) continue;
+  for (unsigned lanes = lanesOf(pop); lanes != 0; lanes &= lanes - 1) {
+    const int l = __builtin_ctz(lanes);
     std::uint32_t differing_bits = 0;
     if (step_mask[l] & 1) differing_bits |= asBits(s.px[l]) ^ asBits(s.px[l] + s.scale_exp2[l]);
     if (step_mask[l] & 2) differing_bits |= asBits(s.py[l]) ^ asBits(s.py[l] + s.scale_exp2[l]);
@@ -176,10 +189,69 @@ struct Lanes {
   }
 }
 
+// The lanes that share their voxel descend together. While they are in the same child slot of the same
+// parent (a packet of neighbouring pixels, a few voxels apart at most), each step is castRay's iteration for
+// a lane that enters a valid voxel with resident children and pushes into it: the descriptor, contour and child
+// are looked up once for all of them, and no lane's decision branches. A lane in another slot, or whose
+// iteration would do anything else (advance, stop by level of detail, the iteration cap, a contour that
+// misses), leaves the group with its state untouched, and the loop goes on from there.
+[[gnu::always_inline]] inline void descendTogether(Lanes& s, const CastOptions& options, CastHit* hits) {
+  Ints together = s.active;
+  while (any(together)) {
+    const int leader = __builtin_ctz(lanesOf(together));
+    const Ints slots = s.idx ^ s.octantMask ^ 7;
+    const int slot = slots[leader];
+    const ChildDescriptor* parent = s.parent[leader];  // every lane of the group has it
+    if (!(parent->nonLeafMask() >> slot & 1u)) return;  // empty or a leaf: the loop's iteration decides
+    const ChildDescriptor* child = BlockView::child(parent, slot);
+    if (child->isStub()) return;
+    together &= (slots == slot) & (s.iterations < options.maxIterations) & (s.t_min <= s.t_max);
+    const Floats tx_corner = s.px * s.tx_coef - s.tx_bias;
+    const Floats ty_corner = s.py * s.ty_coef - s.ty_bias;
+    const Floats tz_corner = s.pz * s.tz_coef - s.tz_bias;
+    const Floats tc_max = minOf(minOf(tx_corner, ty_corner), tz_corner);
+    together &= ~(tc_max * s.slope + s.origin >= s.scale_exp2);
+    Floats tv_max = minOf(s.t_max, tc_max), t_min = s.t_min;
+    const Floats half = s.scale_exp2 * 0.5f;
+    const Floats tx_center = half * s.tx_coef + tx_corner;
+    const Floats ty_center = half * s.ty_coef + ty_corner;
+    const Floats tz_center = half * s.tz_coef + tz_corner;
+    if (options.contours && (parent->contourMask() >> slot & 1u)) {
+      const Contour c = contourOf(parent, *parent, slot);
+      const Floats none{};
+      clipLanes(s, together, none + c.normal.x, none + c.normal.y, none + c.normal.z, none + c.position,
+                none + c.thickness, tx_center, ty_center, tz_center, t_min, tv_max);
+    }
+    together &= t_min <= tv_max;
+    if (!any(together)) return;
+    // PUSH
+    const int scale = s.scale[leader];
+    for (unsigned lanes = lanesOf(together); lanes != 0; lanes &= lanes - 1) {
+      const int l = __builtin_ctz(lanes);
+      s.stack[l][scale] = {parent, s.t_max[l]};
+      hits[l].pathParent[scale] = parent;
+      hits[l].pathSlot[scale] = std::uint8_t(slot);
+      s.parent[l] = child;
+    }
+    s.iterations -= together;
+    s.t_min = together ? t_min : s.t_min;
+    s.scale -= together & 1;
+    s.scale_exp2 = together ? half : s.scale_exp2;
+    const Ints upX = together & (tx_center > s.t_min), upY = together & (ty_center > s.t_min),
+               upZ = together & (tz_center > s.t_min);
+    s.idx = together ? ((upX & 1) | (upY & 2) | (upZ & 4)) : s.idx;
+    s.px = upX ? s.px + s.scale_exp2 : s.px;
+    s.py = upY ? s.py + s.scale_exp2 : s.py;
+    s.pz = upZ ? s.pz + s.scale_exp2 : s.pz;
+    s.t_max = together ? tv_max : s.t_max;
+  }
+}
+
 void castPacketAvx2(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
                     CastHit* hits) {
   Lanes s;
   start(s, block, rays, count, hits);
+  descendTogether(s, options, hits);
   while (any(s.active)) {
     // The iteration cap, then each lane's voxel: valid, with or without a contour, a non-leaf or not. Every
     // lane loads (a finished one its last parent, still a descriptor), so the vectors are built without

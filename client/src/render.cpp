@@ -75,9 +75,16 @@ struct Shading {
   bool hasColor, hasNormal, contours;
 };
 
-glm::vec3 shade(const BlockView& block, const CastHit& hit, glm::vec3 viewDirection, const Shading& s) {
-  const glm::vec3 albedo = s.hasColor ? hitColor(block, hit) : glm::vec3(kNeutralGreyAlbedo);
-  const glm::vec3 n = s.hasNormal ? hitNormal(block, hit) : estimateNormal(hit, s.contours);
+// A tile's readers of the hit voxels' colors and normals (hits on siblings share a look-up).
+struct TileAttributes {
+  SiblingAttribute colors, normals;
+  explicit TileAttributes(const BlockView& block)
+      : colors(block, AttachmentType::Color), normals(block, AttachmentType::Normal) {}
+};
+
+glm::vec3 shade(const CastHit& hit, glm::vec3 viewDirection, const Shading& s, TileAttributes& attributes) {
+  const glm::vec3 albedo = s.hasColor ? attributes.colors.color(hit) : glm::vec3(kNeutralGreyAlbedo);
+  const glm::vec3 n = s.hasNormal ? attributes.normals.normal(hit) : estimateNormal(hit, s.contours);
   return shadePhong(albedo, n, viewDirection, s.lightDirection);
 }
 
@@ -125,6 +132,11 @@ OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px
   return PixelRays(scene, camera, lodPixels)(px, py);
 }
 
+int renderTileSize(const RenderOptions& options) {
+  // Without the beam, tiles of the paper's 8x8 still keep a task's rays coherent.
+  return options.beamTile > 0 ? options.beamTile : kTileSize;
+}
+
 void forEachTile(int width, int height, int tileSize, int threads,
                  const std::function<void(const PixelTile&)>& trace) {
   const int tilesX = (width + tileSize - 1) / tileSize, tilesY = (height + tileSize - 1) / tileSize;
@@ -158,8 +170,6 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
   if (options.beamTile < 0 || options.beamTile > kMaxBeamTile)
     throw std::runtime_error("render: beamTile must be in [0, " + std::to_string(kMaxBeamTile) + "] (got " +
                              std::to_string(options.beamTile) + ")");
-  // Without the beam, tiles of the paper's 8x8 still keep a task's rays coherent.
-  const int tileSize = options.beamTile > 0 ? options.beamTile : kTileSize;
   if (!finite(options.lightDirection) || !(glm::length(options.lightDirection) > 0.0f))
     throw std::runtime_error("render: the light direction must be finite and non-zero");
 
@@ -187,14 +197,15 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
 
   std::atomic<std::uint64_t> iterations{0};
   const auto start = std::chrono::steady_clock::now();
-  forEachTile(camera.width, camera.height, tileSize, options.threads, [&](const PixelTile& tile) {
+  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads, [&](const PixelTile& tile) {
+    TileAttributes attributes(block);
     const std::uint64_t tileIterations = castTile(
         block, rays, tile, options.beamTile > 0, options.cast,
         [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
           const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
           // The octree direction is the unit world direction / size: renormalized, the world one.
           const glm::vec3 viewDirection = glm::normalize(ray.direction);
-          frame.color[i] = glm::vec4(shade(block, hit, viewDirection, shading), 1.0f);
+          frame.color[i] = glm::vec4(shade(hit, viewDirection, shading, attributes), 1.0f);
           frame.depth[i] = hit.t;
           frame.voxelPixels[i] = float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
           keepIterations(x, y, hit);

@@ -31,6 +31,7 @@
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
 #include "svo/client/raycast.hpp"
+#include "svo/client/render.hpp"
 
 namespace {
 
@@ -621,5 +622,48 @@ TEST(Raycast, LevelOfDetail) {
     EXPECT_GT(lodStops, 1000u) << s->name << ": level of detail never stopped early";
     std::printf("[ LOD      ] %s: %zu LOD stops, %zu also no larger than the footprint at the hit t\n",
                 s->name.c_str(), lodStops, strictAtHit);
+  }
+}
+
+// One SiblingAttribute per attribute kept across a frame's hits in pixel order, as render keeps one per tile:
+// each hit's color and normal equal readBlock's resolved values for its voxel, whether the hit shares the
+// previous hit's parent (the parent's look-up reused, inherited values included) or not.
+TEST(Raycast, SiblingAttributesKeptAcrossHitsEqualReadBlock) {
+  for (const Scene* s : {&sphereScene(), &randomScene()}) {
+    const svo::BlockView view = s->octree.block.view();
+    // Near enough that the finest voxels are a few pixels wide and neighbouring pixels hit siblings.
+    svo::Camera camera = svo::Camera::framing(s->octree.transform, svo::kDefaultViewDirection, 160, 160);
+    camera.eye = camera.target + 0.5 * (camera.eye - camera.target);
+    for (const float lod : {0.0f, 12.0f}) {  // the finest voxels, and coarser ones stopped by LOD
+      const svo::PixelRays rays(s->octree.transform, camera, lod);
+      svo::SiblingAttribute colors(view, svo::AttachmentType::Color), normals(view, svo::AttachmentType::Normal);
+      const svo::ChildDescriptor* previous = nullptr;
+      std::size_t hits = 0, shared = 0;
+      for (int y = 0; y < camera.height; ++y)
+        for (int x = 0; x < camera.width; ++x) {
+          const svo::CastHit hit = svo::castRay(view, rays(x, y));
+          if (!hit.hit) continue;
+          ++hits;
+          shared += hit.parent == previous;
+          previous = hit.parent;
+          const double size = hit.voxelSize();
+          const glm::ivec3 c(glm::round((glm::dvec3(hit.cubeMin) - 1.0) / size));
+          const auto it = s->attributes.find({svo::kMaxLevels - hit.scale, svotest::packCoord(c)});
+          ASSERT_NE(it, s->attributes.end()) << s->name << " pixel " << x << "," << y;
+          ASSERT_EQ(normals.value(hit), it->second.second) << s->name << " lod " << lod << " pixel " << x << ","
+                                                           << y;
+          ASSERT_EQ(normals.normal(hit), svo::decodeNormal(it->second.second));
+          if (view.attachment(svo::AttachmentType::Color)) {
+            ASSERT_EQ(colors.value(hit), it->second.first) << s->name << " lod " << lod << " pixel " << x
+                                                           << "," << y;
+            ASSERT_EQ(colors.color(hit), glm::vec3(svo::decodeColor(it->second.first)));
+          }
+        }
+      std::printf("[ SIBLINGS ] %s, lod %g: %zu hits, %zu on the previous hit's parent\n", s->name.c_str(), lod,
+                  hits, shared);
+      EXPECT_GT(hits, 5000u) << s->name;
+      EXPECT_GT(shared, hits / 4) << s->name << ": too few hits on the previous hit's siblings";
+      EXPECT_LT(shared, hits) << s->name;
+    }
   }
 }

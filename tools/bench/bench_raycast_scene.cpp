@@ -44,7 +44,7 @@ TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const Rende
   const BlockView block = scene.root();
   const PixelRays rays(scene.transform(), camera, options.lodPixels);
   std::atomic<std::uint64_t> iterations{0};
-  forEachTile(camera.width, camera.height, kTileSize, options.threads, [&](const PixelTile& tile) {
+  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads, [&](const PixelTile& tile) {
     iterations.fetch_add(castTile(block, rays, tile, options.beamTile > 0, options.cast,
                                   [&](int x, int y, const OctreeRay&, const CastHit& hit) {
                                     result.depth[std::size_t(y) * camera.width + x] = hit.t;

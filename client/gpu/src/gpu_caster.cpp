@@ -15,7 +15,7 @@
 namespace svo::gpu {
 namespace {
 
-// The shader's work group: 8 x 8 pixels, the CPU renderer's tile.
+// The shader's work group: 8 x 8 pixels, the paper's beam tile (sec. 6.2).
 constexpr int kGroupSide = 8;
 
 struct PixelOut {  // std430, as the shader's PixelOut

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 
 #include <glm/vec3.hpp>
 
@@ -56,6 +57,30 @@ inline constexpr int kPacketLanes = 8;
 // options) bit for bit.
 void castPacket(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
                 CastHit* hits);
+
+// One attribute (colors or normals) of hit voxels, in either layout: the slot of the hit parent's unit (sec.
+// 5.5), or the raw value, walking up the path while a voxel inherits (sec. 5.4). Each look-up is a chain of
+// dependent loads (page header, info section, directory, lookup entry, value; for an inherited value, the
+// same for each ancestor up to the nearest with a value of its own), and neighbouring pixels often hit
+// siblings: hits on children of the parent read last share its look-up.
+class SiblingAttribute {
+ public:
+  SiblingAttribute(const BlockView& block, AttachmentType raw);  // Color or Normal
+  std::uint32_t value(const CastHit& hit);  // the raw layout's value (0 without the attachment)
+  glm::vec3 color(const CastHit& hit);      // linear RGB in [0, 1]
+  glm::vec3 normal(const CastHit& hit);     // unit length
+
+ private:
+  void select(const ChildDescriptor* parent);
+  const BlockView* block_;
+  AttachmentType raw_, units_;
+  const AttachmentEntry* rawEntry_;
+  bool hasUnits_;
+  const ChildDescriptor* parent_ = nullptr;
+  std::optional<BlockView::UnitHalf> unit_;
+  BlockView::Attributes own_;
+  std::optional<std::uint32_t> inherited_;  // the value of the parent's children without their own
+};
 
 // Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4): the raw
 // layout's value.
