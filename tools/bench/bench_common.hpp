@@ -3,6 +3,7 @@
 // that use them.
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
@@ -78,6 +79,21 @@ Summary timeRuns(int runs, F&& run) {
   std::vector<double> samples;
   for (int i = 0; i < runs; ++i) samples.push_back(timeSeconds(run));
   return summarize(std::move(samples));
+}
+
+// Several methods timed over the same runs: one warm-up each, then each run times every method in turn, so a
+// slow spell of a shared machine falls on all of them alike and their ratios stay fair. One summary per method.
+template <class... F>
+std::array<Summary, sizeof...(F)> timeInterleaved(int runs, F&&... methods) {
+  (methods(), ...);  // warm-up: page faults, TBB workers, caches
+  std::array<std::vector<double>, sizeof...(F)> samples;
+  for (int i = 0; i < runs; ++i) {
+    std::size_t m = 0;
+    ((samples[m++].push_back(timeSeconds(methods))), ...);
+  }
+  std::array<Summary, sizeof...(F)> summaries;
+  for (std::size_t m = 0; m < sizeof...(F); ++m) summaries[m] = summarize(std::move(samples[m]));
+  return summaries;
 }
 
 // ----- argument validation: each throws UsageError with one line naming the option -----------------------

@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <stdexcept>
 
@@ -186,16 +187,31 @@ Timed timeGpu(const WholeScene& scene, const Camera& camera, const RenderOptions
   return timed;
 }
 
-// ESVO's depth-only and shaded frames of `camera`, timed into `row`, with the shaded frame's errors against
-// Embree's when the row has it; images named `imageStem` (when not empty) go to the output folder.
-void measureEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
-                 const RaycastArgs& args, double finestVoxel, CameraRow& row, const std::string& imageStem) {
+// Embree's frame of a row's camera on the row's threads, shaded by the MeshShading when given one; empty in a
+// binary without the peers.
+using PeerTrace = std::function<TraceResult(const MeshShading*)>;
+
+// ESVO's depth-only and shaded frames of `camera` and Embree's (when `peer`), timed in turn over the same runs
+// into `row`, with the shaded frame's errors against Embree's; images named `imageStem` (when not empty) go
+// to the output folder.
+void measureRow(const WholeScene& scene, const PeerTrace& peer, const MeshShading& shading, const Camera& camera,
+                const RenderOptions& options, const RaycastArgs& args, double finestVoxel, CameraRow& row,
+                const std::string& imageStem) {
   row.rays = double(camera.width) * camera.height;
-  row.esvoDepth.seconds =
-      timeRuns(args.runs, [&] { row.esvoDepth.last = traceEsvo(scene, camera, options); });
   Frame frame;
-  row.esvoShaded.seconds =
-      timeRuns(args.runs, [&] { frame = render(scene.root(), scene.transform(), camera, options); });
+  const auto esvoDepth = [&] { row.esvoDepth.last = traceEsvo(scene, camera, options); };
+  const auto esvoShaded = [&] { frame = render(scene.root(), scene.transform(), camera, options); };
+  if (peer) {
+    row.embreeDepth.emplace(), row.embreeShaded.emplace();
+    const auto seconds = timeInterleaved(
+        args.runs, esvoDepth, esvoShaded, [&] { row.embreeDepth->last = peer(nullptr); },
+        [&] { row.embreeShaded->last = peer(&shading); });
+    row.esvoDepth.seconds = seconds[0], row.esvoShaded.seconds = seconds[1];
+    row.embreeDepth->seconds = seconds[2], row.embreeShaded->seconds = seconds[3];
+  } else {
+    const auto seconds = timeInterleaved(args.runs, esvoDepth, esvoShaded);
+    row.esvoDepth.seconds = seconds[0], row.esvoShaded.seconds = seconds[1];
+  }
   row.esvoShaded.last.meanIterations = frame.meanIterations;
   const Image voxels = imageOf(std::move(frame));
   row.esvoShaded.last.hits = countHits(voxels.depth);
@@ -298,28 +314,24 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
       camera = *close;
     }
     for (std::size_t k = 0; k < threads.size(); ++k) {
-      spdlog::info("{}, {} camera, {} thread(s): 1 warm-up + {} runs per method ...", name, cameraName,
+      spdlog::info("{}, {} camera, {} thread(s): 1 warm-up + {} runs, the methods in turn ...", name, cameraName,
                    threads[k], args.runs);
-      // Embree's frames do not depend on the LOD: timed once for the camera's rows.
-      CameraRow peer;
+      PeerTrace peer;
 #ifdef SVO_BENCH_PEERS
-      peer.embreeDepth.emplace();
-      peer.embreeDepth->seconds =
-          timeRuns(args.runs, [&] { peer.embreeDepth->last = embree.trace(camera, threads[k]); });
-      peer.embreeShaded.emplace();
-      peer.embreeShaded->seconds =
-          timeRuns(args.runs, [&] { peer.embreeShaded->last = embree.trace(camera, threads[k], &shading); });
+      peer = [&, threadCount = threads[k]](const MeshShading* shaded) {
+        return embree.trace(camera, threadCount, shaded);
+      };
 #endif
       for (float lod : args.lodPixels) {
-        CameraRow row = peer;
+        CameraRow row;
         row.camera = cameraName;
         row.threads = threads[k];
         row.lodPixels = lod;
         options.threads = threads[k];
         options.lodPixels = lod;
         const bool first = k == 0 && lod == args.lodPixels.front();
-        measureEsvo(*scene, camera, options, args, result.finestVoxel, row,
-                    args.images && first ? fmt::format("{}-{}", name, cameraName) : std::string());
+        measureRow(*scene, peer, shading, camera, options, args, result.finestVoxel, row,
+                   args.images && first ? fmt::format("{}-{}", name, cameraName) : std::string());
         if (args.device == "gpu" && first) {
           RenderOptions noBeam = options;
           noBeam.beamTile = 0;
