@@ -141,8 +141,7 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
 }
 
 SiblingAttribute::SiblingAttribute(const BlockView& block, AttachmentType raw)
-    : block_(&block),
-      raw_(raw),
+    : raw_(raw),
       units_(raw == AttachmentType::Color ? AttachmentType::ColorUnits : AttachmentType::NormalUnits),
       rawEntry_(block.attachment(raw)),
       // Every block of a scene (a pool's regions too) lays its attributes out alike: the root block's

@@ -37,8 +37,8 @@ inline Floats maxOf(Floats a, Floats b) {
 inline Floats absOf(Floats a) {
   return a < Floats{} ? -a : a;
 }
-// The lanes of a mask as the bits of an integer, lane l as bit l: loops over them visit only the set lanes, one
-// branch a lane instead of an unpredictable one for each of the eight.
+// The lanes of a mask as the bits of an integer, lane l as bit l: loops over them visit only the set lanes,
+// one branch a lane instead of an unpredictable one for each of the eight.
 inline unsigned lanesOf(Ints mask) {
   return unsigned(_mm256_movemask_ps(__m256(mask)));
 }
@@ -191,8 +191,8 @@ struct Lanes {
 
 // The lanes that share their voxel descend together. While they are in the same child slot of the same
 // parent (a packet of neighbouring pixels, a few voxels apart at most), each step is castRay's iteration for
-// a lane that enters a valid voxel with resident children and pushes into it: the descriptor, contour and child
-// are looked up once for all of them, and no lane's decision branches. A lane in another slot, or whose
+// a lane that enters a valid voxel with resident children and pushes into it: the descriptor, contour and
+// child are looked up once for all of them, and no lane's decision branches. A lane in another slot, or whose
 // iteration would do anything else (advance, stop by level of detail, the iteration cap, a contour that
 // misses), leaves the group with its state untouched, and the loop goes on from there.
 [[gnu::always_inline]] inline void descendTogether(Lanes& s, const CastOptions& options, CastHit* hits) {
@@ -201,7 +201,7 @@ struct Lanes {
     const int leader = __builtin_ctz(lanesOf(together));
     const Ints slots = s.idx ^ s.octantMask ^ 7;
     const int slot = slots[leader];
-    const ChildDescriptor* parent = s.parent[leader];  // every lane of the group has it
+    const ChildDescriptor* parent = s.parent[leader];   // every lane of the group has it
     if (!(parent->nonLeafMask() >> slot & 1u)) return;  // empty or a leaf: the loop's iteration decides
     const ChildDescriptor* child = BlockView::child(parent, slot);
     if (child->isStub()) return;

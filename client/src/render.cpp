@@ -197,23 +197,25 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
 
   std::atomic<std::uint64_t> iterations{0};
   const auto start = std::chrono::steady_clock::now();
-  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads, [&](const PixelTile& tile) {
-    TileAttributes attributes(block);
-    const std::uint64_t tileIterations = castTile(
-        block, rays, tile, options.beamTile > 0, options.cast,
-        [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
-          const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
-          // The octree direction is the unit world direction / size: renormalized, the world one.
-          const glm::vec3 viewDirection = glm::normalize(ray.direction);
-          frame.color[i] = glm::vec4(shade(hit, viewDirection, shading, attributes), 1.0f);
-          frame.depth[i] = hit.t;
-          frame.voxelPixels[i] = float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
-          keepIterations(x, y, hit);
-          if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
-        },
-        keepIterations);
-    iterations.fetch_add(tileIterations, std::memory_order_relaxed);
-  });
+  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads,
+              [&](const PixelTile& tile) {
+                TileAttributes attributes(block);
+                const std::uint64_t tileIterations = castTile(
+                    block, rays, tile, options.beamTile > 0, options.cast,
+                    [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
+                      const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+                      // The octree direction is the unit world direction / size: renormalized, the world one.
+                      const glm::vec3 viewDirection = glm::normalize(ray.direction);
+                      frame.color[i] = glm::vec4(shade(hit, viewDirection, shading, attributes), 1.0f);
+                      frame.depth[i] = hit.t;
+                      frame.voxelPixels[i] =
+                          float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
+                      keepIterations(x, y, hit);
+                      if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
+                    },
+                    keepIterations);
+                iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+              });
   if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations.load()) / double(pixels);

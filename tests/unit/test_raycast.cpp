@@ -636,7 +636,8 @@ TEST(Raycast, SiblingAttributesKeptAcrossHitsEqualReadBlock) {
     camera.eye = camera.target + 0.5 * (camera.eye - camera.target);
     for (const float lod : {0.0f, 12.0f}) {  // the finest voxels, and coarser ones stopped by LOD
       const svo::PixelRays rays(s->octree.transform, camera, lod);
-      svo::SiblingAttribute colors(view, svo::AttachmentType::Color), normals(view, svo::AttachmentType::Normal);
+      svo::SiblingAttribute colors(view, svo::AttachmentType::Color),
+          normals(view, svo::AttachmentType::Normal);
       const svo::ChildDescriptor* previous = nullptr;
       std::size_t hits = 0, shared = 0;
       for (int y = 0; y < camera.height; ++y)
@@ -650,17 +651,17 @@ TEST(Raycast, SiblingAttributesKeptAcrossHitsEqualReadBlock) {
           const glm::ivec3 c(glm::round((glm::dvec3(hit.cubeMin) - 1.0) / size));
           const auto it = s->attributes.find({svo::kMaxLevels - hit.scale, svotest::packCoord(c)});
           ASSERT_NE(it, s->attributes.end()) << s->name << " pixel " << x << "," << y;
-          ASSERT_EQ(normals.value(hit), it->second.second) << s->name << " lod " << lod << " pixel " << x << ","
-                                                           << y;
+          ASSERT_EQ(normals.value(hit), it->second.second)
+              << s->name << " lod " << lod << " pixel " << x << "," << y;
           ASSERT_EQ(normals.normal(hit), svo::decodeNormal(it->second.second));
           if (view.attachment(svo::AttachmentType::Color)) {
-            ASSERT_EQ(colors.value(hit), it->second.first) << s->name << " lod " << lod << " pixel " << x
-                                                           << "," << y;
+            ASSERT_EQ(colors.value(hit), it->second.first)
+                << s->name << " lod " << lod << " pixel " << x << "," << y;
             ASSERT_EQ(colors.color(hit), glm::vec3(svo::decodeColor(it->second.first)));
           }
         }
-      std::printf("[ SIBLINGS ] %s, lod %g: %zu hits, %zu on the previous hit's parent\n", s->name.c_str(), lod,
-                  hits, shared);
+      std::printf("[ SIBLINGS ] %s, lod %g: %zu hits, %zu on the previous hit's parent\n", s->name.c_str(),
+                  lod, hits, shared);
       EXPECT_GT(hits, 5000u) << s->name;
       EXPECT_GT(shared, hits / 4) << s->name << ": too few hits on the previous hit's siblings";
       EXPECT_LT(shared, hits) << s->name;

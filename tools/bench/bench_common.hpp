@@ -82,7 +82,8 @@ Summary timeRuns(int runs, F&& run) {
 }
 
 // Several methods timed over the same runs: one warm-up each, then each run times every method in turn, so a
-// slow spell of a shared machine falls on all of them alike and their ratios stay fair. One summary per method.
+// slow spell of a shared machine falls on all of them alike and their ratios stay fair. One summary per
+// method.
 template <class... F>
 std::array<Summary, sizeof...(F)> timeInterleaved(int runs, F&&... methods) {
   (methods(), ...);  // warm-up: page faults, TBB workers, caches

@@ -111,9 +111,10 @@ void printScenes(const std::vector<SceneResult>& scenes) {
 }
 
 void printComparison(const std::vector<SceneResult>& scenes, const RaycastArgs& args) {
-  printTitle(fmt::format(
-      "Ray casting: ESVO vs Embree 3, same rays, same threads (Mrays/s, median of {} runs, the methods in turn)",
-      args.runs));
+  printTitle(
+      fmt::format("Ray casting: ESVO vs Embree 3, same rays, same threads (Mrays/s, median of {} runs, the "
+                  "methods in turn)",
+                  args.runs));
   Table table({"scene", "camera", "thr", "LOD", "hit px", "depth ESVO", "Embree", "ESVO/Embree",
                "shaded ESVO", "Embree", "ESVO/Embree", "iter/ray", "PSNR dB", "depth p99", "silhouette"});
   for (const SceneResult& s : scenes)
@@ -304,7 +305,9 @@ void addRaycastBench(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--levels", args->levels, "octree depth")->capture_default_str();
   cmd->add_option("--size", args->size, "image width and height in pixels")->capture_default_str();
-  cmd->add_option("--runs", args->runs, "timed runs per method (after one warm-up each), the methods timed in turn; the median is reported")
+  cmd->add_option(
+         "--runs", args->runs,
+         "timed runs per method (after one warm-up each), the methods timed in turn; the median is reported")
       ->capture_default_str();
   cmd->add_option("--lod-pixels", args->lodPixels,
                   "ESVO levels of detail, a row each: stop at voxels this many pixels wide (e.g. 1,2,4)")

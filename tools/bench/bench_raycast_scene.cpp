@@ -45,13 +45,14 @@ TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const Rende
   const BlockView block = scene.root();
   const PixelRays rays(scene.transform(), camera, options.lodPixels);
   std::atomic<std::uint64_t> iterations{0};
-  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads, [&](const PixelTile& tile) {
-    iterations.fetch_add(castTile(block, rays, tile, options.beamTile > 0, options.cast,
-                                  [&](int x, int y, const OctreeRay&, const CastHit& hit) {
-                                    result.depth[std::size_t(y) * camera.width + x] = hit.t;
-                                  }),
-                         std::memory_order_relaxed);
-  });
+  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads,
+              [&](const PixelTile& tile) {
+                iterations.fetch_add(castTile(block, rays, tile, options.beamTile > 0, options.cast,
+                                              [&](int x, int y, const OctreeRay&, const CastHit& hit) {
+                                                result.depth[std::size_t(y) * camera.width + x] = hit.t;
+                                              }),
+                                     std::memory_order_relaxed);
+              });
   result.hits = countHits(result.depth);
   result.meanIterations = double(iterations.load()) / double(result.depth.size());
   return result;
@@ -191,12 +192,12 @@ Timed timeGpu(const WholeScene& scene, const Camera& camera, const RenderOptions
 // binary without the peers.
 using PeerTrace = std::function<TraceResult(const MeshShading*)>;
 
-// ESVO's depth-only and shaded frames of `camera` and Embree's (when `peer`), timed in turn over the same runs
-// into `row`, with the shaded frame's errors against Embree's; images named `imageStem` (when not empty) go
-// to the output folder.
-void measureRow(const WholeScene& scene, const PeerTrace& peer, const MeshShading& shading, const Camera& camera,
-                const RenderOptions& options, const RaycastArgs& args, double finestVoxel, CameraRow& row,
-                const std::string& imageStem) {
+// ESVO's depth-only and shaded frames of `camera` and Embree's (when `peer`), timed in turn over the same
+// runs into `row`, with the shaded frame's errors against Embree's; images named `imageStem` (when not empty)
+// go to the output folder.
+void measureRow(const WholeScene& scene, const PeerTrace& peer, const MeshShading& shading,
+                const Camera& camera, const RenderOptions& options, const RaycastArgs& args,
+                double finestVoxel, CameraRow& row, const std::string& imageStem) {
   row.rays = double(camera.width) * camera.height;
   Frame frame;
   const auto esvoDepth = [&] { row.esvoDepth.last = traceEsvo(scene, camera, options); };
@@ -314,8 +315,8 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
       camera = *close;
     }
     for (std::size_t k = 0; k < threads.size(); ++k) {
-      spdlog::info("{}, {} camera, {} thread(s): 1 warm-up + {} runs, the methods in turn ...", name, cameraName,
-                   threads[k], args.runs);
+      spdlog::info("{}, {} camera, {} thread(s): 1 warm-up + {} runs, the methods in turn ...", name,
+                   cameraName, threads[k], args.runs);
       PeerTrace peer;
 #ifdef SVO_BENCH_PEERS
       peer = [&, threadCount = threads[k]](const MeshShading* shaded) {

@@ -72,7 +72,6 @@ class SiblingAttribute {
 
  private:
   void select(const ChildDescriptor* parent);
-  const BlockView* block_;
   AttachmentType raw_, units_;
   const AttachmentEntry* rawEntry_;
   bool hasUnits_;
