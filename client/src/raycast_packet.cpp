@@ -165,6 +165,21 @@ struct Lanes {
   return pushed;
 }
 
+// The rest of PUSH for the `pushed` lanes: one scale down, into the child cube holding the ray at t_min (the
+// ray is past a child's centre plane on each axis where that plane's t-value is not above t_min).
+[[gnu::always_inline]] inline void enterChildren(Lanes& s, Ints pushed, Floats half, Floats tx_center,
+                                                 Floats ty_center, Floats tz_center, Floats tv_max) {
+  s.scale -= pushed & 1;
+  s.scale_exp2 = pushed ? half : s.scale_exp2;
+  const Ints upX = pushed & (tx_center > s.t_min), upY = pushed & (ty_center > s.t_min),
+             upZ = pushed & (tz_center > s.t_min);
+  s.idx = pushed ? ((upX & 1) | (upY & 2) | (upZ & 4)) : s.idx;
+  s.px = upX ? s.px + s.scale_exp2 : s.px;
+  s.py = upY ? s.py + s.scale_exp2 : s.py;
+  s.pz = upZ ? s.pz + s.scale_exp2 : s.pz;
+  s.t_max = pushed ? tv_max : s.t_max;
+}
+
 // POP for the `pop` lanes, which left their parent: the new scale from the highest differing bit.
 [[gnu::always_inline]] inline void pop(Lanes& s, Ints pop, Ints step_mask) {
   for (unsigned lanes = lanesOf(pop); lanes != 0; lanes &= lanes - 1) {
@@ -235,15 +250,7 @@ struct Lanes {
     }
     s.iterations -= together;
     s.t_min = together ? t_min : s.t_min;
-    s.scale -= together & 1;
-    s.scale_exp2 = together ? half : s.scale_exp2;
-    const Ints upX = together & (tx_center > s.t_min), upY = together & (ty_center > s.t_min),
-               upZ = together & (tz_center > s.t_min);
-    s.idx = together ? ((upX & 1) | (upY & 2) | (upZ & 4)) : s.idx;
-    s.px = upX ? s.px + s.scale_exp2 : s.px;
-    s.py = upY ? s.py + s.scale_exp2 : s.py;
-    s.pz = upZ ? s.pz + s.scale_exp2 : s.pz;
-    s.t_max = together ? tv_max : s.t_max;
+    enterChildren(s, together, half, tx_center, ty_center, tz_center, tv_max);
   }
 }
 
@@ -285,17 +292,7 @@ void castPacketAvx2(const BlockView& block, const OctreeRay* rays, int count, co
     if (any(clip)) clipToContours(s, clip, contourWord, slot, tx_center, ty_center, tz_center, tv_max);
 
     const Ints pushed = push(s, intersect & (s.t_min <= tv_max), valid & ~leaf, topology, slot, hits);
-    if (any(pushed)) {
-      s.scale -= pushed & 1;
-      s.scale_exp2 = pushed ? half : s.scale_exp2;
-      const Ints upX = pushed & (tx_center > s.t_min), upY = pushed & (ty_center > s.t_min),
-                 upZ = pushed & (tz_center > s.t_min);
-      s.idx = pushed ? ((upX & 1) | (upY & 2) | (upZ & 4)) : s.idx;
-      s.px = upX ? s.px + s.scale_exp2 : s.px;
-      s.py = upY ? s.py + s.scale_exp2 : s.py;
-      s.pz = upZ ? s.pz + s.scale_exp2 : s.pz;
-      s.t_max = pushed ? tv_max : s.t_max;
-    }
+    if (any(pushed)) enterChildren(s, pushed, half, tx_center, ty_center, tz_center, tv_max);
 
     // ADVANCE the others: step to the next cube of the same scale along the ray.
     const Ints advance = s.active & ~pushed;
