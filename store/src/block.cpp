@@ -35,10 +35,6 @@ template <class T>
 const T* at(const void* p, std::ptrdiff_t bytes) {
   return reinterpret_cast<const T*>(static_cast<const std::byte*>(p) + bytes);
 }
-std::int32_t pageHeader(const void* descriptor) {
-  const auto page = reinterpret_cast<std::uintptr_t>(descriptor) & ~std::uintptr_t(kPageBytes - 1);
-  return *reinterpret_cast<const std::int32_t*>(page);
-}
 bool isPageHeaderSlot(std::uint64_t slot) {
   return slot % kSlotsPerPage == 0;
 }
@@ -48,11 +44,6 @@ bool isPageHeaderSlot(std::uint64_t slot) {
 }
 
 }  // namespace
-
-const BlockInfo& BlockView::infoOf(const ChildDescriptor* descriptor) {
-  const auto page = reinterpret_cast<std::uintptr_t>(descriptor) & ~std::uintptr_t(kPageBytes - 1);
-  return *at<BlockInfo>(reinterpret_cast<const void*>(page), std::ptrdiff_t(pageHeader(descriptor)) * 4);
-}
 
 const ChildDescriptor* BlockView::child(const ChildDescriptor* parent, int slot) {
   const std::uint32_t pointer = parent->childPointer();
@@ -66,26 +57,6 @@ std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, i
   if (!(mask >> slot & 1u)) return std::nullopt;
   const auto* words = at<std::uint32_t>(parent, std::ptrdiff_t(parent->contourPointer()) * 4);
   return words[childRank(mask, slot)];
-}
-
-std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent, int slot,
-                                                  AttachmentType type) {
-  return attributes(parent, type).at(slot);
-}
-
-BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
-  // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> values.
-  const BlockInfo& info = infoOf(parent);
-  const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
-  const auto* slots = at<ChildDescriptor>(&info, std::ptrdiff_t(info.slotsPointer) * 4);
-  const std::ptrdiff_t index = parent - slots;
-  for (std::uint32_t a = 0; a < info.attachmentCount; ++a) {
-    if (entries[a].type != type) continue;
-    const auto* attachment = at<std::uint32_t>(&info, std::ptrdiff_t(entries[a].pointer) * 4);
-    const AttributeLookup lookup{attachment[index]};
-    return {lookup.mask(), attachment + lookup.valuePointer()};
-  }
-  return {};
 }
 
 std::optional<BlockView::UnitHalf> BlockView::unit(const ChildDescriptor* parent, AttachmentType type) {

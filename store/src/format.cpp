@@ -59,10 +59,6 @@ std::uint32_t encodeNormal(glm::vec3 n) {
   return (std::uint32_t(axis * 2 + negative) << 29) | (q(u, kNormalUMax) << 14) | q(v, kNormalVMax);
 }
 
-glm::vec3 decodeNormal(std::uint32_t bits) {
-  return glm::normalize(normalDirection(bits));
-}
-
 namespace {
 // Coordinates as signed 8-bit fractions of 127 (snorm8): 0 and +-1 are on the lattice, so the axes are.
 constexpr int kOctMax = (1 << (kOctNormalBits - 1)) - 1;

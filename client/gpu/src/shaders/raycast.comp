@@ -41,7 +41,8 @@ const float kMinDirection = 1.0 / 8388608.0;
 const float kParallelContour = 1e-20;
 const uint kColor = 1u, kNormal = 2u, kColorUnits = 3u, kNormalUnits = 4u;
 const uint kSlotsPerPage = 1024u;
-const float kAmbient = 0.15, kDiffuse = 0.75, kSpecular = 0.25, kShininess = 32.0;
+const float kAmbient = 0.15, kDiffuse = 0.75, kSpecular = 0.25;
+const int kShininessLog2 = 5;  // specular exponent 32, raised by squaring as on the CPU
 const float kNeutralGreyAlbedo = 0.8;
 
 uint topology(uint slot) { return words[2u * slot]; }
@@ -387,7 +388,8 @@ vec3 shadePhong(vec3 albedo, vec3 n, vec3 viewDirection, vec3 lightDirection) {
   if (dot(n, viewDirection) > 0.0) n = -n;
   precise float diffuse = max(0.0, dot(n, -lightDirection));
   precise vec3 reflected = reflect(lightDirection, n);
-  precise float specular = pow(max(0.0, dot(reflected, -viewDirection)), kShininess);
+  precise float specular = max(0.0, dot(reflected, -viewDirection));
+  for (int i = 0; i < kShininessLog2; ++i) specular *= specular;
   return albedo * (kAmbient + kDiffuse * diffuse) + vec3(kSpecular * specular);
 }
 

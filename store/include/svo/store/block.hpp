@@ -245,4 +245,32 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, Layo
 // cube encoding). Used by tests and tools.
 VoxelTree readBlock(const BlockView& block);
 
+// The look-ups a renderer makes per shaded hit, inline: each is a few dependent loads.
+inline const BlockInfo& BlockView::infoOf(const ChildDescriptor* descriptor) {
+  const auto page = reinterpret_cast<std::uintptr_t>(descriptor) & ~std::uintptr_t(kPageBytes - 1);
+  const std::int32_t header = *reinterpret_cast<const std::int32_t*>(page);
+  return *reinterpret_cast<const BlockInfo*>(page + std::uintptr_t(std::ptrdiff_t(header) * 4));
+}
+
+inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
+  // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> values.
+  const BlockInfo& info = infoOf(parent);
+  const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
+  const auto* words = reinterpret_cast<const std::uint32_t*>(&info);
+  const auto* slots = reinterpret_cast<const ChildDescriptor*>(words + std::ptrdiff_t(info.slotsPointer));
+  const std::ptrdiff_t index = parent - slots;
+  for (std::uint32_t a = 0; a < info.attachmentCount; ++a) {
+    if (entries[a].type != type) continue;
+    const std::uint32_t* attachment = words + std::ptrdiff_t(entries[a].pointer);
+    const AttributeLookup lookup{attachment[index]};
+    return {lookup.mask(), attachment + lookup.valuePointer()};
+  }
+  return {};
+}
+
+inline std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent, int slot,
+                                                         AttachmentType type) {
+  return attributes(parent, type).at(slot);
+}
+
 }  // namespace svo

@@ -5,6 +5,7 @@
 #include <bit>
 #include <cstdint>
 
+#include <glm/geometric.hpp>
 #include <glm/vec3.hpp>
 #include <glm/vec4.hpp>
 
@@ -129,7 +130,6 @@ inline constexpr float kNeutralGreyAlbedo = 0.8f;
 inline constexpr std::uint32_t kNormalUMax = (1u << 15) - 1;  // 15-bit face coordinate (Fig. 7b)
 inline constexpr std::uint32_t kNormalVMax = (1u << 14) - 1;  // 14-bit face coordinate (Fig. 7b)
 std::uint32_t encodeNormal(glm::vec3 n);
-glm::vec3 decodeNormal(std::uint32_t bits);  // unit length
 // The normal's point on the unit cube (not unit length): decodeNormal without the normalization, inline for
 // the layout's per-voxel inheritance test.
 inline glm::vec3 normalDirection(std::uint32_t bits) {
@@ -139,6 +139,10 @@ inline glm::vec3 normalDirection(std::uint32_t bits) {
   const float v = float(bits & kNormalVMax) / float(kNormalVMax) * 2.0f - 1.0f;
   const float w = (face & 1u) ? -1.0f : 1.0f;
   return axis == 0 ? glm::vec3(w, u, v) : axis == 1 ? glm::vec3(u, w, v) : glm::vec3(u, v, w);
+}
+// Unit length; inline, as the renderer decodes one per shaded hit.
+inline glm::vec3 decodeNormal(std::uint32_t bits) {
+  return glm::normalize(normalDirection(bits));
 }
 
 // The store's normal lattice (format v4): 16-bit octahedral codes, 8 bits per coordinate of the unit
