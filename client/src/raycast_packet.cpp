@@ -155,6 +155,7 @@ struct Lanes {
       hits[l].leaf = true;
       continue;
     }
+    prefetchBelow(child);
     const int scale = s.scale[l];
     s.stack[l][scale] = {s.parent[l], s.t_max[l]};
     hits[l].pathParent[scale] = s.parent[l];
@@ -240,6 +241,7 @@ struct Lanes {
     together &= t_min <= tv_max;
     if (!any(together)) return;
     // PUSH
+    prefetchBelow(child);
     const int scale = s.scale[leader];
     for (unsigned lanes = lanesOf(together); lanes != 0; lanes &= lanes - 1) {
       const int l = __builtin_ctz(lanes);

@@ -45,13 +45,6 @@ bool isPageHeaderSlot(std::uint64_t slot) {
 
 }  // namespace
 
-const ChildDescriptor* BlockView::child(const ChildDescriptor* parent, int slot) {
-  const std::uint32_t pointer = parent->childPointer();
-  const ChildDescriptor* run = parent + pointer;
-  if (parent->far()) run += *reinterpret_cast<const std::int32_t*>(run);
-  return followLink(run + childRank(parent->nonLeafMask(), slot));
-}
-
 std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, int slot) {
   const std::uint8_t mask = parent->contourMask();
   if (!(mask >> slot & 1u)) return std::nullopt;

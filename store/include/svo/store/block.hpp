@@ -245,7 +245,13 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options = {}, Layo
 // cube encoding). Used by tests and tools.
 VoxelTree readBlock(const BlockView& block);
 
-// The look-ups a renderer makes per shaded hit, inline: each is a few dependent loads.
+// The look-ups a ray caster makes per step or per shaded hit, inline: each is a few dependent loads.
+inline const ChildDescriptor* BlockView::child(const ChildDescriptor* parent, int slot) {
+  const ChildDescriptor* run = parent + parent->childPointer();
+  if (parent->far()) run += *reinterpret_cast<const std::int32_t*>(run);
+  return followLink(run + childRank(parent->nonLeafMask(), slot));
+}
+
 inline const BlockInfo& BlockView::infoOf(const ChildDescriptor* descriptor) {
   const auto page = reinterpret_cast<std::uintptr_t>(descriptor) & ~std::uintptr_t(kPageBytes - 1);
   const std::int32_t header = *reinterpret_cast<const std::int32_t*>(page);
