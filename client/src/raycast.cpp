@@ -87,10 +87,10 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
           break;
         }
         // PUSH
+        prefetchBelow(child);
         // Fig. 15 stores the parent only when the child ends before it (tc_max < h). At the deepest scales
         // the two exits can round to the same float while the position bits still say the ray left the
         // child first, and POP would then read a stale or unwritten entry: store on every PUSH.
-        prefetchBelow(child);
         stack[scale] = {parent, t_max};
         hit.pathParent[scale] = parent;
         hit.pathSlot[scale] = std::uint8_t(slot);
