@@ -74,12 +74,7 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
         clipToContour(contourOf(parent, descriptor, slot), d, tx_center, ty_center, tz_center, scale_exp2,
                       t_min, tv_max);
       if (t_min <= tv_max) {
-        const ChildDescriptor* child = nullptr;
-        if (nonLeafMask >> slot & 1) {
-          const ChildDescriptor* run = parent + descriptor.childPointer();
-          if (descriptor.far()) run += *reinterpret_cast<const std::int32_t*>(run);
-          child = followLink(run + childRank(nonLeafMask, slot));
-        }
+        const ChildDescriptor* child = (nonLeafMask >> slot & 1) ? BlockView::child(parent, slot) : nullptr;
         // A leaf, or (in a block pool) a voxel whose children are not resident: this is the hit.
         if (!child || child->isStub()) {
           found = true;

@@ -138,17 +138,11 @@ struct Lanes {
 
 // The child each `meets` lane enters: a leaf (or a stub) is the lane's hit, else PUSH. Returns the lanes
 // that pushed.
-[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints nonLeaf, Ints topology, Ints slot,
-                                        CastHit* hits) {
+[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints nonLeaf, Ints slot, CastHit* hits) {
   Ints pushed{};
   for (unsigned lanes = lanesOf(meets); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
-    const ChildDescriptor* child = nullptr;
-    if (nonLeaf[l]) {
-      const ChildDescriptor* run = s.parent[l] + (std::uint32_t(topology[l]) >> 17);
-      if (topology[l] >> 16 & 1) run += *reinterpret_cast<const std::int32_t*>(run);
-      child = followLink(run + childRank(std::uint8_t((topology[l] >> 8) & ~topology[l]), slot[l]));
-    }
+    const ChildDescriptor* child = nonLeaf[l] ? BlockView::child(s.parent[l], slot[l]) : nullptr;
     if (!child || child->isStub()) {
       s.found[l] = -1;
       s.active[l] = 0;
@@ -293,7 +287,7 @@ void castPacketAvx2(const BlockView& block, const OctreeRay* rays, int count, co
     const Ints clip = intersect & contoured;
     if (any(clip)) clipToContours(s, clip, contourWord, slot, tx_center, ty_center, tz_center, tv_max);
 
-    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), valid & ~leaf, topology, slot, hits);
+    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), valid & ~leaf, slot, hits);
     if (any(pushed)) enterChildren(s, pushed, half, tx_center, ty_center, tz_center, tv_max);
 
     // ADVANCE the others: step to the next cube of the same scale along the ray.

@@ -53,17 +53,11 @@ std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, i
 }
 
 std::optional<BlockView::UnitHalf> BlockView::unit(const ChildDescriptor* parent, AttachmentType type) {
-  const BlockInfo& info = infoOf(parent);
-  const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
-  const auto* slots = at<ChildDescriptor>(&info, std::ptrdiff_t(info.slotsPointer) * 4);
-  const std::ptrdiff_t index = parent - slots;
+  std::ptrdiff_t index = 0;
+  const std::uint32_t* units = attachmentOf(parent, type, index);
+  if (!units) return std::nullopt;
   const std::ptrdiff_t unitWords = type == AttachmentType::ColorUnits ? kColorUnitWords : kNormalUnitWords;
-  for (std::uint32_t a = 0; a < info.attachmentCount; ++a) {
-    if (entries[a].type != type) continue;
-    const auto* units = at<std::uint32_t>(&info, std::ptrdiff_t(entries[a].pointer) * 4);
-    return UnitHalf{units + index / 2 * unitWords, int(index % 2)};
-  }
-  return std::nullopt;
+  return UnitHalf{units + index / 2 * unitWords, int(index % 2)};
 }
 
 const AttachmentEntry* BlockView::attachment(AttachmentType type) const {

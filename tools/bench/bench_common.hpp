@@ -10,6 +10,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -72,15 +73,6 @@ double timeSeconds(F&& f) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-// One warm-up, then `runs` timed runs of `run`; only the call itself is timed.
-template <class F>
-Summary timeRuns(int runs, F&& run) {
-  run();  // warm-up: page faults, TBB workers, caches
-  std::vector<double> samples;
-  for (int i = 0; i < runs; ++i) samples.push_back(timeSeconds(run));
-  return summarize(std::move(samples));
-}
-
 // Several methods timed over the same runs: one warm-up each, then each run times every method in turn, so a
 // slow spell of a shared machine falls on all of them alike and their ratios stay fair. One summary per
 // method.
@@ -95,6 +87,12 @@ std::array<Summary, sizeof...(F)> timeInterleaved(int runs, F&&... methods) {
   std::array<Summary, sizeof...(F)> summaries;
   for (std::size_t m = 0; m < sizeof...(F); ++m) summaries[m] = summarize(std::move(samples[m]));
   return summaries;
+}
+
+// One warm-up, then `runs` timed runs of `run`; only the call itself is timed.
+template <class F>
+Summary timeRuns(int runs, F&& run) {
+  return timeInterleaved(runs, std::forward<F>(run))[0];
 }
 
 // ----- argument validation: each throws UsageError with one line naming the option -----------------------

@@ -118,6 +118,10 @@ class BlockView {
     glm::vec3 normal(int childSlot) const;     // unit length (a NormalUnits unit)
   };
   static std::optional<UnitHalf> unit(const ChildDescriptor* parent, AttachmentType type);
+  // Paper Fig. 8 up to the attachment: the first word of attachment `type` in the block holding `parent`
+  // (nullptr without one), and `parent`'s slot index in that block.
+  static const std::uint32_t* attachmentOf(const ChildDescriptor* parent, AttachmentType type,
+                                           std::ptrdiff_t& slotIndex);
   AttributeLayout attributeLayout() const;
   bool hasColors() const;
   bool hasNormals() const;
@@ -258,20 +262,24 @@ inline const BlockInfo& BlockView::infoOf(const ChildDescriptor* descriptor) {
   return *reinterpret_cast<const BlockInfo*>(page + std::uintptr_t(std::ptrdiff_t(header) * 4));
 }
 
-inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
-  // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> values.
+inline const std::uint32_t* BlockView::attachmentOf(const ChildDescriptor* parent, AttachmentType type,
+                                                    std::ptrdiff_t& slotIndex) {
   const BlockInfo& info = infoOf(parent);
   const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
   const auto* words = reinterpret_cast<const std::uint32_t*>(&info);
-  const auto* slots = reinterpret_cast<const ChildDescriptor*>(words + std::ptrdiff_t(info.slotsPointer));
-  const std::ptrdiff_t index = parent - slots;
-  for (std::uint32_t a = 0; a < info.attachmentCount; ++a) {
-    if (entries[a].type != type) continue;
-    const std::uint32_t* attachment = words + std::ptrdiff_t(entries[a].pointer);
-    const AttributeLookup lookup{attachment[index]};
-    return {lookup.mask(), attachment + lookup.valuePointer()};
-  }
-  return {};
+  slotIndex = parent - reinterpret_cast<const ChildDescriptor*>(words + std::ptrdiff_t(info.slotsPointer));
+  for (std::uint32_t a = 0; a < info.attachmentCount; ++a)
+    if (entries[a].type == type) return words + std::ptrdiff_t(entries[a].pointer);
+  return nullptr;
+}
+
+inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
+  // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> values.
+  std::ptrdiff_t index = 0;
+  const std::uint32_t* attachment = attachmentOf(parent, type, index);
+  if (!attachment) return {};
+  const AttributeLookup lookup{attachment[index]};
+  return {lookup.mask(), attachment + lookup.valuePointer()};
 }
 
 inline std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent, int slot,
