@@ -142,14 +142,29 @@ SiblingAttribute::SiblingAttribute(const BlockView& block, AttachmentType raw)
       rawEntry_(block.attachment(raw)),
       // Every block of a scene (a pool's regions too) lays its attributes out alike: the root block's
       // directory says whether a parent holds units, without a look-up through its page.
-      hasUnits_(block.attachment(units_) != nullptr) {}
+      unitsEntry_(block.attachment(units_)) {}
 
 void SiblingAttribute::select(const ChildDescriptor* parent) {
   if (parent == parent_) return;
   parent_ = parent;
-  unit_ = hasUnits_ ? BlockView::unit(parent, units_) : std::nullopt;
+  unit_ = unitsEntry_ ? BlockView::unit(parent, units_) : std::nullopt;
   own_ = !unit_ && rawEntry_ ? BlockView::attributes(parent, raw_) : BlockView::Attributes{};
   inherited_.reset();
+  inheritedUnit_.reset();
+}
+
+template <class Decode>
+glm::vec3 SiblingAttribute::inheritedFromUnits(const CastHit& hit, Decode decode, glm::vec3 root) {
+  if (!inheritedUnit_) {
+    inheritedUnit_ = root;
+    for (int s = hit.scale + 1; s < kScaleMax; ++s) {
+      if (const auto unit = BlockView::unit(hit.pathParent[s], units_)) {
+        inheritedUnit_ = decode(*unit, hit.pathSlot[s]);
+        break;
+      }
+    }
+  }
+  return *inheritedUnit_;
 }
 
 std::uint32_t SiblingAttribute::value(const CastHit& hit) {
@@ -170,13 +185,19 @@ std::uint32_t SiblingAttribute::value(const CastHit& hit) {
 
 glm::vec3 SiblingAttribute::color(const CastHit& hit) {
   select(hit.parent);
-  if (unit_) return glm::vec3(decodeColor(unit_->color(hit.childSlot)));
+  const auto decode = [](const BlockView::UnitHalf& unit, int slot) {
+    return glm::vec3(decodeColor(unit.color(slot)));
+  };
+  if (unit_) return decode(*unit_, hit.childSlot);
+  if (unitsEntry_) return inheritedFromUnits(hit, decode, glm::vec3(decodeColor(unitsEntry_->rootValue)));
   return glm::vec3(decodeColor(value(hit)));
 }
 
 glm::vec3 SiblingAttribute::normal(const CastHit& hit) {
   select(hit.parent);
-  if (unit_) return unit_->normal(hit.childSlot);
+  const auto decode = [](const BlockView::UnitHalf& unit, int slot) { return unit.normal(slot); };
+  if (unit_) return decode(*unit_, hit.childSlot);
+  if (unitsEntry_) return inheritedFromUnits(hit, decode, decodeNormal(unitsEntry_->rootValue));
   return decodeNormal(value(hit));
 }
 

@@ -1,6 +1,7 @@
 #include "svo/store/block.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cassert>
 #include <cmath>
 #include <cstdlib>
@@ -43,6 +44,20 @@ bool isPageHeaderSlot(std::uint64_t slot) {
   throw std::runtime_error("corrupt block: " + what);
 }
 
+// Each directory entry's first unit follows the units of the entries before it, and they hold `count`.
+void checkUnitDirectory(const std::uint32_t* directory, std::uint64_t pairs, std::uint64_t count) {
+  std::uint64_t units = 0;
+  for (std::uint64_t group = 0; group * kUnitGroup < pairs; ++group) {
+    const std::uint32_t mask = directory[2 * group], first = directory[2 * group + 1];
+    const std::uint64_t inGroup = std::min<std::uint64_t>(kUnitGroup, pairs - group * kUnitGroup);
+    if (first != units || (inGroup < kUnitGroup && mask >> inGroup != 0))
+      corrupt("unit directory entry " + std::to_string(group) + " disagrees with the units before it");
+    units += std::uint64_t(std::popcount(mask));
+  }
+  if (units != count)
+    corrupt("unit directory holds " + std::to_string(units) + " units, not " + std::to_string(count));
+}
+
 }  // namespace
 
 std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, int slot) {
@@ -54,10 +69,16 @@ std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, i
 
 std::optional<BlockView::UnitHalf> BlockView::unit(const ChildDescriptor* parent, AttachmentType type) {
   std::ptrdiff_t index = 0;
-  const std::uint32_t* units = attachmentOf(parent, type, index);
-  if (!units) return std::nullopt;
+  const std::uint32_t* directory = attachmentOf(parent, type, index);
+  if (!directory) return std::nullopt;
+  const auto pair = std::uint32_t(index / 2);
+  const std::uint32_t* entry = directory + 2 * (pair / kUnitGroup);
+  const std::uint32_t bit = pair % kUnitGroup;
+  if (!(entry[0] >> bit & 1u)) return std::nullopt;
+  const std::uint32_t rank = entry[1] + std::uint32_t(std::popcount(entry[0] & ((1u << bit) - 1u)));
   const std::ptrdiff_t unitWords = type == AttachmentType::ColorUnits ? kColorUnitWords : kNormalUnitWords;
-  return UnitHalf{units + index / 2 * unitWords, int(index % 2)};
+  return UnitHalf{directory + unitDirectoryWords(infoOf(parent).slotCount) + rank * unitWords,
+                  int(index % 2)};
 }
 
 const AttachmentEntry* BlockView::attachment(AttachmentType type) const {
@@ -190,10 +211,10 @@ BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), siz
         words = std::uint64_t(info.slotCount) + count;
         break;
       case AttachmentType::ColorUnits:
-        words = units * kColorUnitWords;
+        words = unitDirectoryWords(info.slotCount) + count * kColorUnitWords;
         break;
       case AttachmentType::NormalUnits:
-        words = units * kNormalUnitWords;
+        words = unitDirectoryWords(info.slotCount) + count * kNormalUnitWords;
         break;
       case AttachmentType::ExactColors:
         words = count;
@@ -206,9 +227,10 @@ BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), siz
     }
     const bool isUnits =
         entries[a].type == AttachmentType::ColorUnits || entries[a].type == AttachmentType::NormalUnits;
-    if (isUnits && count != units) corrupt("unit count does not match the slots");
+    if (isUnits && count > units) corrupt("more units than pairs of slots");
     if (begin < std::int64_t(directoryEnd) || std::uint64_t(begin) + words * 4 > size)
       corrupt("attachment runs past the end");
+    if (isUnits) checkUnitDirectory(at<std::uint32_t>(data, begin), units, count);
   }
   const bool raw = attachment(AttachmentType::Color) || attachment(AttachmentType::Normal);
   if (raw && attributeLayout() == AttributeLayout::Compressed) corrupt("both attribute layouts in one block");

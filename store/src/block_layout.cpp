@@ -12,6 +12,8 @@
 #include <cstring>
 #include <stdexcept>
 #include <string>
+#include <tuple>
+#include <utility>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -88,7 +90,7 @@ struct UnitPlacement {
     if (!tree->childSlice.empty() && tree->childSlice[a] != tree->childSlice[b]) return false;
     const CarriedUnit *x = carried(a), *y = carried(b);
     if (!x || !y) return !x && !y;
-    return y->half == 1 && x->color == y->color && x->normal == y->normal;
+    return y->half == 1 && x->sameUnits(*y);
   }
   // The half a run must start `v` on: its carried unit's, else the first.
   int startHalf(std::uint32_t v) const {
@@ -243,6 +245,7 @@ struct Queued {
 };
 struct Entry {
   std::uint32_t contourFirst, colorFirst, normalFirst;
+  std::uint32_t firstChildEntry;  // queue entry of its first child with children (the others follow)
   std::uint8_t contourMask, colorMask, normalMask, leafMask;
 };
 struct Collected {
@@ -253,19 +256,21 @@ struct Collected {
 
 Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutStats& stats) {
   const std::size_t n = tree.voxels.size();
+  // The compressed layout keeps no values here, but its units need the effective values too.
   const bool raw = options.attributes == AttributeLayout::Raw;
-  const bool colors = raw && tree.hasColors, normals = raw && tree.hasNormals;
+  const bool colors = tree.hasColors, normals = tree.hasNormals;
   const InheritanceRule inherits(options);
   Collected out;
   out.queue.reserve(n / 2 + 1), out.entries.reserve(n / 2 + 1);
-  out.contours.reserve(n), out.colors.reserve(colors ? n : 0), out.normals.reserve(normals ? n : 0);
+  out.contours.reserve(n), out.colors.reserve(raw && colors ? n : 0),
+      out.normals.reserve(raw && normals ? n : 0);
   out.queue.push_back({0, tree.voxels[0].color, tree.voxels[0].normal});
   for (std::size_t qi = 0; qi < out.queue.size(); ++qi) {
     const Queued parent = out.queue[qi];
     const VoxelRecord& r = tree.voxels[parent.voxel];
-    Entry& e =
-        out.entries.emplace_back(Entry{std::uint32_t(out.contours.size()), std::uint32_t(out.colors.size()),
-                                       std::uint32_t(out.normals.size()), 0, 0, 0, 0});
+    Entry& e = out.entries.emplace_back(
+        Entry{std::uint32_t(out.contours.size()), std::uint32_t(out.colors.size()),
+              std::uint32_t(out.normals.size()), std::uint32_t(out.queue.size()), 0, 0, 0, 0});
     const InheritanceRule::ParentNormal parentNormal =
         normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
     // Set bits only, and only voxels with children queued.
@@ -278,7 +283,8 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
         if (inherits.color(child.color, color)) {
           ++stats.inheritedColors;
         } else {
-          out.colors.push_back(child.color), e.colorMask |= bit;
+          if (raw) out.colors.push_back(child.color);
+          e.colorMask |= bit;
           color = child.color;
         }
       }
@@ -286,7 +292,8 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
         if (inherits.normal(child.normal, parentNormal)) {
           ++stats.inheritedNormals;
         } else {
-          out.normals.push_back(child.normal), e.normalMask |= bit;
+          if (raw) out.normals.push_back(child.normal);
+          e.normalMask |= bit;
           normal = child.normal;
         }
       }
@@ -302,19 +309,166 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   return out;
 }
 
+// The compressed layout's units, before the block is sized: per pair of slots, a unit of the effective
+// values (sec. 5.4) of the children of the descriptors in its two halves; carried units as they were. A pair
+// goes without a unit where every child is within the inheritance tolerance of the value its parent shows
+// (decoded from the pair above, or shown by an ancestor in turn), so that no unit's error spreads to the
+// levels below it. Pairs hold siblings, so they are encoded a depth at a time, top down (what a parent
+// shows is known before its children's pair is decided), and in parallel within a depth.
+struct EncodedUnits {
+  static constexpr std::uint8_t kColor = 1, kNormal = 2;
+  std::uint32_t pairs = 0;
+  std::vector<ColorUnit> colors;  // per pair; where kept
+  std::vector<NormalUnit> normals;
+  std::vector<std::uint8_t> kept;  // per pair: kColor | kNormal
+  std::uint32_t colorCount = 0, normalCount = 0;
+  std::uint64_t halvesUsed = 0;
+};
+
+// The root's color and normal as the block shows them (VoxelTree::shownRoot).
+std::pair<std::uint32_t, std::uint32_t> shownRoot(const VoxelTree& tree) {
+  return tree.shownRoot.value_or(std::pair{tree.voxels[0].color, tree.voxels[0].normal});
+}
+
+class UnitEncoder {
+ public:
+  UnitEncoder(const VoxelTree& tree, const SlotPlan& plan, const Collected& c, const LayoutOptions& options)
+      : tree_(tree), plan_(plan), c_(c), rule_(tolerant(options)) {
+    out_.pairs = (plan.slotCount + 1) / 2;
+    owner_.assign(std::size_t(out_.pairs) * 2, kNone);
+    for (std::size_t q = 0; q < c.queue.size(); ++q) owner_[plan.slotOf[c.queue[q].voxel]] = std::uint32_t(q);
+    out_.colors.resize(tree.hasColors ? out_.pairs : 0);
+    out_.normals.resize(tree.hasNormals ? out_.pairs : 0);
+    out_.kept.assign(out_.pairs, 0);
+    shownColor_.resize(c.queue.size()), shownNormal_.resize(c.queue.size());
+    std::tie(shownColor_[0], shownNormal_[0]) = shownRoot(tree);
+  }
+
+  EncodedUnits encode() {
+    // The pairs by depth: the queue is breadth first, so each depth's descriptors follow the one above.
+    std::vector<std::uint32_t> depthOf(c_.queue.size(), 0), pairs;
+    std::vector<std::size_t> depthStart{0};
+    std::vector<std::uint8_t> listed(out_.pairs, 0);
+    for (std::size_t q = 0; q < c_.queue.size(); ++q) {
+      for (std::uint32_t k = c_.entries[q].firstChildEntry; k < childEntriesEnd(q); ++k)
+        depthOf[k] = depthOf[q] + 1;
+      if (q > 0 && depthOf[q] != depthOf[q - 1]) depthStart.push_back(pairs.size());
+      const std::uint32_t pair = plan_.slotOf[c_.queue[q].voxel] / 2;
+      if (!listed[pair]) listed[pair] = 1, pairs.push_back(pair);
+    }
+    depthStart.push_back(pairs.size());
+    std::atomic<std::uint64_t> used{0};
+    for (std::size_t d = 0; d + 1 < depthStart.size(); ++d)
+      tbb::parallel_for(tbb::blocked_range<std::size_t>(depthStart[d], depthStart[d + 1], 128),
+                        [&](const auto& range) {
+                          std::uint64_t halves = 0;
+                          for (std::size_t i = range.begin(); i != range.end(); ++i)
+                            halves += encodePair(pairs[i]);
+                          used.fetch_add(halves, std::memory_order_relaxed);
+                        });
+    for (const std::uint8_t k : out_.kept) {
+      out_.colorCount += (k & EncodedUnits::kColor) != 0;
+      out_.normalCount += (k & EncodedUnits::kNormal) != 0;
+    }
+    out_.halvesUsed = used.load();
+    return std::move(out_);
+  }
+
+ private:
+  static constexpr std::uint32_t kNone = 0xFFFFFFFFu;
+  // The tolerances, whatever the layout's inheritance: what a parent shows is decoded, never equal.
+  static InheritanceRule tolerant(LayoutOptions options) {
+    options.inheritEqualOnly = false;
+    return InheritanceRule(options);
+  }
+  // The queue entries of entry q's children with children: from its firstChildEntry to the next entry's.
+  std::uint32_t childEntriesEnd(std::size_t q) const {
+    return q + 1 < c_.queue.size() ? c_.entries[q + 1].firstChildEntry : std::uint32_t(c_.queue.size());
+  }
+
+  // Decides and encodes pair `u` (its descriptors' parents' shown values are known), then records what each
+  // child with children shows. Returns the halves that hold a descriptor.
+  std::uint64_t encodePair(std::uint32_t u) {
+    const std::uint32_t a = owner_[2 * std::size_t(u)], b = owner_[2 * std::size_t(u) + 1];
+    const auto carried = [&](std::uint32_t q) {
+      return q != kNone ? carriedUnitOf(tree_, c_.queue[q].voxel) : nullptr;
+    };
+    std::array<std::uint32_t, kUnitSlots> colors{}, normalBits{};
+    std::array<glm::vec3, kUnitSlots> normals{};
+    std::uint16_t usedSlots = 0;
+    bool ownColor = false, ownNormal = false;
+    for (int half = 0; half < 2; ++half) {
+      const std::uint32_t q = half == 0 ? a : b;
+      if (q == kNone) continue;
+      const Queued& parent = c_.queue[q];
+      const Entry& e = c_.entries[q];
+      const InheritanceRule::ParentNormal shown = rule_.parentNormal(shownNormal_[q]);
+      const VoxelRecord& r = tree_.voxels[parent.voxel];
+      for (std::uint32_t mask = r.childMask, child = r.firstChild; mask; mask &= mask - 1, ++child) {
+        const int childSlot = std::countr_zero(mask), slot = half * 8 + childSlot;
+        usedSlots |= std::uint16_t(1u << slot);
+        colors[slot] = (e.colorMask >> childSlot & 1u) ? tree_.voxels[child].color : parent.color;
+        normalBits[slot] = (e.normalMask >> childSlot & 1u) ? tree_.voxels[child].normal : parent.normal;
+        normals[slot] = normalDirection(normalBits[slot]);
+        ownColor |= !rule_.color(colors[slot], shownColor_[q]);
+        ownNormal |= !rule_.normal(normalBits[slot], shown);
+      }
+    }
+    if (const CarriedUnit* kept = carried(a) ? carried(a) : carried(b)) {
+      // Siblings read back from one pair land in one pair again (the pairing depends on the tree alone).
+      assert(!carried(a) || !carried(b) || carried(a)->sameUnits(*carried(b)));
+      assert((a == kNone || carried(a)) && (b == kNone || carried(b)));
+      if (tree_.hasColors && kept->hasColor)
+        out_.colors[u] = kept->color, out_.kept[u] |= EncodedUnits::kColor;
+      if (tree_.hasNormals && kept->hasNormal)
+        out_.normals[u] = kept->normal, out_.kept[u] |= EncodedUnits::kNormal;
+    } else {
+      if (tree_.hasColors && ownColor)
+        out_.colors[u] = encodeColorUnit(colors, usedSlots), out_.kept[u] |= EncodedUnits::kColor;
+      if (tree_.hasNormals && ownNormal)
+        out_.normals[u] = encodeNormalUnit(normals, usedSlots), out_.kept[u] |= EncodedUnits::kNormal;
+    }
+    // What the children with children show: their slot of this pair's unit, or their parent's value.
+    for (int half = 0; half < 2; ++half) {
+      const std::uint32_t q = half == 0 ? a : b;
+      if (q == kNone) continue;
+      const VoxelRecord& r = tree_.voxels[c_.queue[q].voxel];
+      std::uint32_t next = c_.entries[q].firstChildEntry;
+      for (std::uint32_t mask = r.childMask, child = r.firstChild; mask; mask &= mask - 1, ++child) {
+        if (tree_.voxels[child].childMask == 0) continue;
+        const int slot = half * 8 + std::countr_zero(mask);
+        shownColor_[next] =
+            (out_.kept[u] & EncodedUnits::kColor) ? decodeColorUnit(out_.colors[u], slot) : shownColor_[q];
+        shownNormal_[next] = (out_.kept[u] & EncodedUnits::kNormal)
+                                 ? encodeNormal(decodeNormalUnit(out_.normals[u], slot))
+                                 : shownNormal_[q];
+        ++next;
+      }
+    }
+    return std::uint64_t(a != kNone) + std::uint64_t(b != kNone);
+  }
+
+  const VoxelTree& tree_;
+  const SlotPlan& plan_;
+  const Collected& c_;
+  const InheritanceRule rule_;
+  std::vector<std::uint32_t> owner_;                     // slot -> queue entry
+  std::vector<std::uint32_t> shownColor_, shownNormal_;  // per queue entry: the value the voxel shows
+  EncodedUnits out_;
+};
+
 // Where each section starts, in bytes from the block's start: slots | info + directory | contours |
-// attachments (raw: lookup array + values per type; compressed: units per type, then exact values).
+// attachments (raw: lookup array + values per type; compressed: unit directory + units per type, then exact
+// values).
 struct Sections {
   std::size_t info = 0, contours = 0, color = 0, normal = 0, exactColors = 0, exactNormals = 0, end = 0;
   std::uint32_t attachmentCount = 0;
-  std::uint32_t units = 0;  // compressed: pairs of slots
 };
 
 Sections sections(const VoxelTree& tree, const LayoutOptions& options, std::uint32_t slotCount,
-                  const Collected& c) {
+                  const Collected& c, const EncodedUnits& units) {
   Sections s;
   const bool compressed = options.attributes == AttributeLayout::Compressed;
-  s.units = compressed ? (slotCount + 1) / 2 : 0;
   s.attachmentCount = std::uint32_t(tree.hasColors) + std::uint32_t(tree.hasNormals) +
                       std::uint32_t(!tree.exactColors.empty()) + std::uint32_t(!tree.exactNormals.empty());
   s.info = std::size_t(slotCount) * kSlotBytes;
@@ -322,12 +476,14 @@ Sections sections(const VoxelTree& tree, const LayoutOptions& options, std::uint
   std::size_t cursor = s.contours + c.contours.size() * 4;
   s.color = cursor;
   if (tree.hasColors)
-    cursor += compressed ? std::size_t(s.units) * kColorUnitWords * 4
-                         : (std::size_t(slotCount) + c.colors.size()) * 4;
+    cursor += compressed
+                  ? (unitDirectoryWords(slotCount) + std::size_t(units.colorCount) * kColorUnitWords) * 4
+                  : (std::size_t(slotCount) + c.colors.size()) * 4;
   s.normal = cursor;
   if (tree.hasNormals)
-    cursor += compressed ? std::size_t(s.units) * kNormalUnitWords * 4
-                         : (std::size_t(slotCount) + c.normals.size()) * 4;
+    cursor += compressed
+                  ? (unitDirectoryWords(slotCount) + std::size_t(units.normalCount) * kNormalUnitWords) * 4
+                  : (std::size_t(slotCount) + c.normals.size()) * 4;
   s.exactColors = cursor;
   cursor += tree.exactColors.size() * 4;
   s.exactNormals = cursor;
@@ -340,64 +496,20 @@ Sections sections(const VoxelTree& tree, const LayoutOptions& options, std::uint
   return s;
 }
 
-// The compressed layout's units: per pair of slots, the children of the descriptors in its two halves;
-// carried units as they were, the others encoded from the children's values. Units are independent, so they
-// are encoded in parallel.
-void writeUnits(const VoxelTree& tree, const SlotPlan& plan, const std::vector<Queued>& queue,
-                const Sections& s, std::byte* base, LayoutStats& stats) {
-  constexpr std::uint32_t kNone = 0xFFFFFFFFu;
-  std::vector<std::uint32_t> owner(std::size_t(s.units) * 2, kNone);
-  for (const Queued& q : queue) owner[plan.slotOf[q.voxel]] = q.voxel;
-  auto* colorWords = reinterpret_cast<std::uint32_t*>(base + s.color);
-  auto* normalWords = reinterpret_cast<std::uint32_t*>(base + s.normal);
-  std::atomic<std::uint64_t> used{0};
-  tbb::parallel_for(tbb::blocked_range<std::uint32_t>(0, s.units, 256), [&](const auto& range) {
-    std::uint64_t halves = 0;
-    for (std::uint32_t u = range.begin(); u != range.end(); ++u) {
-      const std::uint32_t a = owner[2 * std::size_t(u)], b = owner[2 * std::size_t(u) + 1];
-      if (a == kNone && b == kNone) continue;
-      halves += std::uint64_t(a != kNone) + std::uint64_t(b != kNone);
-      const auto carried = [&](std::uint32_t v) { return v != kNone ? carriedUnitOf(tree, v) : nullptr; };
-      const CarriedUnit* kept = carried(a) ? carried(a) : carried(b);
-      if (kept) {
-        // Siblings read back from one unit land in one unit again (the pairing depends on the tree alone).
-        assert(!carried(a) || !carried(b) ||
-               (carried(a)->color == carried(b)->color && carried(a)->normal == carried(b)->normal));
-        assert((a == kNone || carried(a) || tree.voxels[a].childMask == 0) &&
-               (b == kNone || carried(b) || tree.voxels[b].childMask == 0));
-        if (tree.hasColors)
-          std::memcpy(colorWords + std::size_t(u) * kColorUnitWords, kept->color.words.data(), 8);
-        if (tree.hasNormals)
-          std::memcpy(normalWords + std::size_t(u) * kNormalUnitWords, kept->normal.words.data(), 16);
-        continue;
-      }
-      std::array<std::uint32_t, kUnitSlots> colors{};
-      std::array<glm::vec3, kUnitSlots> normals{};
-      std::uint16_t usedSlots = 0;
-      for (int half = 0; half < 2; ++half) {
-        const std::uint32_t v = half == 0 ? a : b;
-        if (v == kNone) continue;
-        const VoxelRecord& r = tree.voxels[v];
-        for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
-          const int slot = half * 8 + std::countr_zero(mask);
-          usedSlots |= std::uint16_t(1u << slot);
-          colors[slot] = tree.voxels[c].color;
-          normals[slot] = normalDirection(tree.voxels[c].normal);
-        }
-      }
-      if (tree.hasColors) {
-        const ColorUnit unit = encodeColorUnit(colors, usedSlots);
-        std::memcpy(colorWords + std::size_t(u) * kColorUnitWords, unit.words.data(), 8);
-      }
-      if (tree.hasNormals) {
-        const NormalUnit unit = encodeNormalUnit(normals, usedSlots);
-        std::memcpy(normalWords + std::size_t(u) * kNormalUnitWords, unit.words.data(), 16);
-      }
-    }
-    used.fetch_add(halves, std::memory_order_relaxed);
-  });
-  stats.units = s.units;
-  stats.unitHalvesUsed = used.load();
+// One compressed attachment at `words`: the unit directory (kUnitGroup pairs per entry), then the kept units.
+template <class Unit>
+void writeUnits(const EncodedUnits& encoded, const std::vector<Unit>& units, std::uint8_t kind,
+                std::uint32_t slotCount, std::uint32_t* words) {
+  constexpr std::size_t kWords = std::tuple_size_v<decltype(Unit::words)>;
+  std::uint32_t* out = words + unitDirectoryWords(slotCount);
+  std::uint32_t count = 0;
+  for (std::uint32_t pair = 0; pair < encoded.pairs; ++pair) {
+    std::uint32_t* entry = words + 2 * (pair / kUnitGroup);
+    if (pair % kUnitGroup == 0) entry[1] = count;
+    if (!(encoded.kept[pair] & kind)) continue;
+    entry[0] |= 1u << (pair % kUnitGroup);
+    std::memcpy(out + std::size_t(count++) * kWords, units[pair].words.data(), kWords * 4);
+  }
 }
 
 }  // namespace
@@ -426,7 +538,8 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   LayoutStats stats;
   const Collected c = collect(tree, options, stats);
   const std::uint32_t slotCount = plan.slotCount;
-  const Sections s = sections(tree, options, slotCount, c);
+  const EncodedUnits encoded = compressed ? UnitEncoder(tree, plan, c, options).encode() : EncodedUnits{};
+  const Sections s = sections(tree, options, slotCount, c, encoded);
 
   AlignedBytes bytes(s.end);
   std::byte* base = bytes.data();
@@ -445,12 +558,14 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   const auto words = [&](std::size_t offset) { return std::int32_t((offset - s.info) / 4); };
   if (tree.hasColors) {
     *directory++ = {compressed ? AttachmentType::ColorUnits : AttachmentType::Color, words(s.color),
-                    tree.voxels[0].color, std::uint32_t(compressed ? s.units : c.colors.size())};
+                    compressed ? shownRoot(tree).first : tree.voxels[0].color,
+                    std::uint32_t(compressed ? encoded.colorCount : c.colors.size())};
     if (!c.colors.empty()) std::memcpy(colorWords + slotCount, c.colors.data(), c.colors.size() * 4);
   }
   if (tree.hasNormals) {
     *directory++ = {compressed ? AttachmentType::NormalUnits : AttachmentType::Normal, words(s.normal),
-                    tree.voxels[0].normal, std::uint32_t(compressed ? s.units : c.normals.size())};
+                    compressed ? shownRoot(tree).second : tree.voxels[0].normal,
+                    std::uint32_t(compressed ? encoded.normalCount : c.normals.size())};
     if (!c.normals.empty()) std::memcpy(normalWords + slotCount, c.normals.data(), c.normals.size() * 4);
   }
   if (!tree.exactColors.empty()) {
@@ -503,7 +618,14 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     if (plan.linkOf[v] != 0)
       slots[plan.linkOf[v]] =
           ChildDescriptor::link(std::int32_t(plan.slotOf[v]) - std::int32_t(plan.linkOf[v]));
-  if (compressed) writeUnits(tree, plan, c.queue, s, base, stats);
+  if (compressed) {
+    if (tree.hasColors) writeUnits(encoded, encoded.colors, EncodedUnits::kColor, slotCount, colorWords);
+    if (tree.hasNormals) writeUnits(encoded, encoded.normals, EncodedUnits::kNormal, slotCount, normalWords);
+    stats.units = encoded.pairs;
+    stats.unitHalvesUsed = encoded.halvesUsed;
+    stats.colorUnitsKept = encoded.colorCount;
+    stats.normalUnitsKept = encoded.normalCount;
+  }
 
   stats.farSlots = farVoxels;
   stats.linkSlots = plan.linkSlots;

@@ -252,6 +252,7 @@ Octree readOctree(const StoreReader& reader, AttributeLayout attributes) {
   try {
     LayoutOptions layout;
     layout.attributes = attributes;
+    layout.inheritEqualOnly = true;  // the store's values: it already decided what inherits, as the pager
     octree.block = layoutBlock(reader.loadTree(), layout);
   } catch (const std::invalid_argument& e) {
     file::fail(reader.index().name(), e.what());

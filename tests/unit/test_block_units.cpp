@@ -1,7 +1,8 @@
 // The compressed attribute layout of a block (sec. 5.5; block.hpp, attribute_units.hpp): the same octree as
 // the raw layout, every descriptor's children in one half of the unit its slot pair owns (checked against
-// units encoded here from the tree), siblings whose children come from different slices apart behind links,
-// units carried from a block laid out again unchanged, the exact values a pool keeps, and bad bytes refused.
+// units encoded here from the tree), no unit where every child inherits its parent's value, siblings whose
+// children come from different slices apart behind links, units carried from a block laid out again
+// unchanged, the exact values a pool keeps, and bad bytes refused.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -78,18 +79,41 @@ std::map<std::uint32_t, std::uint32_t> voxelAtSlot(const std::vector<std::uint32
   return at;
 }
 
-// The unit words of `type` for the pair of slots (2u, 2u + 1), straight from the bytes: page header of page
-// 0 -> info section -> attachment directory (Fig. 8).
-const std::uint32_t* unitFromBytes(const svo::BlockView& view, AttachmentType type, std::uint32_t unit) {
+// The unit words of `type` for the pair of slots (2 pair, 2 pair + 1), straight from the bytes: page header
+// of page 0 -> info section -> attachment directory (Fig. 8) -> the unit directory's entry of the pair (its
+// presence bit, the units before it counted here from every entry's mask); nullptr where the pair holds none.
+const std::uint32_t* unitFromBytes(const svo::BlockView& view, AttachmentType type, std::uint32_t pair) {
   const auto* base = reinterpret_cast<const std::uint32_t*>(view.base());
   const std::int32_t infoWords = std::int32_t(base[0]);
   const auto* info = reinterpret_cast<const svo::BlockInfo*>(base + infoWords);
   const auto* entries = reinterpret_cast<const svo::AttachmentEntry*>(info + 1);
-  for (std::uint32_t a = 0; a < info->attachmentCount; ++a)
-    if (entries[a].type == type)
-      return base + infoWords + entries[a].pointer +
-             unit * (type == AttachmentType::ColorUnits ? svo::kColorUnitWords : svo::kNormalUnitWords);
+  const std::uint32_t pairs = (info->slotCount + 1) / 2, groups = (pairs + 31) / 32;
+  for (std::uint32_t a = 0; a < info->attachmentCount; ++a) {
+    if (entries[a].type != type) continue;
+    const std::uint32_t* directory = base + infoWords + entries[a].pointer;
+    if (!(directory[2 * (pair / 32)] >> (pair % 32) & 1u)) return nullptr;
+    std::uint32_t before = 0;
+    for (std::uint32_t p = 0; p < pair; ++p) before += directory[2 * (p / 32)] >> (p % 32) & 1u;
+    return directory + 2 * groups +
+           before * (type == AttachmentType::ColorUnits ? svo::kColorUnitWords : svo::kNormalUnitWords);
+  }
   return nullptr;
+}
+
+// Sec. 5.4's effective values, the raw layout's default rule: a child within its tolerance of its parent's
+// effective value takes that value. Records are in breadth-first order (parents before children).
+std::vector<svo::VoxelRecord> effectiveValues(const svo::VoxelTree& tree) {
+  const svo::InheritanceRule rule{svo::LayoutOptions{}};
+  std::vector<svo::VoxelRecord> out = tree.voxels;
+  for (std::size_t v = 0; v < out.size(); ++v) {
+    const svo::VoxelRecord& r = out[v];
+    for (int k = 0; k < std::popcount(unsigned(r.childMask)); ++k) {
+      svo::VoxelRecord& c = out[r.firstChild + k];
+      if (rule.color(c.color, r.color)) c.color = r.color;
+      if (rule.normal(c.normal, rule.parentNormal(r.normal))) c.normal = r.normal;
+    }
+  }
+  return out;
 }
 
 svo::Block layOut(const svo::VoxelTree& tree, AttributeLayout attributes, svo::LayoutStats* stats = nullptr,
@@ -111,35 +135,71 @@ TEST(BlockUnits, EveryUnitHoldsItsTwoDescriptorsChildrenAsEncodedFromTheTree) {
     EXPECT_EQ(view.attachment(AttachmentType::Color), nullptr);  // no lookups beside the units
     EXPECT_EQ(stats.units, (view.info().slotCount + 1) / 2);
     const auto at = voxelAtSlot(slotOf);
-    std::uint64_t halves = 0;
-    for (std::uint32_t unit = 0; unit < stats.units; ++unit) {
+    const std::vector<svo::VoxelRecord> effective = effectiveValues(tree);
+    // What each voxel shows, top down (records are breadth first): its slot of its parent's pair's unit as
+    // the bytes hold it, or its parent's shown value where the pair holds none.
+    std::vector<std::uint32_t> shownColor(tree.voxels.size()), shownNormal(tree.voxels.size());
+    shownColor[0] = tree.voxels[0].color, shownNormal[0] = tree.voxels[0].normal;
+    const svo::InheritanceRule rule{svo::LayoutOptions{}};
+    std::map<std::uint32_t, std::pair<bool, bool>> ownValues;  // pair -> some child off its parent's shown
+    for (std::uint32_t v = 0; v < tree.voxels.size(); ++v) {
+      const svo::VoxelRecord& r = tree.voxels[v];
+      if (r.childMask == 0) continue;
+      const std::uint32_t pair = slotOf[v] / 2, half = slotOf[v] % 2;
+      const std::uint32_t* colorWords = unitFromBytes(view, AttachmentType::ColorUnits, pair);
+      const std::uint32_t* normalWords = unitFromBytes(view, AttachmentType::NormalUnits, pair);
+      auto& [ownColor, ownNormal] = ownValues[pair];
+      for (int slot = 0, k = 0; slot < 8; ++slot) {
+        if (!(r.childMask >> slot & 1u)) continue;
+        const std::uint32_t c = r.firstChild + k++;
+        ownColor |= !rule.color(effective[c].color, shownColor[v]);
+        ownNormal |= !rule.normal(effective[c].normal, rule.parentNormal(shownNormal[v]));
+        svo::ColorUnit color;
+        svo::NormalUnit normal;
+        if (colorWords) std::memcpy(color.words.data(), colorWords, 8);
+        if (normalWords) std::memcpy(normal.words.data(), normalWords, 16);
+        const int unitSlot = int(half) * 8 + slot;
+        shownColor[c] = colorWords ? svo::decodeColorUnit(color, unitSlot) : shownColor[v];
+        shownNormal[c] =
+            normalWords ? svo::encodeNormal(svo::decodeNormalUnit(normal, unitSlot)) : shownNormal[v];
+      }
+    }
+    std::uint64_t halves = 0, colorUnits = 0, normalUnits = 0;
+    for (std::uint32_t pair = 0; pair < stats.units; ++pair) {
       std::array<std::uint32_t, svo::kUnitSlots> colors{};
       std::array<glm::vec3, svo::kUnitSlots> normals{};
       std::uint16_t used = 0;
       bool any = false;
       for (int half = 0; half < 2; ++half) {
-        const auto it = at.find(2 * unit + half);
+        const auto it = at.find(2 * pair + half);
         if (it == at.end() || tree.voxels[it->second].childMask == 0) continue;
         any = true, ++halves;
-        const svo::VoxelRecord& r = tree.voxels[it->second];
+        const svo::VoxelRecord& r = effective[it->second];
         for (int slot = 0, k = 0; slot < 8; ++slot) {
           if (!(r.childMask >> slot & 1u)) continue;
-          const svo::VoxelRecord& c = tree.voxels[r.firstChild + k++];
+          const svo::VoxelRecord& c = effective[r.firstChild + k++];
           used |= std::uint16_t(1u << (half * 8 + slot));
           colors[half * 8 + slot] = c.color;
           normals[half * 8 + slot] = svo::normalDirection(c.normal);
         }
       }
-      if (!any) continue;
-      const svo::ColorUnit color = svo::encodeColorUnit(colors, used);
-      const svo::NormalUnit normal = svo::encodeNormalUnit(normals, used);
-      ASSERT_EQ(std::memcmp(unitFromBytes(view, AttachmentType::ColorUnits, unit), color.words.data(), 8), 0)
-          << unit;
-      ASSERT_EQ(std::memcmp(unitFromBytes(view, AttachmentType::NormalUnits, unit), normal.words.data(), 16),
-                0)
-          << unit;
+      const std::uint32_t* colorWords = unitFromBytes(view, AttachmentType::ColorUnits, pair);
+      const std::uint32_t* normalWords = unitFromBytes(view, AttachmentType::NormalUnits, pair);
+      // A pair holds a unit exactly where some child is off the value its parent shows.
+      ASSERT_EQ(colorWords != nullptr, any && ownValues[pair].first) << pair;
+      ASSERT_EQ(normalWords != nullptr, any && ownValues[pair].second) << pair;
+      if (colorWords) {
+        ++colorUnits;
+        ASSERT_EQ(std::memcmp(colorWords, svo::encodeColorUnit(colors, used).words.data(), 8), 0) << pair;
+      }
+      if (normalWords) {
+        ++normalUnits;
+        ASSERT_EQ(std::memcmp(normalWords, svo::encodeNormalUnit(normals, used).words.data(), 16), 0) << pair;
+      }
     }
     EXPECT_EQ(stats.unitHalvesUsed, halves);
+    EXPECT_EQ(stats.colorUnitsKept, colorUnits);
+    EXPECT_EQ(stats.normalUnitsKept, normalUnits);
     // Read back: the raw layout's structure and contours, values within the units' error.
     const svo::VoxelTree raw = svo::readBlock(layOut(tree, AttributeLayout::Raw).view());
     const svo::VoxelTree back = svo::readBlock(view);
@@ -167,6 +227,48 @@ TEST(BlockUnits, EveryUnitHoldsItsTwoDescriptorsChildrenAsEncodedFromTheTree) {
     EXPECT_LT(angles / n, 1.0);
     EXPECT_LT(worstAngle, 6.0);
   }
+}
+
+// Where every child of both descriptors of a pair is within the inheritance tolerance of the value its parent
+// shows (sec. 5.4), the pair holds no unit of that attribute: its children read back with that value.
+TEST(BlockUnits, APairWhoseChildrenAllInheritHoldsNoUnitAndShowsItsParentsValue) {
+  std::mt19937_64 rng(21);
+  svo::VoxelTree tree = smoothTree(rng, 4, 0.5);
+  // The two deepest levels' normals (colors left as they are) are one axis, which a unit holds exactly: the
+  // level above shows it, and the deepest level, equal to it, needs no normal unit.
+  const std::uint32_t up = svo::encodeNormal({0.0f, 0.0f, 1.0f});
+  std::vector<int> depth(tree.voxels.size(), 0);
+  for (std::size_t v = 0; v < tree.voxels.size(); ++v)
+    for (int k = 0; k < std::popcount(unsigned(tree.voxels[v].childMask)); ++k) {
+      depth[tree.voxels[v].firstChild + k] = depth[v] + 1;
+      if (depth[v] >= 2) tree.voxels[tree.voxels[v].firstChild + k].normal = up;
+    }
+  svo::LayoutStats stats;
+  std::vector<std::uint32_t> slotOf;
+  const svo::Block block = layOut(tree, AttributeLayout::Compressed, &stats, &slotOf);
+  const svo::BlockView view(block.bytes().data(), block.bytes().size());  // validates
+  const svo::VoxelTree back = svo::readBlock(view);
+  std::uint32_t without = 0;
+  for (std::uint32_t v = 0; v < tree.voxels.size(); ++v) {
+    const svo::VoxelRecord& r = tree.voxels[v];
+    if (r.childMask == 0 || depth[v] != 3) continue;
+    const svo::ChildDescriptor* d = view.slots() + slotOf[v];
+    // The pair's partner is a sibling at the same depth: neither has a normal unit, both keep a color unit.
+    EXPECT_FALSE(svo::BlockView::unit(d, AttachmentType::NormalUnits)) << v;
+    EXPECT_TRUE(svo::BlockView::unit(d, AttachmentType::ColorUnits)) << v;
+    ++without;
+    for (int k = 0; k < std::popcount(unsigned(r.childMask)); ++k)
+      EXPECT_EQ(back.voxels[r.firstChild + k].normal, back.voxels[v].normal) << v;
+  }
+  EXPECT_GT(without, 10u);
+  EXPECT_LT(stats.normalUnitsKept, stats.colorUnitsKept);
+  // The bytes: the normal attachment holds only the kept units behind its directory.
+  const svo::AttachmentEntry* normals = view.attachment(AttachmentType::NormalUnits);
+  ASSERT_NE(normals, nullptr);
+  EXPECT_EQ(normals->valueCount, stats.normalUnitsKept);
+  EXPECT_EQ(
+      stats.normalBytes,
+      (svo::unitDirectoryWords(view.info().slotCount) + stats.normalUnitsKept * svo::kNormalUnitWords) * 4);
 }
 
 TEST(BlockUnits, SiblingsWhoseChildrenComeFromDifferentSlicesSitApartBehindLinks) {
@@ -220,10 +322,9 @@ TEST(BlockUnits, CarriedUnitsAreLaidOutUnchangedAndTheExactValuesKept) {
     svo::CarriedUnit unit;
     const auto colors = svo::BlockView::unit(d, AttachmentType::ColorUnits);
     const auto normals = svo::BlockView::unit(d, AttachmentType::NormalUnits);
-    ASSERT_TRUE(colors && normals);
-    std::memcpy(unit.color.words.data(), colors->words, 8);
-    std::memcpy(unit.normal.words.data(), normals->words, 16);
-    unit.half = std::uint8_t(v == 0 ? 0 : colors->half);
+    if (colors) std::memcpy(unit.color.words.data(), colors->words, 8), unit.hasColor = true;
+    if (normals) std::memcpy(unit.normal.words.data(), normals->words, 16), unit.hasNormal = true;
+    unit.half = std::uint8_t(v == 0 ? 0 : slotOf[v] % 2);
     // Changed values would be re-encoded differently: the layout must not look at them.
     again.voxels[v].color ^= 0x00FFFFFFu;
     again.carriedUnitOf[v] = std::uint32_t(again.carriedUnits.size());
@@ -236,18 +337,22 @@ TEST(BlockUnits, CarriedUnitsAreLaidOutUnchangedAndTheExactValuesKept) {
   const svo::Block second = layOut(again, AttributeLayout::Compressed, &stats, &slotAgain);
   const svo::BlockView view(second.bytes().data(), second.bytes().size());
   EXPECT_EQ(slotAgain[0], 2u);
+  std::uint32_t pairsWithoutUnits = 0;
   for (std::uint32_t v = 0; v < tree.voxels.size(); ++v) {
     if (tree.voxels[v].childMask == 0) continue;
-    const auto unit = svo::BlockView::unit(view.slots() + slotAgain[v], AttachmentType::NormalUnits);
+    const auto normal = svo::BlockView::unit(view.slots() + slotAgain[v], AttachmentType::NormalUnits);
+    const auto color = svo::BlockView::unit(view.slots() + slotAgain[v], AttachmentType::ColorUnits);
     const svo::CarriedUnit& carried = again.carriedUnits[again.carriedUnitOf[v]];
-    EXPECT_EQ(unit->half, v == 0 ? 0 : int(slotAgain[v] % 2));
-    EXPECT_EQ(std::memcmp(unit->words, carried.normal.words.data(), 16), 0) << v;
-    EXPECT_EQ(
-        std::memcmp(svo::BlockView::unit(view.slots() + slotAgain[v], AttachmentType::ColorUnits)->words,
-                    carried.color.words.data(), 8),
-        0)
-        << v;
+    ASSERT_EQ(normal.has_value(), carried.hasNormal) << v;
+    ASSERT_EQ(color.has_value(), carried.hasColor) << v;
+    pairsWithoutUnits += !carried.hasNormal || !carried.hasColor;
+    if (normal) {
+      EXPECT_EQ(normal->half, v == 0 ? 0 : int(slotAgain[v] % 2));
+      EXPECT_EQ(std::memcmp(normal->words, carried.normal.words.data(), 16), 0) << v;
+    }
+    if (color) EXPECT_EQ(std::memcmp(color->words, carried.color.words.data(), 8), 0) << v;
   }
+  EXPECT_LT(pairsWithoutUnits, tree.voxels.size());  // most pairs carry their units
   const svo::AttachmentEntry* colors = view.attachment(AttachmentType::ExactColors);
   const svo::AttachmentEntry* normals = view.attachment(AttachmentType::ExactNormals);
   ASSERT_TRUE(colors && normals);
@@ -291,6 +396,13 @@ TEST(BlockUnits, ATruncatedUnitArrayOrAWrongUnitCountIsRefused) {
         "unit array past the end");
   check([&](std::byte* b) { reinterpret_cast<svo::AttachmentEntry*>(b + entry)->type = AttachmentType(9); },
         "unknown type");
+  // The unit directory: an entry's first unit past the units before it, or a presence bit more or less.
+  const auto directory = [&](std::byte* b) {
+    const auto* e = reinterpret_cast<const svo::AttachmentEntry*>(b + entry);
+    return reinterpret_cast<std::uint32_t*>(b + infoOffset + std::ptrdiff_t(e->pointer) * 4);
+  };
+  check([&](std::byte* b) { directory(b)[1] += 1; }, "first unit index");
+  check([&](std::byte* b) { directory(b)[0] ^= 1u; }, "presence bit");
 }
 
 }  // namespace

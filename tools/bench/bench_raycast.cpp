@@ -82,15 +82,16 @@ void printMemory(const SceneResult& scene) {
   table.print();
   const AttributeError& e = *scene.compressedError;
   fmt::print(
-      "raw: {} colors and {} normals stored, {} and {} inherited; compressed: {} units, {:.0f}% of their "
-      "halves "
-      "hold children, laid out in {}. Compressed against raw over {} voxels: color RMSE {:.2f}, max {:.0f} "
+      "raw: {} colors and {} normals stored, {} and {} inherited; compressed: {} pairs of slots, {:.0f}% of "
+      "their halves hold children, {} hold a color unit and {} a normal unit (the others' children "
+      "inherit), laid out in {}. Compressed against raw over {} voxels: color RMSE {:.2f}, max {:.0f} "
       "(8-bit steps); normal mean {:.3f} deg, max {:.2f} deg. Paper Table 1: ~{:.0f} B per voxel of every "
       "level "
       "with compressed attributes{}.\n",
       formatCount(raw.colorValues), formatCount(raw.normalValues), formatCount(raw.inheritedColors),
       formatCount(raw.inheritedNormals), formatCount(compressed.units),
       100.0 * double(compressed.unitHalvesUsed) / double(std::max<std::uint64_t>(2 * compressed.units, 1)),
+      formatCount(compressed.colorUnitsKept), formatCount(compressed.normalUnitsKept),
       formatSeconds(scene.compressSeconds), formatCount(e.voxels), e.colorRmse, e.colorMax,
       e.normalMeanDegrees, e.normalMaxDegrees, paperTotal, hasColor ? "" : " (this scene has no color)");
 }

@@ -75,8 +75,9 @@ class ChildValues {
       if (readBack.exactNormals) child.normal = latticeNormalBits(readBack.exactNormals[readBack.exactNext]);
       ++readBack.exactNext;
     } else if (readBack.compressed) {
-      if (colorUnit_) child.color = colorUnit_->color(slot);
-      if (normalUnit_) child.normal = encodeNormal(normalUnit_->normal(slot));
+      // A pair without a unit shows its children with their parent's value.
+      child.color = colorUnit_ ? colorUnit_->color(slot) : parent.color;
+      child.normal = normalUnit_ ? encodeNormal(normalUnit_->normal(slot)) : parent.normal;
     } else {
       child.color = colors_.at(slot).value_or(parent.color);
       child.normal = normals_.at(slot).value_or(parent.normal);
@@ -156,13 +157,18 @@ RegionLoader::RegionLoader(const SliceSource& source, RegionTable& regions, std:
 
 void CarriedLevels::carry(const ChildDescriptor* d, std::size_t level, std::size_t index) {
   CarriedUnit unit;
+  // The descriptor's half of its pair, whether the pair holds units or not.
+  std::ptrdiff_t slotIndex = 0;
+  if (BlockView::attachmentOf(d, AttachmentType::NormalUnits, slotIndex) ||
+      BlockView::attachmentOf(d, AttachmentType::ColorUnits, slotIndex))
+    unit.half = std::uint8_t(slotIndex % 2);
   if (const auto colors = BlockView::unit(d, AttachmentType::ColorUnits)) {
     std::memcpy(unit.color.words.data(), colors->words, sizeof(unit.color.words));
-    unit.half = std::uint8_t(colors->half);
+    unit.hasColor = true;
   }
   if (const auto normals = BlockView::unit(d, AttachmentType::NormalUnits)) {
     std::memcpy(unit.normal.words.data(), normals->words, sizeof(unit.normal.words));
-    unit.half = std::uint8_t(normals->half);
+    unit.hasNormal = true;
   }
   unitOf[level][index] = std::uint32_t(units.size());
   units.push_back(unit);
@@ -172,6 +178,7 @@ void RegionLoader::keepForDeepening(const Region& region, const VoxelLevels& lev
                                     const std::vector<std::size_t>& levelStart, std::uint32_t residentAfter,
                                     VoxelTree& tree, BuiltBlock& out) const {
   tree.carriedUnits = std::move(carried.units);
+  tree.shownRoot = carried.shownRoot;
   tree.carriedUnitOf.assign(tree.voxels.size(), kNoCarriedUnit);
   for (std::size_t l = 0; l < carried.unitOf.size(); ++l)
     std::copy(carried.unitOf[l].begin(), carried.unitOf[l].end(),
@@ -257,6 +264,7 @@ VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& ca
       readBack(parent, region.cubeLevel, first == parent.childFrontier.end() ? 0 : first->second, &carried);
   const auto [color, normal] = rootValues(regions_.view(parent));
   SliceVoxel voxel{parent.cubeCoord, 0, false, 0, color, normal};
+  SliceVoxel shown = voxel;  // compressed: its values as the parent's block shows them (VoxelTree::shownRoot)
   const ChildDescriptor* d = regions_.descriptorAt(parent, parent.rootSlot);
   for (int level = parent.cubeLevel + 1; level <= region.cubeLevel; ++level) {
     const int slot = slotToward(region.cubeCoord, region.cubeLevel - level);
@@ -269,9 +277,15 @@ VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& ca
     const SliceVoxel above = voxel;
     // The cube's voxel at the parent's deepest level is the first of the exact values its subtree starts at.
     ReadBack one = back;
-    ChildValues(d, one, level == back.frontierLevel).set(voxel, above, slot, one);
+    const ChildValues values(d, one, level == back.frontierLevel);
+    values.set(voxel, above, slot, one);
+    if (back.compressed) {
+      const SliceVoxel shownAbove = shown;
+      ChildValues(d, one, false).set(shown, shownAbove, slot, one);
+    }
     d = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
   }
+  if (back.compressed) carried.shownRoot = {shown.color, shown.normal};
   return readSubtree(d, voxel, back, region.firstSlot, region.lastSlot);
 }
 

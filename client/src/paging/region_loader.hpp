@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <shared_mutex>
 #include <string>
 #include <vector>
@@ -38,6 +39,7 @@ struct StageCounters {
 struct CarriedLevels {
   std::vector<CarriedUnit> units;
   std::vector<std::vector<std::uint32_t>> unitOf;  // per level read, per voxel: into units, or kNoCarriedUnit
+  std::optional<std::pair<std::uint32_t, std::uint32_t>> shownRoot;  // VoxelTree::shownRoot
   void carry(const ChildDescriptor* d, std::size_t level, std::size_t index);
 };
 

@@ -287,21 +287,32 @@ Hit castRay(vec3 o, vec3 d, float tStart, float footprintSlope, bool contours) {
 }
 
 // Sec. 5.5: the first word of the unit holding the children of the descriptor at `slot` in attachment `type`
-// (kColorUnits or kNormalUnits, `unitWords` words per pair of slots) and the half they take (pairHalf); false
-// when the block has no such attachment (the raw layout).
-bool unitOf(uint slot, uint type, uint unitWords, out uint start, out uint pairHalf) {
+// (kColorUnits or kNormalUnits, `unitWords` words per unit) and the half they take (pairHalf), through the
+// attachment's unit directory (block.hpp: kUnitGroup pairs of slots per entry, a presence mask and the
+// index of the entry's first unit). kNoUnit: the pair holds none, its children inherit their parent's
+// value; kNoAttachment: the block has no such attachment (the raw layout).
+const int kNoAttachment = 0, kNoUnit = 1, kUnit = 2;
+const uint kUnitGroup = 32u;
+int unitOf(uint slot, uint type, uint unitWords, out uint start, out uint pairHalf) {
   uint info = infoWord(slot);
   int slotsPointer = int(words[info + 1u]);
+  uint slotCount = words[info + 2u];
   uint attachments = words[info + 5u];
   uint index = uint(int(slot) - (int(info) + slotsPointer) / 2);
   for (uint a = 0u; a < attachments; ++a) {
     uint entry = info + 6u + 4u * a;
     if (words[entry] != type) continue;
-    start = uint(int(info) + int(words[entry + 1u])) + index / 2u * unitWords;
+    uint directory = uint(int(info) + int(words[entry + 1u]));
+    uint pair = index / 2u, bit = pair % kUnitGroup;
+    uint group = directory + 2u * (pair / kUnitGroup);
     pairHalf = index & 1u;
-    return true;
+    if (((words[group] >> bit) & 1u) == 0u) return kNoUnit;
+    uint rank = words[group + 1u] + uint(bitCount(words[group] & ((1u << bit) - 1u)));
+    uint directoryWords = 2u * (((slotCount + 1u) / 2u + kUnitGroup - 1u) / kUnitGroup);
+    start = directory + directoryWords + rank * unitWords;
+    return kUnit;
   }
-  return false;
+  return kNoAttachment;
 }
 
 // attribute_units.cpp's decodeColorUnit: RGB565 endpoints widened by bit replication, thirds in integers.
@@ -343,16 +354,27 @@ uint hitAttribute(Hit hit, uint type) {
   return rootValue(P.rootSlot, type);
 }
 
+// A pair without a unit shows its children with their parent's value: the nearest ancestor's whose pair
+// holds a unit, else the root's (SiblingAttribute::inheritedFromUnits).
 vec3 hitColor(Hit hit) {
   uint start, pairHalf;
-  if (unitOf(hit.parent, kColorUnits, 2u, start, pairHalf)) return unitColor(start, pairHalf * 8u + hit.childSlot);
-  return decodeColor(hitAttribute(hit, kColor));
+  int found = unitOf(hit.parent, kColorUnits, 2u, start, pairHalf);
+  if (found == kUnit) return unitColor(start, pairHalf * 8u + hit.childSlot);
+  if (found == kNoAttachment) return decodeColor(hitAttribute(hit, kColor));
+  for (int s = hit.scale + 1; s < kScaleMax; ++s)
+    if (unitOf(pathParent[s], kColorUnits, 2u, start, pairHalf) == kUnit)
+      return unitColor(start, pairHalf * 8u + pathSlot[s]);
+  return decodeColor(rootValue(P.rootSlot, kColorUnits));
 }
 vec3 hitNormal(Hit hit) {
   uint start, pairHalf;
-  if (unitOf(hit.parent, kNormalUnits, 4u, start, pairHalf))
-    return unitNormal(start, pairHalf * 8u + hit.childSlot);
-  return decodeNormal(hitAttribute(hit, kNormal));
+  int found = unitOf(hit.parent, kNormalUnits, 4u, start, pairHalf);
+  if (found == kUnit) return unitNormal(start, pairHalf * 8u + hit.childSlot);
+  if (found == kNoAttachment) return decodeNormal(hitAttribute(hit, kNormal));
+  for (int s = hit.scale + 1; s < kScaleMax; ++s)
+    if (unitOf(pathParent[s], kNormalUnits, 4u, start, pairHalf) == kUnit)
+      return unitNormal(start, pairHalf * 8u + pathSlot[s]);
+  return decodeNormal(rootValue(P.rootSlot, kNormalUnits));
 }
 
 // The renderer's estimateNormal: the nearest cube face, or the contour slab when nearer.

@@ -72,13 +72,18 @@ class SiblingAttribute {
 
  private:
   void select(const ChildDescriptor* parent);
+  // Compressed layout, the parent's pair without a unit: the value the parent shows, from the nearest
+  // ancestor whose pair holds one (decoded as `decode(unit, slot)`), else the root's.
+  template <class Decode>
+  glm::vec3 inheritedFromUnits(const CastHit& hit, Decode decode, glm::vec3 root);
   AttachmentType raw_, units_;
   const AttachmentEntry* rawEntry_;
-  bool hasUnits_;
+  const AttachmentEntry* unitsEntry_;
   const ChildDescriptor* parent_ = nullptr;
   std::optional<BlockView::UnitHalf> unit_;
   BlockView::Attributes own_;
   std::optional<std::uint32_t> inherited_;  // the value of the parent's children without their own
+  std::optional<glm::vec3> inheritedUnit_;  // the same for a pair without a unit, decoded
 };
 
 // Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4): the raw

@@ -10,7 +10,11 @@
 //   contours   uint32 contour values; a descriptor's contour pointer counts words from the descriptor.
 //   attachment per type, uncompressed: one AttributeLookup per slot (parallel to the slot array, gaps
 //              included), then the uint32 values; value pointers count words from the attachment start.
-//              Compressed: one unit per pair of slots (slot s in unit s / 2, half s % 2), no lookups.
+//              Compressed: a unit per pair of slots (slot s in pair s / 2, half s % 2) whose children do
+//              not all inherit their parent's value, no lookups: first a directory of two words per
+//              kUnitGroup pairs (which pairs hold a unit; how many units the groups before hold), then the
+//              units of the pairs that hold one, in slot order. A pair without a unit shows its children
+//              with their parent's value (sec. 5.4's inheritance, for a whole unit at once).
 #pragma once
 
 #include <cstddef>
@@ -61,6 +65,14 @@ class AlignedBytes {
   std::size_t size_ = 0;
 };
 
+// The compressed layout's unit directory: pairs of slots per directory entry, and its words for a block of
+// `slotCount` slots. An entry is the group's presence mask (bit p: pair p holds a unit) and the index of its
+// first unit among the attachment's units.
+inline constexpr std::uint32_t kUnitGroup = 32;
+inline constexpr std::uint32_t unitDirectoryWords(std::uint32_t slotCount) {
+  return 2 * (((slotCount + 1) / 2 + kUnitGroup - 1) / kUnitGroup);
+}
+
 // How a block lays out colors and normals: uncompressed behind lookup entries, children inheriting their
 // parent's value where it is left out (sec. 5.4), or compressed units of two sibling descriptors' children
 // (sec. 5.5).
@@ -110,7 +122,8 @@ class BlockView {
   static const BlockInfo& infoOf(const ChildDescriptor* descriptor);
 
   // Compressed layout: the unit holding `parent`'s children (ColorUnits or NormalUnits) and the half its
-  // slots take in it, through page header and info section as Fig. 8; nullopt without that attachment.
+  // slots take in it, through page header and info section as Fig. 8 and the unit directory; nullopt
+  // without that attachment, or where the children inherit `parent`'s value (no unit).
   struct UnitHalf {
     const std::uint32_t* words;
     int half;                                  // the children's unit slots are half * 8 + child slot
@@ -150,7 +163,12 @@ struct VoxelRecord {
 struct CarriedUnit {
   ColorUnit color;
   NormalUnit normal;
-  std::uint8_t half = 0;  // the descriptor's half of the units
+  bool hasColor = false, hasNormal = false;  // the pair holds that unit (else its children inherit)
+  std::uint8_t half = 0;                     // the descriptor's half of the pair
+  // Both halves of one pair carry the same units.
+  bool sameUnits(const CarriedUnit& o) const {
+    return hasColor == o.hasColor && hasNormal == o.hasNormal && color == o.color && normal == o.normal;
+  }
 };
 inline constexpr std::uint32_t kNoCarriedUnit = 0xFFFFFFFFu;
 
@@ -171,6 +189,11 @@ struct VoxelTree {
   // keeps them while another slice may be decoded on them, since its units are lossy.
   std::vector<std::uint32_t> exactColors;
   std::vector<std::uint16_t> exactNormals;  // octahedral lattice codes (format.hpp)
+  // The root's color (ABGR) and normal (cube encoding) as the blocks above show them (its parent's unit
+  // decoded), where its own are the exact values a slice is decoded on: a pool region's cube voxel at its
+  // parent region's deepest level. A pair of slots goes without a unit only where each child is within the
+  // inheritance tolerance of the value its parent shows. Unset: the root's own values.
+  std::optional<std::pair<std::uint32_t, std::uint32_t>> shownRoot;
 };
 
 struct LayoutOptions {
@@ -217,6 +240,7 @@ struct LayoutStats {
   // Compressed layout: unit pairs, their halves that hold children, the slots linked to a descriptor laid
   // out apart so that siblings from different slices do not share units, and the exact values kept.
   std::uint64_t units = 0, unitHalvesUsed = 0, linkSlots = 0, exactBytes = 0;
+  std::uint64_t colorUnitsKept = 0, normalUnitsKept = 0;  // pairs holding a unit (the others inherit)
   std::uint64_t colorBytes = 0, normalBytes = 0;  // attributeBytes by attribute (units or lookups + values)
 };
 
