@@ -159,9 +159,8 @@ void CarriedLevels::carry(const ChildDescriptor* d, std::size_t level, std::size
   CarriedUnit unit;
   // The descriptor's half of its pair, whether the pair holds units or not.
   std::ptrdiff_t slotIndex = 0;
-  if (BlockView::attachmentOf(d, AttachmentType::NormalUnits, slotIndex) ||
-      BlockView::attachmentOf(d, AttachmentType::ColorUnits, slotIndex))
-    unit.half = std::uint8_t(slotIndex % 2);
+  BlockView::attachmentOf(d, AttachmentType::NormalUnits, slotIndex);
+  unit.half = std::uint8_t(slotIndex % 2);
   if (const auto colors = BlockView::unit(d, AttachmentType::ColorUnits)) {
     std::memcpy(unit.color.words.data(), colors->words, sizeof(unit.color.words));
     unit.hasColor = true;

@@ -10,8 +10,8 @@
 //   contours   uint32 contour values; a descriptor's contour pointer counts words from the descriptor.
 //   attachment per type, uncompressed: one AttributeLookup per slot (parallel to the slot array, gaps
 //              included), then the uint32 values; value pointers count words from the attachment start.
-//              Compressed: a unit per pair of slots (slot s in pair s / 2, half s % 2) whose children do
-//              not all inherit their parent's value, no lookups: first a directory of two words per
+//              Compressed: a unit per pair of slots (slot s in pair s / 2, half s % 2) where some child
+//              is off the value its parent shows, no lookups: first a directory of two words per
 //              kUnitGroup pairs (which pairs hold a unit; how many units the groups before hold), then the
 //              units of the pairs that hold one, in slot order. A pair without a unit shows its children
 //              with their parent's value (sec. 5.4's inheritance, for a whole unit at once).
