@@ -153,17 +153,25 @@ void SiblingAttribute::select(const ChildDescriptor* parent) {
   inheritedUnit_.reset();
 }
 
+namespace {
+
+// Up the hit's path from its parent's parent: the first value `lookup(descriptor, slot)` gives, or nullopt.
+template <class Lookup>
+auto firstUpThePath(const CastHit& hit, Lookup lookup) -> decltype(lookup(hit.parent, 0)) {
+  for (int s = hit.scale + 1; s < kScaleMax; ++s)
+    if (auto v = lookup(hit.pathParent[s], hit.pathSlot[s])) return v;
+  return std::nullopt;
+}
+
+}  // namespace
+
 template <class Decode>
 glm::vec3 SiblingAttribute::inheritedFromUnits(const CastHit& hit, Decode decode, glm::vec3 root) {
-  if (!inheritedUnit_) {
-    inheritedUnit_ = root;
-    for (int s = hit.scale + 1; s < kScaleMax; ++s) {
-      if (const auto unit = BlockView::unit(hit.pathParent[s], units_)) {
-        inheritedUnit_ = decode(*unit, hit.pathSlot[s]);
-        break;
-      }
-    }
-  }
+  if (!inheritedUnit_)
+    inheritedUnit_ = firstUpThePath(hit, [&](const ChildDescriptor* d, int slot) -> std::optional<glm::vec3> {
+                       if (const auto unit = BlockView::unit(d, units_)) return decode(*unit, slot);
+                       return std::nullopt;
+                     }).value_or(root);
   return *inheritedUnit_;
 }
 
@@ -171,15 +179,10 @@ std::uint32_t SiblingAttribute::value(const CastHit& hit) {
   if (!rawEntry_ || !hit.hit) return 0;
   select(hit.parent);
   if (const auto own = own_.at(hit.childSlot)) return *own;
-  if (!inherited_) {
-    inherited_ = rawEntry_->rootValue;
-    for (int s = hit.scale + 1; s < kScaleMax; ++s) {
-      if (auto v = BlockView::attribute(hit.pathParent[s], hit.pathSlot[s], raw_)) {
-        inherited_ = *v;
-        break;
-      }
-    }
-  }
+  if (!inherited_)
+    inherited_ = firstUpThePath(hit, [&](const ChildDescriptor* d, int slot) {
+                   return BlockView::attribute(d, slot, raw_);
+                 }).value_or(rawEntry_->rootValue);
   return *inherited_;
 }
 

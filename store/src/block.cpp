@@ -203,7 +203,7 @@ BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), siz
   const auto* entries = reinterpret_cast<const AttachmentEntry*>(info_ + 1);
   for (std::uint32_t a = 0; a < info.attachmentCount; ++a) {
     const std::int64_t begin = infoOffset + std::int64_t(entries[a].pointer) * 4;
-    const std::uint64_t count = entries[a].valueCount, units = (std::uint64_t(info.slotCount) + 1) / 2;
+    const std::uint64_t count = entries[a].valueCount, pairs = (std::uint64_t(info.slotCount) + 1) / 2;
     std::uint64_t words = 0;
     switch (entries[a].type) {
       case AttachmentType::Color:
@@ -227,10 +227,9 @@ BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), siz
     }
     const bool isUnits =
         entries[a].type == AttachmentType::ColorUnits || entries[a].type == AttachmentType::NormalUnits;
-    if (isUnits && count > units) corrupt("more units than pairs of slots");
     if (begin < std::int64_t(directoryEnd) || std::uint64_t(begin) + words * 4 > size)
       corrupt("attachment runs past the end");
-    if (isUnits) checkUnitDirectory(at<std::uint32_t>(data, begin), units, count);
+    if (isUnits) checkUnitDirectory(at<std::uint32_t>(data, begin), pairs, count);
   }
   const bool raw = attachment(AttachmentType::Color) || attachment(AttachmentType::Normal);
   if (raw && attributeLayout() == AttributeLayout::Compressed) corrupt("both attribute layouts in one block");

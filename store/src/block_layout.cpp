@@ -4,7 +4,6 @@
 // either attribute layout.
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <bit>
 #include <cassert>
 #include <cmath>
@@ -357,20 +356,16 @@ class UnitEncoder {
       if (!listed[pair]) listed[pair] = 1, pairs.push_back(pair);
     }
     depthStart.push_back(pairs.size());
-    std::atomic<std::uint64_t> used{0};
     for (std::size_t d = 0; d + 1 < depthStart.size(); ++d)
       tbb::parallel_for(tbb::blocked_range<std::size_t>(depthStart[d], depthStart[d + 1], 128),
                         [&](const auto& range) {
-                          std::uint64_t halves = 0;
-                          for (std::size_t i = range.begin(); i != range.end(); ++i)
-                            halves += encodePair(pairs[i]);
-                          used.fetch_add(halves, std::memory_order_relaxed);
+                          for (std::size_t i = range.begin(); i != range.end(); ++i) encodePair(pairs[i]);
                         });
     for (const std::uint8_t k : out_.kept) {
       out_.colorCount += (k & EncodedUnits::kColor) != 0;
       out_.normalCount += (k & EncodedUnits::kNormal) != 0;
     }
-    out_.halvesUsed = used.load();
+    out_.halvesUsed = c_.queue.size();  // each descriptor with children takes one half
     return std::move(out_);
   }
 
@@ -386,13 +381,46 @@ class UnitEncoder {
     return q + 1 < c_.queue.size() ? c_.entries[q + 1].firstChildEntry : std::uint32_t(c_.queue.size());
   }
 
-  // Decides and encodes pair `u` (its descriptors' parents' shown values are known), then records what each
-  // child with children shows. Returns the halves that hold a descriptor.
-  std::uint64_t encodePair(std::uint32_t u) {
+  // Decides and encodes pair `u` (what its descriptors show is known), then records what each child with
+  // children shows.
+  void encodePair(std::uint32_t u) {
     const std::uint32_t a = owner_[2 * std::size_t(u)], b = owner_[2 * std::size_t(u) + 1];
     const auto carried = [&](std::uint32_t q) {
       return q != kNone ? carriedUnitOf(tree_, c_.queue[q].voxel) : nullptr;
     };
+    if (const CarriedUnit* kept = carried(a) ? carried(a) : carried(b)) {
+      // Siblings read back from one pair land in one pair again (the pairing depends on the tree alone).
+      assert(!carried(a) || !carried(b) || carried(a)->sameUnits(*carried(b)));
+      assert((a == kNone || carried(a)) && (b == kNone || carried(b)));
+      if (tree_.hasColors && kept->hasColor)
+        out_.colors[u] = kept->color, out_.kept[u] |= EncodedUnits::kColor;
+      if (tree_.hasNormals && kept->hasNormal)
+        out_.normals[u] = kept->normal, out_.kept[u] |= EncodedUnits::kNormal;
+    } else {
+      encodeNew(u, a, b);
+    }
+    // What the children with children show: their slot of this pair's unit, or their parent's value.
+    for (int half = 0; half < 2; ++half) {
+      const std::uint32_t q = half == 0 ? a : b;
+      if (q == kNone) continue;
+      const VoxelRecord& r = tree_.voxels[c_.queue[q].voxel];
+      std::uint32_t next = c_.entries[q].firstChildEntry;
+      for (std::uint32_t mask = r.childMask, child = r.firstChild; mask; mask &= mask - 1, ++child) {
+        if (tree_.voxels[child].childMask == 0) continue;
+        const int slot = half * 8 + std::countr_zero(mask);
+        shownColor_[next] =
+            (out_.kept[u] & EncodedUnits::kColor) ? decodeColorUnit(out_.colors[u], slot) : shownColor_[q];
+        shownNormal_[next] = (out_.kept[u] & EncodedUnits::kNormal)
+                                 ? encodeNormal(decodeNormalUnit(out_.normals[u], slot))
+                                 : shownNormal_[q];
+        ++next;
+      }
+    }
+  }
+
+  // A pair not carried from a block: its children's effective values, and a unit of each type where some
+  // child is off the value its parent shows.
+  void encodeNew(std::uint32_t u, std::uint32_t a, std::uint32_t b) {
     std::array<std::uint32_t, kUnitSlots> colors{}, normalBits{};
     std::array<glm::vec3, kUnitSlots> normals{};
     std::uint16_t usedSlots = 0;
@@ -414,38 +442,10 @@ class UnitEncoder {
         ownNormal |= !rule_.normal(normalBits[slot], shown);
       }
     }
-    if (const CarriedUnit* kept = carried(a) ? carried(a) : carried(b)) {
-      // Siblings read back from one pair land in one pair again (the pairing depends on the tree alone).
-      assert(!carried(a) || !carried(b) || carried(a)->sameUnits(*carried(b)));
-      assert((a == kNone || carried(a)) && (b == kNone || carried(b)));
-      if (tree_.hasColors && kept->hasColor)
-        out_.colors[u] = kept->color, out_.kept[u] |= EncodedUnits::kColor;
-      if (tree_.hasNormals && kept->hasNormal)
-        out_.normals[u] = kept->normal, out_.kept[u] |= EncodedUnits::kNormal;
-    } else {
-      if (tree_.hasColors && ownColor)
-        out_.colors[u] = encodeColorUnit(colors, usedSlots), out_.kept[u] |= EncodedUnits::kColor;
-      if (tree_.hasNormals && ownNormal)
-        out_.normals[u] = encodeNormalUnit(normals, usedSlots), out_.kept[u] |= EncodedUnits::kNormal;
-    }
-    // What the children with children show: their slot of this pair's unit, or their parent's value.
-    for (int half = 0; half < 2; ++half) {
-      const std::uint32_t q = half == 0 ? a : b;
-      if (q == kNone) continue;
-      const VoxelRecord& r = tree_.voxels[c_.queue[q].voxel];
-      std::uint32_t next = c_.entries[q].firstChildEntry;
-      for (std::uint32_t mask = r.childMask, child = r.firstChild; mask; mask &= mask - 1, ++child) {
-        if (tree_.voxels[child].childMask == 0) continue;
-        const int slot = half * 8 + std::countr_zero(mask);
-        shownColor_[next] =
-            (out_.kept[u] & EncodedUnits::kColor) ? decodeColorUnit(out_.colors[u], slot) : shownColor_[q];
-        shownNormal_[next] = (out_.kept[u] & EncodedUnits::kNormal)
-                                 ? encodeNormal(decodeNormalUnit(out_.normals[u], slot))
-                                 : shownNormal_[q];
-        ++next;
-      }
-    }
-    return std::uint64_t(a != kNone) + std::uint64_t(b != kNone);
+    if (tree_.hasColors && ownColor)
+      out_.colors[u] = encodeColorUnit(colors, usedSlots), out_.kept[u] |= EncodedUnits::kColor;
+    if (tree_.hasNormals && ownNormal)
+      out_.normals[u] = encodeNormalUnit(normals, usedSlots), out_.kept[u] |= EncodedUnits::kNormal;
   }
 
   const VoxelTree& tree_;

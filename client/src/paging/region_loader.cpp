@@ -75,13 +75,17 @@ class ChildValues {
       if (readBack.exactNormals) child.normal = latticeNormalBits(readBack.exactNormals[readBack.exactNext]);
       ++readBack.exactNext;
     } else if (readBack.compressed) {
-      // A pair without a unit shows its children with their parent's value.
-      child.color = colorUnit_ ? colorUnit_->color(slot) : parent.color;
-      child.normal = normalUnit_ ? encodeNormal(normalUnit_->normal(slot)) : parent.normal;
+      setShown(child, parent, slot);
     } else {
       child.color = colors_.at(slot).value_or(parent.color);
       child.normal = normals_.at(slot).value_or(parent.normal);
     }
+  }
+  // Compressed layout: the child's values as the block shows them (its unit decoded; a pair without a unit
+  // shows its parent's values), at the deepest level too.
+  void setShown(SliceVoxel& child, const SliceVoxel& parent, int slot) const {
+    child.color = colorUnit_ ? colorUnit_->color(slot) : parent.color;
+    child.normal = normalUnit_ ? encodeNormal(normalUnit_->normal(slot)) : parent.normal;
   }
 
  private:
@@ -278,10 +282,7 @@ VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& ca
     ReadBack one = back;
     const ChildValues values(d, one, level == back.frontierLevel);
     values.set(voxel, above, slot, one);
-    if (back.compressed) {
-      const SliceVoxel shownAbove = shown;
-      ChildValues(d, one, false).set(shown, shownAbove, slot, one);
-    }
+    if (back.compressed) values.setShown(shown, SliceVoxel(shown), slot);
     d = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
   }
   if (back.compressed) carried.shownRoot = {shown.color, shown.normal};

@@ -354,26 +354,34 @@ uint hitAttribute(Hit hit, uint type) {
   return rootValue(P.rootSlot, type);
 }
 
-// A pair without a unit shows its children with their parent's value: the nearest ancestor's whose pair
-// holds a unit, else the root's (SiblingAttribute::inheritedFromUnits).
+// A pair without a unit shows its children with their parent's value: that of the nearest ancestor whose
+// pair holds a unit (its first word and the ancestor's unit slot), else the root's (false)
+// (SiblingAttribute::inheritedFromUnits).
+bool ancestorUnit(Hit hit, uint type, uint unitWords, out uint start, out uint unitSlot) {
+  uint pairHalf;
+  for (int s = hit.scale + 1; s < kScaleMax; ++s) {
+    if (unitOf(pathParent[s], type, unitWords, start, pairHalf) == kUnit) {
+      unitSlot = pairHalf * 8u + pathSlot[s];
+      return true;
+    }
+  }
+  return false;
+}
+
 vec3 hitColor(Hit hit) {
-  uint start, pairHalf;
+  uint start, pairHalf, unitSlot;
   int found = unitOf(hit.parent, kColorUnits, 2u, start, pairHalf);
   if (found == kUnit) return unitColor(start, pairHalf * 8u + hit.childSlot);
   if (found == kNoAttachment) return decodeColor(hitAttribute(hit, kColor));
-  for (int s = hit.scale + 1; s < kScaleMax; ++s)
-    if (unitOf(pathParent[s], kColorUnits, 2u, start, pairHalf) == kUnit)
-      return unitColor(start, pairHalf * 8u + pathSlot[s]);
+  if (ancestorUnit(hit, kColorUnits, 2u, start, unitSlot)) return unitColor(start, unitSlot);
   return decodeColor(rootValue(P.rootSlot, kColorUnits));
 }
 vec3 hitNormal(Hit hit) {
-  uint start, pairHalf;
+  uint start, pairHalf, unitSlot;
   int found = unitOf(hit.parent, kNormalUnits, 4u, start, pairHalf);
   if (found == kUnit) return unitNormal(start, pairHalf * 8u + hit.childSlot);
   if (found == kNoAttachment) return decodeNormal(hitAttribute(hit, kNormal));
-  for (int s = hit.scale + 1; s < kScaleMax; ++s)
-    if (unitOf(pathParent[s], kNormalUnits, 4u, start, pairHalf) == kUnit)
-      return unitNormal(start, pairHalf * 8u + pathSlot[s]);
+  if (ancestorUnit(hit, kNormalUnits, 4u, start, unitSlot)) return unitNormal(start, unitSlot);
   return decodeNormal(rootValue(P.rootSlot, kNormalUnits));
 }
 
