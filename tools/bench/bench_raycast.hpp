@@ -37,6 +37,7 @@ struct RaycastArgs {
 struct Timed {
   Summary seconds;
   TraceResult last;
+  double deviceSeconds = 0.0;  // the GPU caster's: median of its dispatches' GPU time (Frame::deviceSeconds)
 };
 
 // One camera at one thread count.

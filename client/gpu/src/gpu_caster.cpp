@@ -87,6 +87,7 @@ GpuCaster::GpuCaster() {
   glCreateBuffers(4, buffers);
   pool_ = buffers[0], pixels_ = buffers[1], params_ = buffers[2], tileStarts_ = buffers[3];
   glNamedBufferStorage(params_, sizeof(Params), nullptr, GL_DYNAMIC_STORAGE_BIT);
+  glCreateQueries(GL_TIMESTAMP, 2, timers_);
 }
 
 GpuCaster::~GpuCaster() {
@@ -94,6 +95,7 @@ GpuCaster::~GpuCaster() {
   glDeleteBuffers(4, buffers);
   glDeleteProgram(program_);
   glDeleteProgram(beamProgram_);
+  glDeleteQueries(2, timers_);
 }
 
 std::size_t GpuCaster::maxBufferBytes() const {
@@ -159,6 +161,7 @@ Frame GpuCaster::render(std::uint32_t rootSlot, bool hasColors, bool hasNormals,
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, pixels_);
   glBindBufferBase(GL_UNIFORM_BUFFER, 2, params_);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, tileStarts_);
+  glQueryCounter(timers_[0], GL_TIMESTAMP);
   if (options.beamTile > 0) {
     // One invocation per tile, 8 x 8 tiles per work group.
     glUseProgram(beamProgram_);
@@ -167,6 +170,7 @@ Frame GpuCaster::render(std::uint32_t rootSlot, bool hasColors, bool hasNormals,
   }
   glUseProgram(program_);
   glDispatchCompute(tilesX, tilesY, 1);
+  glQueryCounter(timers_[1], GL_TIMESTAMP);
   glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT | GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
   const auto* out = static_cast<const PixelOut*>(
       glMapNamedBufferRange(pixels_, 0, GLsizeiptr(pixelBytes_), GL_MAP_READ_BIT));
@@ -192,6 +196,10 @@ Frame GpuCaster::render(std::uint32_t rootSlot, bool hasColors, bool hasNormals,
     if (hits) hits->voxel[i] = o.hitSlot, hits->scale[i] = std::uint8_t(o.scaleIterations & 255u);
   }
   glUnmapNamedBuffer(pixels_);
+  GLuint64 dispatchStart = 0, dispatchEnd = 0;
+  glGetQueryObjectui64v(timers_[0], GL_QUERY_RESULT, &dispatchStart);
+  glGetQueryObjectui64v(timers_[1], GL_QUERY_RESULT, &dispatchEnd);
+  frame.deviceSeconds = double(dispatchEnd - dispatchStart) * 1e-9;
   // The filter runs on the CPU over the frame read back.
   if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

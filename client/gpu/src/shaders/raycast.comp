@@ -102,12 +102,19 @@ uint rootValue(uint slot, uint type) {
   return 0u;
 }
 
+// GLSL lets a float division be off by 2.5 ulps (NVIDIA's is a reciprocal and a multiply); a double quotient
+// rounded once to float is the correctly rounded float quotient (p' >= 2p + 2 makes the double rounding
+// innocuous), so the traversal divides as the CPU does.
+float exactQuotient(float a, float b) { return float(double(a) / double(b)); }
+
 vec3 decodeContourNormal(uint bits) {
   int s = int(bits);
-  return vec3(float(s >> 26), float((s << 6) >> 26), float((s << 12) >> 26)) / 31.0;
+  return vec3(exactQuotient(float(s >> 26), 31.0), exactQuotient(float((s << 6) >> 26), 31.0),
+              exactQuotient(float((s << 12) >> 26), 31.0));
 }
-float contourPosition(uint bits) { return float((int(bits) << 18) >> 25) * (1.5 / 63.0); }
-float contourThickness(uint bits) { return float(bits & 127u) * (3.0 / 127.0); }
+const float kContourPositionStep = float(1.5lf / 63.0lf), kContourThicknessStep = float(3.0lf / 127.0lf);
+float contourPosition(uint bits) { return float((int(bits) << 18) >> 25) * kContourPositionStep; }
+float contourThickness(uint bits) { return float(bits & 127u) * kContourThicknessStep; }
 
 vec3 decodeColor(uint abgr) {
   return vec3(float(abgr & 255u), float((abgr >> 8) & 255u), float((abgr >> 16) & 255u)) / 255.0;
@@ -146,7 +153,8 @@ Hit castRay(vec3 o, vec3 d, float tStart, float footprintSlope, bool contours) {
   if (abs(d.y) < minComponent) d.y = d.y < 0.0 ? -minComponent : minComponent;
   if (abs(d.z) < minComponent) d.z = d.z < 0.0 ? -minComponent : minComponent;
 
-  precise float tx_coef = 1.0 / -abs(d.x), ty_coef = 1.0 / -abs(d.y), tz_coef = 1.0 / -abs(d.z);
+  precise float tx_coef = exactQuotient(1.0, -abs(d.x)), ty_coef = exactQuotient(1.0, -abs(d.y)),
+                tz_coef = exactQuotient(1.0, -abs(d.z));
   precise float tx_bias = tx_coef * o.x, ty_bias = ty_coef * o.y, tz_bias = tz_coef * o.z;
   int octant_mask = 7;
   if (d.x > 0.0) octant_mask ^= 1, tx_bias = 3.0 * tx_coef - tx_bias;
@@ -206,7 +214,7 @@ Hit castRay(vec3 o, vec3 d, float tStart, float footprintSlope, bool contours) {
                             scale_exp2 * contourPosition(c);
         precise float halfWidth = 0.5 * scale_exp2 * contourThickness(c);
         if (abs(den) > kParallelContour) {
-          precise float inv = 1.0 / den;
+          precise float inv = exactQuotient(1.0, den);
           precise float tmid = num * inv, tdiff = abs(halfWidth * inv);
           t_min = max(t_min, tmid - tdiff);
           tv_max = min(tv_max, tmid + tdiff);

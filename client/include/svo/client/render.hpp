@@ -96,6 +96,7 @@ struct Frame {
   std::vector<std::uint8_t> lodStopped;
   double seconds = 0.0;        // casting and shading, and filtering when on
   double filterSeconds = 0.0;  // of which the post-process filter
+  double deviceSeconds = 0.0;  // GPU caster: its dispatches alone (GPU timestamps), no read-back; 0 on CPU
   double meanIterations = 0.0;
   double mraysPerSecond() const { return double(width) * height / seconds * 1e-6; }
 };

@@ -40,14 +40,16 @@ class GpuCaster {
   std::uint64_t uploadedBytes() const { return uploadedBytes_; }
 
   // One frame of the octree whose root descriptor is `rootSlot` (64-bit slots from the buffer's start), as
-  // svo::render gives it: color, depth, voxel size in pixels, iterations and LOD stops (`diagnostics`).
+  // svo::render gives it: color, depth, voxel size in pixels, iterations and LOD stops (`diagnostics`), and
+  // the dispatches' GPU time (Frame::deviceSeconds) beside the whole call's.
   // `hasColors` / `hasNormals`: the root block's attachments. With options.beamTile > 0 a first dispatch runs
   // the beam pass for every 8 x 8 tile (the ray pass's work group, whatever beamTile's size).
   Frame render(std::uint32_t rootSlot, bool hasColors, bool hasNormals, const SceneTransform& scene,
                const Camera& camera, const RenderOptions& options, GpuHits* hits = nullptr);
 
  private:
-  unsigned program_ = 0, beamProgram_ = 0, pool_ = 0, pixels_ = 0, params_ = 0, tileStarts_ = 0;
+  unsigned program_ = 0, beamProgram_ = 0, pool_ = 0, pixels_ = 0, params_ = 0, tileStarts_ = 0,
+           timers_[2] = {};
   std::size_t capacity_ = 0, pixelBytes_ = 0, tileStartBytes_ = 0;
   std::uint64_t uploadedBytes_ = 0;
 };
