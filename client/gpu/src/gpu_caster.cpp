@@ -3,11 +3,15 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <stdexcept>
 #include <string>
 
 #define GL_GLEXT_PROTOTYPES
 #include <GL/glcorearb.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/task_arena.h>
 #include <glm/geometric.hpp>
 
 #include "raycast_shader.hpp"
@@ -17,6 +21,9 @@ namespace {
 
 // The shader's work group: 8 x 8 pixels, the paper's beam tile (sec. 6.2).
 constexpr int kGroupSide = 8;
+// Pixels a read-back task unpacks at least: 64 KiB of the mapped frame, far more than a task costs to schedule
+// (set so, not swept; 1080p makes at most 1,013 tasks).
+constexpr std::size_t kUnpackGrain = 2048;
 
 struct PixelOut {  // std430, as the shader's PixelOut
   float color[4];
@@ -183,17 +190,31 @@ Frame GpuCaster::render(std::uint32_t rootSlot, bool hasColors, bool hasNormals,
   frame.voxelPixels.resize(pixels);
   if (options.diagnostics) frame.iterations.resize(pixels), frame.lodStopped.resize(pixels);
   if (hits) hits->voxel.resize(pixels), hits->scale.resize(pixels);
+  // Unpacked on all the threads asked for: on a GPU the read-back, not the dispatch, takes most of a frame.
+  const auto unpack = [&](const tbb::blocked_range<std::size_t>& range, std::uint64_t iterations) {
+    for (std::size_t i = range.begin(); i != range.end(); ++i) {
+      const PixelOut& o = out[i];
+      frame.color[i] = glm::vec4(o.color[0], o.color[1], o.color[2], o.color[3]);
+      frame.depth[i] = o.depth;
+      frame.voxelPixels[i] = o.voxelPixels;
+      const std::uint32_t n = o.scaleIterations >> 16;
+      iterations += n;
+      if (options.diagnostics)
+        frame.iterations[i] = std::uint16_t(n), frame.lodStopped[i] = (o.scaleIterations >> 8) & 1u;
+      if (hits) hits->voxel[i] = o.hitSlot, hits->scale[i] = std::uint8_t(o.scaleIterations & 255u);
+    }
+    return iterations;
+  };
+  const auto unpackAll = [&] {
+    return tbb::parallel_reduce(tbb::blocked_range<std::size_t>(0, pixels, kUnpackGrain), std::uint64_t(0),
+                                unpack, std::plus<>());
+  };
   std::uint64_t iterations = 0;
-  for (std::size_t i = 0; i < pixels; ++i) {
-    const PixelOut& o = out[i];
-    frame.color[i] = glm::vec4(o.color[0], o.color[1], o.color[2], o.color[3]);
-    frame.depth[i] = o.depth;
-    frame.voxelPixels[i] = o.voxelPixels;
-    const std::uint32_t n = o.scaleIterations >> 16;
-    iterations += n;
-    if (options.diagnostics)
-      frame.iterations[i] = std::uint16_t(n), frame.lodStopped[i] = (o.scaleIterations >> 8) & 1u;
-    if (hits) hits->voxel[i] = o.hitSlot, hits->scale[i] = std::uint8_t(o.scaleIterations & 255u);
+  if (options.threads > 0) {
+    tbb::task_arena arena(options.threads);
+    iterations = arena.execute(unpackAll);
+  } else {
+    iterations = unpackAll();
   }
   glUnmapNamedBuffer(pixels_);
   GLuint64 dispatchStart = 0, dispatchEnd = 0;
