@@ -473,18 +473,36 @@ struct QuantizedGrid {
   float error = std::numeric_limits<float>::infinity();
 };
 
-// Each target's best selector among the 16 decoded normals (the lowest on ties), and the total error.
+// Each target's best selector among the 16 decoded normals (the lowest on ties), and the total error. The
+// candidates are kept by coordinate so that a target's 16 errors vectorize; each is glm::dot's
+// (dx * dx + dy * dy) + dz * dz.
 void evaluate(QuantizedGrid& q, const NormalTargets& t) {
-  glm::vec3 candidate[16];
-  for (unsigned s = 0; s < 16; ++s) candidate[s] = gridNormal(q.nb, q.nu, q.nv, s);
+  constexpr int kCandidates = 16;
+  alignas(32) float cx[kCandidates], cy[kCandidates], cz[kCandidates], e[kCandidates];
+  bool degenerate = false;
+  for (int s = 0; s < kCandidates; ++s) {  // gridNormal's operations, by coordinate
+    const float cu = kSelectorValue[s & 3], cv = kSelectorValue[s >> 2];
+    const float x = (q.nb.x + cu * q.nu.x) + cv * q.nv.x, y = (q.nb.y + cu * q.nu.y) + cv * q.nv.y,
+                z = (q.nb.z + cu * q.nu.z) + cv * q.nv.z;
+    const float length2 = (x * x + y * y) + z * z, scale = 1.0f / std::sqrt(length2);
+    degenerate |= !(length2 > 0.0f) || !(length2 <= std::numeric_limits<float>::max());
+    cx[s] = x * scale, cy[s] = y * scale, cz[s] = z * scale;
+  }
+  for (unsigned s = 0; degenerate && s < kCandidates; ++s) {
+    const glm::vec3 c = gridNormal(q.nb, q.nu, q.nv, s);
+    cx[s] = c.x, cy[s] = c.y, cz[s] = c.z;
+  }
   q.error = 0.0f;
   for (int i = 0; i < t.count; ++i) {
-    float best = std::numeric_limits<float>::infinity();
-    for (unsigned s = 0; s < 16; ++s) {
-      const float e = glm::dot(candidate[s] - glm::vec3(t.dir[i]), candidate[s] - glm::vec3(t.dir[i]));
-      if (e < best) best = e, q.selector[i] = std::uint8_t(s);
+    const glm::vec3 target(t.dir[i]);
+    for (int s = 0; s < kCandidates; ++s) {
+      const float dx = cx[s] - target.x, dy = cy[s] - target.y, dz = cz[s] - target.z;
+      e[s] = (dx * dx + dy * dy) + dz * dz;
     }
-    q.error += best;
+    int best = 0;
+    for (int s = 1; s < kCandidates; ++s) best = e[s] < e[best] ? s : best;
+    q.selector[i] = std::uint8_t(best);
+    q.error += e[best];
   }
 }
 
