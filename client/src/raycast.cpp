@@ -151,6 +151,16 @@ void SiblingAttribute::select(const ChildDescriptor* parent) {
   own_ = !unit_ && rawEntry_ ? BlockView::attributes(parent, raw_) : BlockView::Attributes{};
   inherited_.reset();
   inheritedUnit_.reset();
+  decodedMask_ = 0;
+}
+
+template <class Decode>
+glm::vec3 SiblingAttribute::keptOr(int childSlot, Decode decode) {
+  if (!(decodedMask_ >> childSlot & 1u)) {
+    decoded_[childSlot] = decode();
+    decodedMask_ |= std::uint8_t(1u << childSlot);
+  }
+  return decoded_[childSlot];
 }
 
 namespace {
@@ -188,20 +198,24 @@ std::uint32_t SiblingAttribute::value(const CastHit& hit) {
 
 glm::vec3 SiblingAttribute::color(const CastHit& hit) {
   select(hit.parent);
-  const auto decode = [](const BlockView::UnitHalf& unit, int slot) {
-    return glm::vec3(decodeColor(unit.color(slot)));
-  };
-  if (unit_) return decode(*unit_, hit.childSlot);
-  if (unitsEntry_) return inheritedFromUnits(hit, decode, glm::vec3(decodeColor(unitsEntry_->rootValue)));
-  return glm::vec3(decodeColor(value(hit)));
+  return keptOr(hit.childSlot, [&] {
+    const auto decode = [](const BlockView::UnitHalf& unit, int slot) {
+      return glm::vec3(decodeColor(unit.color(slot)));
+    };
+    if (unit_) return decode(*unit_, hit.childSlot);
+    if (unitsEntry_) return inheritedFromUnits(hit, decode, glm::vec3(decodeColor(unitsEntry_->rootValue)));
+    return glm::vec3(decodeColor(value(hit)));
+  });
 }
 
 glm::vec3 SiblingAttribute::normal(const CastHit& hit) {
   select(hit.parent);
-  const auto decode = [](const BlockView::UnitHalf& unit, int slot) { return unit.normal(slot); };
-  if (unit_) return decode(*unit_, hit.childSlot);
-  if (unitsEntry_) return inheritedFromUnits(hit, decode, decodeNormal(unitsEntry_->rootValue));
-  return decodeNormal(value(hit));
+  return keptOr(hit.childSlot, [&] {
+    const auto decode = [](const BlockView::UnitHalf& unit, int slot) { return unit.normal(slot); };
+    if (unit_) return decode(*unit_, hit.childSlot);
+    if (unitsEntry_) return inheritedFromUnits(hit, decode, decodeNormal(unitsEntry_->rootValue));
+    return decodeNormal(value(hit));
+  });
 }
 
 glm::vec3 hitColor(const BlockView& block, const CastHit& hit) {

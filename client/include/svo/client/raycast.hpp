@@ -1,6 +1,7 @@
 // The ESVO ray caster (paper sec. 6, Fig. 15): PUSH / ADVANCE / POP over a block, in the octree's [1,2]^3.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <optional>
 
@@ -67,11 +68,16 @@ class SiblingAttribute {
  public:
   SiblingAttribute(const BlockView& block, AttachmentType raw);  // Color or Normal
   std::uint32_t value(const CastHit& hit);  // the raw layout's value (0 without the attachment)
-  glm::vec3 color(const CastHit& hit);      // linear RGB in [0, 1]
-  glm::vec3 normal(const CastHit& hit);     // unit length
+  // Decoded, and kept per child of the current parent (neighbouring pixels often hit the same voxel): an
+  // instance made for Color serves color, one made for Normal serves normal.
+  glm::vec3 color(const CastHit& hit);   // linear RGB in [0, 1]
+  glm::vec3 normal(const CastHit& hit);  // unit length
 
  private:
   void select(const ChildDescriptor* parent);
+  // The child's decoded value: kept, or `decode()` kept.
+  template <class Decode>
+  glm::vec3 keptOr(int childSlot, Decode decode);
   // Compressed layout, the parent's pair without a unit: the value the parent shows, from the nearest
   // ancestor whose pair holds one (decoded as `decode(unit, slot)`), else the root's.
   template <class Decode>
@@ -84,6 +90,8 @@ class SiblingAttribute {
   BlockView::Attributes own_;
   std::optional<std::uint32_t> inherited_;  // the value of the parent's children without their own
   std::optional<glm::vec3> inheritedUnit_;  // the same for a pair without a unit, decoded
+  std::array<glm::vec3, 8> decoded_;        // by child slot, where decodedMask_ has its bit
+  std::uint8_t decodedMask_ = 0;
 };
 
 // Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4): the raw
