@@ -291,4 +291,28 @@ TEST(GpuCommand, RenderOnTheGpuWritesTheCpusImage) {
   EXPECT_FALSE(fs::exists(tooLarge));
 }
 
+// `svo bench raycast --device gpu` times the GPU caster beside the CPU's and says how far their depths agree:
+// equal to the bit on every pixel of both cameras.
+TEST(GpuCommand, BenchRaycastReportsTheGpuDepthsEqualToTheCpus) {
+  svotest::TempDir dir;
+  const fs::path mesh = dir.path() / "sphere.ply";
+  ASSERT_NE(svotest::runShell(std::string(SVO_BINARY) + " gen sphere --triangles 2k -o " + mesh.string())
+                .find("exit 0"),
+            std::string::npos);
+  const std::string said = svotest::runShell(std::string(SVO_BINARY) + " bench raycast " + mesh.string() +
+                                             " --device gpu --levels 6 --size 48 --runs 1 --threads 1 -o " +
+                                             (dir.path() / "report").string());
+  ASSERT_NE(said.find("exit 0"), std::string::npos) << said;
+  for (const char* camera : {"whole", "close"}) {
+    const std::string line = std::string("sphere ") + camera + ": shaded without the beam pass";
+    const std::size_t at = said.find(line);
+    ASSERT_NE(at, std::string::npos) << line << "\n" << said;
+    const std::string rest = said.substr(at, said.find('\n', at) - at);
+    EXPECT_NE(
+        rest.find("depths equal to the CPU caster's on 100.000% of the pixels (largest difference 0 ulps)"),
+        std::string::npos)
+        << rest;
+  }
+}
+
 }  // namespace

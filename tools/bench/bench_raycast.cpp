@@ -4,6 +4,7 @@
 // with iterations per ray and the image error against Embree's frame. `--scaling 10k,...,10M`: the same
 // on generated scenes of growing triangle count at a fixed voxel resolution, as a table and a plot.
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <optional>
@@ -22,6 +23,32 @@
 namespace svo::tools::bench {
 
 namespace {
+
+// The GPU caster's depths against the CPU caster's: the share of pixels equal to the bit (misses on both
+// count as equal), and the largest difference in float ulps where both hit (a miss on one side only counts
+// against the share alone). The two casters compute the same float operations, so both should be 100% and 0.
+struct DepthAgreement {
+  double equalShare = 0.0;
+  std::int64_t maxUlps = 0;
+};
+DepthAgreement depthAgreement(const std::vector<float>& gpu, const std::vector<float>& cpu) {
+  const auto ordered = [](float f) {  // floats as integers in their order, so ulps are differences
+    const auto i = std::bit_cast<std::int32_t>(f);
+    return i < 0 ? std::int64_t(INT32_MIN) - i : std::int64_t(i);
+  };
+  DepthAgreement a;
+  std::size_t equal = 0;
+  const std::size_t n = std::min(gpu.size(), cpu.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::bit_cast<std::uint32_t>(gpu[i]) == std::bit_cast<std::uint32_t>(cpu[i])) {
+      ++equal;
+    } else if (std::isfinite(gpu[i]) && std::isfinite(cpu[i])) {
+      a.maxUlps = std::max(a.maxUlps, std::abs(ordered(gpu[i]) - ordered(cpu[i])));
+    }
+  }
+  a.equalShare = n ? double(equal) / double(n) : 0.0;
+  return a;
+}
 
 // Largest image edge accepted, as Camera::validate does.
 constexpr int kMaxImageSize = 16384;
@@ -147,12 +174,15 @@ void printComparison(const std::vector<SceneResult>& scenes, const RaycastArgs& 
       args.width ? args.width : args.size);
   for (const SceneResult& s : scenes)
     for (const CameraRow& r : s.rows)
-      if (r.gpu)
+      if (r.gpu) {
+        const DepthAgreement agreement = depthAgreement(r.gpu->last.depth, r.esvoDepth.last.depth);
         fmt::print(
             "GPU ({}), {} {}: shaded without the beam pass, {:.2f} Mrays/s in the dispatches (GPU timer), "
-            "{:.2f} with the frame read back.\n",
+            "{:.2f} with the frame read back; depths equal to the CPU caster's on {:.3f}% of the pixels "
+            "(largest difference {} ulps).\n",
             r.gpuName, s.name, r.camera, mraysPerSecond(r.rays, r.gpu->deviceSeconds),
-            mraysPerSecond(r.rays, r.gpu->seconds.median));
+            mraysPerSecond(r.rays, r.gpu->seconds.median), 100.0 * agreement.equalShare, agreement.maxUlps);
+      }
 }
 
 // Where ESVO's curve crosses Embree's: the triangle count at which their depth-only ratio passes 1,
