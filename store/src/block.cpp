@@ -68,17 +68,17 @@ std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, i
 }
 
 std::optional<BlockView::UnitHalf> BlockView::unit(const ChildDescriptor* parent, AttachmentType type) {
-  std::ptrdiff_t index = 0;
-  const std::uint32_t* directory = attachmentOf(parent, type, index);
+  const BlockInfo& info = infoOf(parent);
+  const std::uint32_t* directory = attachmentOf(info, type);
   if (!directory) return std::nullopt;
+  const std::ptrdiff_t index = slotIndexOf(parent, info);
   const auto pair = std::uint32_t(index / 2);
   const std::uint32_t* entry = directory + 2 * (pair / kUnitGroup);
   const std::uint32_t bit = pair % kUnitGroup;
   if (!(entry[0] >> bit & 1u)) return std::nullopt;
   const std::uint32_t rank = entry[1] + std::uint32_t(std::popcount(entry[0] & ((1u << bit) - 1u)));
   const std::ptrdiff_t unitWords = type == AttachmentType::ColorUnits ? kColorUnitWords : kNormalUnitWords;
-  return UnitHalf{directory + unitDirectoryWords(infoOf(parent).slotCount) + rank * unitWords,
-                  int(index % 2)};
+  return UnitHalf{directory + unitDirectoryWords(info.slotCount) + rank * unitWords, int(index % 2)};
 }
 
 const AttachmentEntry* BlockView::attachment(AttachmentType type) const {

@@ -422,7 +422,6 @@ class UnitEncoder {
   // child is off the value its parent shows.
   void encodeNew(std::uint32_t u, std::uint32_t a, std::uint32_t b) {
     std::array<std::uint32_t, kUnitSlots> colors{}, normalBits{};
-    std::array<glm::vec3, kUnitSlots> normals{};
     std::uint16_t usedSlots = 0;
     bool ownColor = false, ownNormal = false;
     for (int half = 0; half < 2; ++half) {
@@ -437,15 +436,18 @@ class UnitEncoder {
         usedSlots |= std::uint16_t(1u << slot);
         colors[slot] = (e.colorMask >> childSlot & 1u) ? tree_.voxels[child].color : parent.color;
         normalBits[slot] = (e.normalMask >> childSlot & 1u) ? tree_.voxels[child].normal : parent.normal;
-        normals[slot] = normalDirection(normalBits[slot]);
         ownColor |= !rule_.color(colors[slot], shownColor_[q]);
         ownNormal |= !rule_.normal(normalBits[slot], shown);
       }
     }
     if (tree_.hasColors && ownColor)
       out_.colors[u] = encodeColorUnit(colors, usedSlots), out_.kept[u] |= EncodedUnits::kColor;
-    if (tree_.hasNormals && ownNormal)
+    if (tree_.hasNormals && ownNormal) {
+      std::array<glm::vec3, kUnitSlots> normals{};
+      for (int slot = 0; slot < kUnitSlots; ++slot)
+        if (usedSlots >> slot & 1u) normals[slot] = normalDirection(normalBits[slot]);
       out_.normals[u] = encodeNormalUnit(normals, usedSlots), out_.kept[u] |= EncodedUnits::kNormal;
+    }
   }
 
   const VoxelTree& tree_;

@@ -162,9 +162,7 @@ RegionLoader::RegionLoader(const SliceSource& source, RegionTable& regions, std:
 void CarriedLevels::carry(const ChildDescriptor* d, std::size_t level, std::size_t index) {
   CarriedUnit unit;
   // The descriptor's half of its pair, whether the pair holds units or not.
-  std::ptrdiff_t slotIndex = 0;
-  BlockView::attachmentOf(d, AttachmentType::NormalUnits, slotIndex);
-  unit.half = std::uint8_t(slotIndex % 2);
+  unit.half = std::uint8_t(BlockView::slotIndexOf(d, BlockView::infoOf(d)) % 2);
   if (const auto colors = BlockView::unit(d, AttachmentType::ColorUnits)) {
     std::memcpy(unit.color.words.data(), colors->words, sizeof(unit.color.words));
     unit.hasColor = true;

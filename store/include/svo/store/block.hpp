@@ -120,6 +120,8 @@ class BlockView {
   };
   static Attributes attributes(const ChildDescriptor* parent, AttachmentType type);
   static const BlockInfo& infoOf(const ChildDescriptor* descriptor);
+  // The descriptor's slot index in the block holding it, given that block's info section.
+  static std::ptrdiff_t slotIndexOf(const ChildDescriptor* descriptor, const BlockInfo& info);
 
   // Compressed layout: the unit holding `parent`'s children (ColorUnits or NormalUnits) and the half its
   // slots take in it, through page header and info section as Fig. 8 and the unit directory; nullopt
@@ -131,10 +133,9 @@ class BlockView {
     glm::vec3 normal(int childSlot) const;     // unit length (a NormalUnits unit)
   };
   static std::optional<UnitHalf> unit(const ChildDescriptor* parent, AttachmentType type);
-  // Paper Fig. 8 up to the attachment: the first word of attachment `type` in the block holding `parent`
-  // (nullptr without one), and `parent`'s slot index in that block.
-  static const std::uint32_t* attachmentOf(const ChildDescriptor* parent, AttachmentType type,
-                                           std::ptrdiff_t& slotIndex);
+  // Paper Fig. 8 up to the attachment: the first word of attachment `type` in the block with info section
+  // `info` (nullptr without one).
+  static const std::uint32_t* attachmentOf(const BlockInfo& info, AttachmentType type);
   AttributeLayout attributeLayout() const;
   bool hasColors() const;
   bool hasNormals() const;
@@ -286,12 +287,14 @@ inline const BlockInfo& BlockView::infoOf(const ChildDescriptor* descriptor) {
   return *reinterpret_cast<const BlockInfo*>(page + std::uintptr_t(std::ptrdiff_t(header) * 4));
 }
 
-inline const std::uint32_t* BlockView::attachmentOf(const ChildDescriptor* parent, AttachmentType type,
-                                                    std::ptrdiff_t& slotIndex) {
-  const BlockInfo& info = infoOf(parent);
+inline std::ptrdiff_t BlockView::slotIndexOf(const ChildDescriptor* descriptor, const BlockInfo& info) {
+  const auto* words = reinterpret_cast<const std::uint32_t*>(&info);
+  return descriptor - reinterpret_cast<const ChildDescriptor*>(words + std::ptrdiff_t(info.slotsPointer));
+}
+
+inline const std::uint32_t* BlockView::attachmentOf(const BlockInfo& info, AttachmentType type) {
   const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
   const auto* words = reinterpret_cast<const std::uint32_t*>(&info);
-  slotIndex = parent - reinterpret_cast<const ChildDescriptor*>(words + std::ptrdiff_t(info.slotsPointer));
   for (std::uint32_t a = 0; a < info.attachmentCount; ++a)
     if (entries[a].type == type) return words + std::ptrdiff_t(entries[a].pointer);
   return nullptr;
@@ -299,10 +302,10 @@ inline const std::uint32_t* BlockView::attachmentOf(const ChildDescriptor* paren
 
 inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
   // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> values.
-  std::ptrdiff_t index = 0;
-  const std::uint32_t* attachment = attachmentOf(parent, type, index);
+  const BlockInfo& info = infoOf(parent);
+  const std::uint32_t* attachment = attachmentOf(info, type);
   if (!attachment) return {};
-  const AttributeLookup lookup{attachment[index]};
+  const AttributeLookup lookup{attachment[slotIndexOf(parent, info)]};
   return {lookup.mask(), attachment + lookup.valuePointer()};
 }
 
