@@ -4,6 +4,7 @@
 #include <bit>
 #include <cassert>
 #include <cstring>
+#include <optional>
 #include <string>
 #include <tuple>
 #include <type_traits>
@@ -80,11 +81,6 @@ std::uint32_t wordAt(const std::byte* words, std::size_t i) {
   std::uint32_t w;
   std::memcpy(&w, words + 4 * i, 4);
   return w;
-}
-
-// Byte `plane` of value k among `count` values stored as byte planes.
-std::uint8_t planeByte(const std::byte* values, std::uint32_t count, std::size_t plane, std::uint32_t k) {
-  return std::to_integer<std::uint8_t>(values[plane * count + k]);
 }
 
 }  // namespace
@@ -213,13 +209,6 @@ class NormalCodes {
   std::uint16_t code_ = octNormalCodeOf(0);
 };
 
-// Per new voxel: its contour's predicted position field, and its normal's lattice code (its parent's until
-// the normals section gives its own).
-struct Prediction {
-  std::uint32_t contourPosition;
-  std::uint16_t normalCode;
-};
-
 // The slice's head, checked against its directory entry, the store's attachments and its size.
 SliceHead checkedHead(std::span<const std::byte> raw, const SliceInfo& s, const StoreHeader& header,
                       std::size_t parents) {
@@ -239,22 +228,63 @@ SliceHead checkedHead(std::span<const std::byte> raw, const SliceInfo& s, const 
   return head;
 }
 
-// The hierarchy section at `cursor`: sets the parents' child masks and appends their children (coordinates,
-// inherited attributes) with what their codes are predicted from. Returns the end of the section.
-const std::byte* decodeHierarchy(const SliceHead& head, const std::byte* cursor, bool hasNormals,
-                                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children,
-                                 std::vector<Prediction>& predicted) {
+// A per-voxel section read alongside the hierarchy: a presence bit per new voxel, then `count` values.
+class PresentValues {
+ public:
+  PresentValues(const std::byte* section, std::uint32_t voxelCount, std::uint32_t count)
+      : bits_(section), values_(section + bitBytes(voxelCount)), count_(count) {}
+  // Whether voxel i has a value, and then its index.
+  bool take(std::size_t i, std::uint32_t& index) {
+    if (!bitAt(bits_, i)) return false;
+    if (taken_ == count_) throw SliceDecodeError("more presence bits than values");
+    index = taken_++;
+    return true;
+  }
+  void checkAllTaken() const {
+    if (taken_ != count_) throw SliceDecodeError("fewer presence bits than values");
+  }
+  std::uint8_t planeByte(std::size_t plane, std::uint32_t k) const {
+    return std::to_integer<std::uint8_t>(values_[plane * count_ + k]);
+  }
+  std::uint32_t word(std::uint32_t k) const { return wordAt(values_, k); }
+  static std::size_t bytes(std::uint32_t voxelCount, std::uint32_t count, std::size_t valueBytes) {
+    return bitBytes(voxelCount) + valueBytes * std::size_t(count);
+  }
+
+ private:
+  const std::byte* bits_;
+  const std::byte* values_;
+  std::uint32_t count_, taken_ = 0;
+};
+
+// The sections after the head at `cursor`, in one pass over the new voxels: the hierarchy sets the parents'
+// child masks and appends their children (coordinates, inherited attributes), and each child takes its own
+// values as it is appended. Normals before contours: a contour is coded against its voxel's normal.
+void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreHeader& header,
+                    std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children) {
   const std::byte* splitBits = cursor;
   const std::byte* masks = splitBits + bitBytes(head.parentCount);
-  std::uint32_t split = 0;
+  const std::byte* sections = masks + head.splitCount;
+  PresentValues contours(sections, head.voxelCount, head.contourCount);
+  sections += PresentValues::bytes(head.voxelCount, head.contourCount, kContourBytes);
+  std::optional<PresentValues> colors, normals;
+  if (header.hasColors) {
+    colors.emplace(sections, head.voxelCount, head.colorCount);
+    sections += PresentValues::bytes(head.voxelCount, head.colorCount, kColorBytes);
+  }
+  if (header.hasNormals) normals.emplace(sections, head.voxelCount, head.normalCount);
+  const std::uint32_t* const lattice = latticeNormalTable();
+  const std::uint32_t* const contourNormals = contourNormalPredictionTable();
+
   const std::size_t firstAdded = children.size();
   // At most 8 children per split voxel, whose masks are bytes of this slice: a hostile count reserves no
   // more. Geometric growth: callers append a level's slices one after another to one vector (loadTree),
   // and an exact reserve per slice would copy the whole level every time.
   const std::size_t bound = std::min<std::size_t>(head.voxelCount, 8 * std::size_t(head.splitCount));
-  predicted.reserve(bound);
   if (firstAdded + bound > children.capacity())
     children.reserve(std::max(firstAdded + bound, 2 * children.capacity()));
+  std::uint32_t split = 0;
+  std::size_t added = 0;  // new voxels so far: the index into every per-voxel section
   NormalCodes codes;
   for (std::size_t i = 0; i < parents.size(); ++i) {
     SliceVoxel& p = parents[i];
@@ -262,72 +292,36 @@ const std::byte* decodeHierarchy(const SliceHead& head, const std::byte* cursor,
     if (split == head.splitCount) throw SliceDecodeError("more split bits than valid masks");
     const std::uint8_t mask = std::to_integer<std::uint8_t>(masks[split++]);
     if (mask == 0) throw SliceDecodeError("a split voxel with no children");
+    if (added + std::size_t(std::popcount(unsigned(mask))) > head.voxelCount)
+      throw SliceDecodeError("valid masks do not match the voxel count");
     p.childMask = mask;
     const ContourPositionPredictor position(p.hasContour, p.contour);
-    const std::uint16_t parentCode = hasNormals ? codes(p.normal) : 0;
-    for (int slot = 0; slot < 8; ++slot) {
-      if (!(mask >> slot & 1u)) continue;
+    const std::uint16_t parentCode = normals ? codes(p.normal) : 0;
+    for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++added) {
+      const int slot = std::countr_zero(rest);
       SliceVoxel& child = children.emplace_back();  // in place: no temporary to copy (store forwarding)
       child.coord = childCoord(p.coord, slot);
       child.color = p.color, child.normal = p.normal;
-      predicted.push_back({head.contourCount ? position(slot) : 0, parentCode});
+      std::uint16_t code = parentCode;
+      std::uint32_t k;
+      if (normals && normals->take(added, k)) {
+        code = normalCodeOf({normals->planeByte(0, k), normals->planeByte(1, k)}, code);
+        child.normal = lattice[code];
+      }
+      if (colors && colors->take(added, k)) child.color = colors->word(k);
+      if (contours.take(added, k)) {
+        ContourResidual r;
+        for (std::size_t plane = 0; plane < kContourBytes; ++plane) r[plane] = contours.planeByte(plane, k);
+        child.hasContour = true;
+        child.contour = contourOf(r, (normals ? contourNormals[code] : 0) | position(slot));
+      }
     }
   }
-  if (split != head.splitCount || children.size() - firstAdded != head.voxelCount)
+  if (split != head.splitCount || added != head.voxelCount)
     throw SliceDecodeError("valid masks do not match the voxel count");
-  return masks + head.splitCount;
-}
-
-// A per-voxel section: a presence bit per new voxel, then `count` values; `store(i, values, k)` takes value
-// k for voxel i.
-template <class Store>
-void forEachPresent(const SliceHead& head, const std::byte* section, std::uint32_t count, Store store) {
-  const std::byte* values = section + bitBytes(head.voxelCount);
-  std::uint32_t k = 0;
-  for (std::uint32_t i = 0; i < head.voxelCount; ++i) {
-    if (!bitAt(section, i)) continue;
-    if (k == count) throw SliceDecodeError("more presence bits than values");
-    store(i, values, k++);
-  }
-  if (k != count) throw SliceDecodeError("fewer presence bits than values");
-}
-
-// The per-voxel sections at `cursor` onto the new voxels `added`. Normals first: a contour is coded against
-// its voxel's normal.
-void decodeValues(const SliceHead& head, const std::byte* cursor, const StoreHeader& header,
-                  SliceVoxel* added, std::vector<Prediction>& predicted) {
-  const auto sectionBytes = [&](std::uint32_t count, std::size_t bytes) {
-    return bitBytes(head.voxelCount) + bytes * std::size_t(count);
-  };
-  const std::byte* contours = cursor;
-  const std::byte* colors = contours + sectionBytes(head.contourCount, kContourBytes);
-  const std::byte* normals = colors + (header.hasColors ? sectionBytes(head.colorCount, kColorBytes) : 0);
-  const std::uint32_t* const lattice = latticeNormalTable();
-  const std::uint32_t* const contourNormals = contourNormalPredictionTable();
-  if (header.hasNormals)
-    forEachPresent(head, normals, head.normalCount,
-                   [&](std::uint32_t i, const std::byte* values, std::uint32_t k) {
-                     const NormalResidual r{planeByte(values, head.normalCount, 0, k),
-                                            planeByte(values, head.normalCount, 1, k)};
-                     std::uint16_t& code = predicted[i].normalCode;  // the parent's, so far
-                     code = normalCodeOf(r, code);
-                     added[i].normal = lattice[code];
-                   });
-  if (header.hasColors)
-    forEachPresent(head, colors, head.colorCount,
-                   [&](std::uint32_t i, const std::byte* values, std::uint32_t k) {
-                     added[i].color = wordAt(values, k);
-                   });
-  forEachPresent(
-      head, contours, head.contourCount, [&](std::uint32_t i, const std::byte* values, std::uint32_t k) {
-        ContourResidual r;
-        for (std::size_t plane = 0; plane < kContourBytes; ++plane)
-          r[plane] = planeByte(values, head.contourCount, plane, k);
-        const Prediction& p = predicted[i];
-        added[i].hasContour = true;
-        added[i].contour =
-            contourOf(r, (header.hasNormals ? contourNormals[p.normalCode] : 0) | p.contourPosition);
-      });
+  if (normals) normals->checkAllTaken();
+  if (colors) colors->checkAllTaken();
+  contours.checkAllTaken();
 }
 
 }  // namespace
@@ -335,11 +329,7 @@ void decodeValues(const SliceHead& head, const std::byte* cursor, const StoreHea
 void decodeSlice(std::span<const std::byte> raw, const SliceInfo& slice, const StoreHeader& header,
                  std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children) {
   const SliceHead head = checkedHead(raw, slice, header, parents.size());
-  const std::size_t firstAdded = children.size();
-  std::vector<Prediction> predicted;
-  const std::byte* values =
-      decodeHierarchy(head, raw.data() + sizeof head, header.hasNormals, parents, children, predicted);
-  decodeValues(head, values, header, children.data() + firstAdded, predicted);
+  decodeSections(head, raw.data() + sizeof head, header, parents, children);
 }
 
 }  // namespace svo
