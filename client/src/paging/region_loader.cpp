@@ -1,6 +1,7 @@
 #include "paging/region_loader.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cassert>
 #include <cstring>
 #include <ctime>
@@ -104,9 +105,14 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
   VoxelLevels levels{{start}};
   std::vector<const ChildDescriptor*> descriptors{descriptor};
   while (true) {
+    std::vector<SliceVoxel>& level = levels.back();
+    // The next level's size, so that it is written once rather than copied as it grows.
+    std::size_t children = 0;
+    for (const ChildDescriptor* d : descriptors)
+      if (d && !d->isStub()) children += std::size_t(std::popcount(unsigned(d->validMask())));
     std::vector<SliceVoxel> next;
     std::vector<const ChildDescriptor*> nextDescriptors;
-    std::vector<SliceVoxel>& level = levels.back();
+    next.reserve(children), nextDescriptors.reserve(children);
     if (readBack.carried) readBack.carried->unitOf.emplace_back(level.size(), kNoCarriedUnit);
     const bool frontier = readBack.startLevel + int(levels.size()) == readBack.frontierLevel;
     for (std::size_t i = 0; i < level.size(); ++i) {
