@@ -18,6 +18,7 @@
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <glm/common.hpp>
+#include <glm/geometric.hpp>
 
 #include "svo/builder/mesh.hpp"
 
@@ -191,6 +192,17 @@ class MipTexture final : public TextureImage {
     // A polygon that is a line in UV space (a texture stretched along one axis) has no area to weight by.
     if (total < kMinCoverage) return bilinear(level, centroid);
     return glm::vec4(sum / total);
+  }
+
+  glm::vec4 trilinear(glm::vec2 uv, glm::vec2 du, glm::vec2 dv) const override {
+    const Level& finest = levels_.front();
+    const glm::dvec2 texels(finest.width, finest.height);
+    const double side = std::max(glm::length(glm::dvec2(du) * texels), glm::length(glm::dvec2(dv) * texels));
+    const double lod = std::clamp(std::log2(side), 0.0, double(levels_.size() - 1));
+    if (!std::isfinite(uv.x) || !std::isfinite(uv.y) || std::isnan(lod)) return levels_.back().texels.front();
+    const std::size_t fine = std::size_t(lod), coarse = std::min(fine + 1, levels_.size() - 1);
+    const float t = float(lod - double(fine));
+    return (1.0f - t) * bilinear(levels_[fine], uv) + t * bilinear(levels_[coarse], uv);
   }
 
  private:

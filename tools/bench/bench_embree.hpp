@@ -105,6 +105,7 @@ class EmbreePeer {
     // scene centre.
     const Camera::Basis basis = camera.basis();
     const glm::vec3 origin(camera.eye - centre_);
+    const double pixelAngle = camera.pixelAngle();
     forEachTile(camera.width, camera.height, kTileSize, threads, [&](const PixelTile& tile) {
       const unsigned savedCsr = _mm_getcsr();
       _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
@@ -136,7 +137,8 @@ class EmbreePeer {
             result.primitive[std::size_t(y) * camera.width + x] = rayHit.hit.primID;
             if (shading)
               result.color[std::size_t(y) * camera.width + x] =
-                  shading->shade(rayHit.hit.primID, rayHit.hit.u, rayHit.hit.v, direction);
+                  shading->shade(rayHit.hit.primID, rayHit.hit.u, rayHit.hit.v, direction,
+                                 PixelFootprint::at(basis, rayHit.ray.tfar, pixelAngle));
           }
         }
       }

@@ -48,6 +48,7 @@ Image renderReference(const Mesh& mesh, const accel::Accel& kd, const Camera& ca
   image.color.assign(std::size_t(camera.width) * camera.height, shading.background());
   image.depth.assign(image.color.size(), std::numeric_limits<float>::infinity());
   const Camera::Basis basis = camera.basis();
+  const double pixelAngle = camera.pixelAngle();
   forEachTile(camera.width, camera.height, 8, threads, [&](const PixelTile& tile) {
     for (int y = tile.y0; y < tile.y1; ++y)
       for (int x = tile.x0; x < tile.x1; ++x) {
@@ -57,7 +58,8 @@ Image renderReference(const Mesh& mesh, const accel::Accel& kd, const Camera& ca
         const accel::Hit hit = kd.closestHit(ray);
         if (!hit.hit()) continue;
         const std::size_t i = std::size_t(y) * camera.width + x;
-        image.color[i] = shading.shade(hit.triangle, hit.u, hit.v, ray.direction);
+        image.color[i] = shading.shade(hit.triangle, hit.u, hit.v, ray.direction,
+                                       PixelFootprint::at(basis, hit.t, pixelAngle));
         image.depth[i] = float(hit.t);
       }
   });

@@ -22,6 +22,9 @@ class TextureImage {
   virtual ~TextureImage() = default;
   // Average color over the UV polygon (texture averaged over the clipped footprint; UVs wrap).
   virtual glm::vec4 average(std::span<const glm::vec2> uvPolygon) const = 0;
+  // A renderer's trilinear lookup at `uv` for a footprint spanned by the UV vectors du and dv: bilinear on
+  // the two mip levels whose texels are nearest the footprint's longer side, blended (UVs wrap).
+  virtual glm::vec4 trilinear(glm::vec2 uv, glm::vec2 du, glm::vec2 dv) const = 0;
   virtual int width() const = 0;
   virtual int height() const = 0;
 };
