@@ -196,15 +196,20 @@ std::vector<std::byte> encodeSlice(const SliceHead& head, const SliceSections& s
 
 namespace {
 
-// octNormalCodeOf, remembering the last answer: siblings share their parent's normal and often their own.
+// The lattice code of a parent's normal, as the encoder finds it (octNormalCodeOf): from the voxel's hint
+// where that names its normal (a voxel decoded before), else found and remembered (siblings share their
+// parent's normal and often their own).
 class NormalCodes {
  public:
-  std::uint16_t operator()(std::uint32_t normal) {
-    if (normal != normal_) normal_ = normal, code_ = octNormalCodeOf(normal);
+  std::uint16_t operator()(const SliceVoxel& v) {
+    if (lattice_[v.normalCode] == v.normal) return std::uint16_t(canonical_[v.normalCode]);
+    if (v.normal != normal_) normal_ = v.normal, code_ = octNormalCodeOf(v.normal);
     return code_;
   }
 
  private:
+  const std::uint32_t* lattice_ = latticeNormalTable();
+  const std::uint32_t* canonical_ = canonicalNormalCodeTable();
   std::uint32_t normal_ = 0;
   std::uint16_t code_ = octNormalCodeOf(0);
 };
@@ -296,17 +301,17 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
       throw SliceDecodeError("valid masks do not match the voxel count");
     p.childMask = mask;
     const ContourPositionPredictor position(p.hasContour, p.contour);
-    const std::uint16_t parentCode = normals ? codes(p.normal) : 0;
+    const std::uint16_t parentCode = normals ? codes(p) : 0;
     for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++added) {
       const int slot = std::countr_zero(rest);
       SliceVoxel& child = children.emplace_back();  // in place: no temporary to copy (store forwarding)
       child.coord = childCoord(p.coord, slot);
-      child.color = p.color, child.normal = p.normal;
+      child.color = p.color, child.normal = p.normal, child.normalCode = p.normalCode;
       std::uint16_t code = parentCode;
       std::uint32_t k;
       if (normals && normals->take(added, k)) {
         code = normalCodeOf({normals->planeByte(0, k), normals->planeByte(1, k)}, code);
-        child.normal = lattice[code];
+        child.normal = lattice[code], child.normalCode = code;
       }
       if (colors && colors->take(added, k)) child.color = colors->word(k);
       if (contours.take(added, k)) {

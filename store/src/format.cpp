@@ -65,7 +65,7 @@ constexpr int kOctMax = (1 << (kOctNormalBits - 1)) - 1;
 float signNotZero(float x) {
   return x < 0.0f ? -1.0f : 1.0f;
 }
-// Both tables are built once, on first use: 65536 entries each.
+// The tables are built once, on first use: 65536 entries each.
 template <class Fill>
 const std::vector<std::uint32_t>& table(Fill fill) {
   static const std::vector<std::uint32_t> t = [&] {
@@ -103,6 +103,11 @@ glm::vec3 octNormalDirection(std::uint16_t code) {
 
 const std::uint32_t* latticeNormalTable() {
   static const auto& t = table([](std::uint16_t c) { return encodeNormal(octNormalDirection(c)); });
+  return t.data();
+}
+
+const std::uint32_t* canonicalNormalCodeTable() {
+  static const auto& t = table([](std::uint16_t c) { return std::uint32_t(octNormalCodeOf(latticeNormalBits(c))); });
   return t.data();
 }
 

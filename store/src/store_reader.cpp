@@ -47,7 +47,7 @@ std::span<SliceVoxel> claimParents(const StoreIndex& index, std::uint32_t id, st
 
 // The root voxel as the header gives it: the parent of the first slice.
 SliceVoxel rootVoxel(const StoreHeader& header) {
-  return {glm::ivec3(0), 0, false, 0, header.rootColor, header.rootNormal};
+  return {.color = header.rootColor, .normal = header.rootNormal};
 }
 
 }  // namespace

@@ -311,7 +311,7 @@ svo::StoreReader readerOf(const Fixture& f) {
 svo::VoxelLevels decodeChain(const svo::StoreReader& reader, std::uint32_t slices) {
   const svo::StoreHeader& h = reader.header();
   svo::VoxelLevels levels(1);
-  levels[0].push_back({glm::ivec3(0), 0, false, 0, h.rootColor, h.rootNormal});
+  levels[0].push_back({.color = h.rootColor, .normal = h.rootNormal});
   for (std::uint32_t i = 0; i < slices; ++i) {
     std::vector<svo::SliceVoxel> added;
     reader.decodeSlice(i, reader.readSlice(i), levels.back(), added);

@@ -37,7 +37,7 @@ MeshShading::MeshShading(const Mesh& mesh, const RenderOptions& options)
     const glm::dvec2 du1 = glm::dvec2(mesh.uvs[t.z]) - glm::dvec2(mesh.uvs[t.x]);
     const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
     const double den = d00 * d11 - d01 * d01;
-    if (!(den > 0.0)) continue;  // degenerate: no gradient, the texture is sampled at a point
+    if (!(den > 0.0)) continue;  // degenerate (loadMesh drops them): left zero, its lookups take the mean
     // A displacement r in the plane moves the barycentrics of vertices 1 and 2 by the solution of the 2x2
     // normal equations, b1 = (d11 e0 - d01 e1) . r / den and b2 = (d00 e1 - d01 e0) . r / den, and the UV
     // by b1 du0 + b2 du1.

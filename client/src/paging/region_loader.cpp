@@ -258,11 +258,11 @@ VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& ca
     const auto [color, normal] = rootValues(regions_.view(region));
     ReadBack back = readBack(region, region.cubeLevel, 0, &carried);
     return readSubtree(regions_.descriptorAt(region, region.rootSlot),
-                       {region.cubeCoord, 0, false, 0, color, normal}, back);
+                       {.coord = region.cubeCoord, .color = color, .normal = normal}, back);
   }
   if (region.parent < 0) {
     const StoreHeader& header = index_.header();
-    return {{{glm::ivec3(0), 0, false, 0, header.rootColor, header.rootNormal}}};
+    return {{{.color = header.rootColor, .normal = header.rootNormal}}};
   }
   // A new region: its cube's voxel and subtree from the parent region's block.
   const Region& parent = regions_[std::uint32_t(region.parent)];
@@ -270,7 +270,7 @@ VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& ca
   ReadBack back =
       readBack(parent, region.cubeLevel, first == parent.childFrontier.end() ? 0 : first->second, &carried);
   const auto [color, normal] = rootValues(regions_.view(parent));
-  SliceVoxel voxel{parent.cubeCoord, 0, false, 0, color, normal};
+  SliceVoxel voxel{.coord = parent.cubeCoord, .color = color, .normal = normal};
   SliceVoxel shown = voxel;  // compressed: its values as the parent's block shows them (VoxelTree::shownRoot)
   const ChildDescriptor* d = regions_.descriptorAt(parent, parent.rootSlot);
   for (int level = parent.cubeLevel + 1; level <= region.cubeLevel; ++level) {

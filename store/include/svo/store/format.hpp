@@ -162,6 +162,9 @@ inline std::uint32_t latticeNormalBits(std::uint16_t code) {
 inline std::uint16_t octNormalCodeOf(std::uint32_t normalBits) {
   return octNormalCode(normalDirection(normalBits));
 }
+// octNormalCodeOf(latticeNormalBits(code)), by code: the code a lattice point's normal rounds to (a few codes
+// on the octahedron's folded edges name the same point as another). Built on first use, as the tables above.
+const std::uint32_t* canonicalNormalCodeTable();
 inline std::uint32_t latticeNormal(glm::vec3 n) {
   return latticeNormalBits(octNormalCode(n));
 }

@@ -116,6 +116,9 @@ struct SliceVoxel {
   glm::ivec3 coord{0};  // cube coordinate at its level
   std::uint8_t childMask = 0;
   bool hasContour = false;
+  // A hint decodeSlice leaves: a lattice code whose normal is `normal` (format.hpp), so that the next level's
+  // decoding need not find the code again. Trusted only where latticeNormalBits(normalCode) == normal.
+  std::uint16_t normalCode = 0;
   std::uint32_t contour = 0, color = 0, normal = 0;
 };
 // Voxels level by level from one cube's voxel down, each level in Morton order (so a voxel's children are
