@@ -73,7 +73,10 @@ class ChildValues {
   void set(SliceVoxel& child, const SliceVoxel& parent, int slot, ReadBack& readBack) const {
     if (frontier_) {
       if (readBack.exactColors) child.color = readBack.exactColors[readBack.exactNext];
-      if (readBack.exactNormals) child.normal = latticeNormalBits(readBack.exactNormals[readBack.exactNext]);
+      if (readBack.exactNormals) {
+        child.normalCode = readBack.exactNormals[readBack.exactNext];
+        child.normal = latticeNormalBits(child.normalCode);
+      }
       ++readBack.exactNext;
     } else if (readBack.compressed) {
       setShown(child, parent, slot);
