@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include <cmath>
 #include <csignal>
 #include <cstring>
 
@@ -444,6 +445,9 @@ TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
   EXPECT_GE(ratio + 0.005, (alone - kHalfStep) / (seq + kHalfStep));
   EXPECT_LE(ratio - 0.005, (alone + kHalfStep) / std::max(1e-3, seq - kHalfStep));
   EXPECT_GE(cores + 0.05, (cpu - kHalfStep) / (1.5 * (seq + kHalfStep)));
+  // Where reading and zstd alone miss the goal, the bench says that no decoder can meet it here.
+  if (std::abs(ratio - 1.5) > 0.01)
+    EXPECT_EQ(r.out.find("the disk outruns zstd alone") != std::string::npos, ratio > 1.5) << r.out;
   EXPECT_LE(cores - 0.05, (cpu + kHalfStep) / (1.5 * std::max(1e-3, seq - kHalfStep)));
   expectCleanFailure(svo("bench stream " + (dir_ / "none.svo").string() + " -o " + out.string()), "none.svo",
                      dir_ / "none.svo");
