@@ -107,7 +107,8 @@ const std::uint32_t* latticeNormalTable() {
 }
 
 const std::uint32_t* canonicalNormalCodeTable() {
-  static const auto& t = table([](std::uint16_t c) { return std::uint32_t(octNormalCodeOf(latticeNormalBits(c))); });
+  static const auto& t =
+      table([](std::uint16_t c) { return std::uint32_t(octNormalCodeOf(latticeNormalBits(c))); });
   return t.data();
 }
 

@@ -31,7 +31,8 @@ svo::Mesh texturedSquare() {
 
 // What svo::render's shading gives a voxel of this albedo with the square's normal, seen straight down.
 glm::vec3 expected(const glm::vec3& albedo, const svo::RenderOptions& options) {
-  return svo::shadePhong(albedo, glm::vec3(0, 0, 1), glm::vec3(0, 0, -1), glm::normalize(options.lightDirection));
+  return svo::shadePhong(albedo, glm::vec3(0, 0, 1), glm::vec3(0, 0, -1),
+                         glm::normalize(options.lightDirection));
 }
 
 void expectNear(const glm::vec3& a, const glm::vec3& b) {

@@ -303,7 +303,7 @@ void runStreamBench(StreamArgs args) {
   Table goalTable({"budget", "sequential read", "read + zstd alone", "alone / seq", "worker CPU to view",
                    "cores for " + goal});
   std::vector<plot::Series> curves;
-  std::vector<std::string> requestLines;  // over HTTP
+  std::vector<std::string> requestLines;      // over HTTP
   std::vector<std::string> diskOutrunsLines;  // budgets where reading and zstd alone miss the goal
   for (const std::size_t budget : args.budgets) {
     const PagerOptions pagerOptions = pagerOptionsOf(args, budget);

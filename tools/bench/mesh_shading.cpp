@@ -51,8 +51,8 @@ glm::vec4 MeshShading::textureColor(std::uint32_t triangle, int texture, double 
                                     const glm::dvec3& direction, const PixelFootprint& footprint) const {
   const glm::uvec3 t = mesh_.triangles[triangle];
   const double w0 = 1.0 - u - v;
-  const glm::dvec2 uv = w0 * glm::dvec2(mesh_.uvs[t.x]) + u * glm::dvec2(mesh_.uvs[t.y]) +
-                        v * glm::dvec2(mesh_.uvs[t.z]);
+  const glm::dvec2 uv =
+      w0 * glm::dvec2(mesh_.uvs[t.x]) + u * glm::dvec2(mesh_.uvs[t.y]) + v * glm::dvec2(mesh_.uvs[t.z]);
   const UvGradient& g = uvGradients_[triangle];
   // Each side of the pixel slid along the ray onto the plane (grazing rays stretch it; parallel ones give a
   // non-finite side, which looks up the texture's mean), then mapped to UV.

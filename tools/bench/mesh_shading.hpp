@@ -1,7 +1,8 @@
 // A triangle hit shaded as svo::render shades a voxel hit: the same Phong model (shadePhong), with normals
 // interpolated from the mesh's area-weighted vertex normals and colors from its vertex colors, materials and
 // base-color textures (a trilinear lookup for the pixel's footprint on the triangle, found by ray
-// differentials, as a renderer filters a texture; the builder averages it over each voxel's footprint). The exact references of `svo bench quality` (kd-tree) and `svo bench raycast` (Embree) share it.
+// differentials, as a renderer filters a texture; the builder averages it over each voxel's footprint). The
+// exact references of `svo bench quality` (kd-tree) and `svo bench raycast` (Embree) share it.
 #pragma once
 
 #include <cstdint>
@@ -39,11 +40,11 @@ class MeshShading {
   struct UvGradient {
     glm::vec3 du, dv, normal;
   };
-  glm::vec4 textureColor(std::uint32_t triangle, int texture, double u, double v,
-                         const glm::dvec3& direction, const PixelFootprint& footprint) const;
+  glm::vec4 textureColor(std::uint32_t triangle, int texture, double u, double v, const glm::dvec3& direction,
+                         const PixelFootprint& footprint) const;
 
   const Mesh& mesh_;
-  std::vector<glm::dvec3> normals_;  // per vertex, area-weighted, not normalized
+  std::vector<glm::dvec3> normals_;      // per vertex, area-weighted, not normalized
   std::vector<UvGradient> uvGradients_;  // per triangle where a material has a texture, else empty
   bool hasColor_ = false;
   glm::vec3 light_, background_;
