@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <numbers>
 #include <stdexcept>
 #include <string>
@@ -115,6 +116,43 @@ Camera Camera::framing(const SceneTransform& scene, glm::dvec3 viewDirection, in
   camera.target = centre;
   camera.eye = centre - forward * distance;
   return camera;
+}
+
+WorldBox sceneBox(const SceneTransform& scene) {
+  return {scene.toWorld(glm::dvec3(1.0)), scene.toWorld(glm::dvec3(2.0))};
+}
+
+WorldBox occupiedBox(const BlockView& root, const SceneTransform& scene, int trunkLevels) {
+  const int levels = std::max(1, std::min(kFramingLevels, trunkLevels));
+  // Octree space: the cube at `coord` of `level` is [1, 2]^3 cut into 2^level per side.
+  glm::dvec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());
+  const auto include = [&](const glm::ivec3& coord, int level) {
+    const double side = std::ldexp(1.0, -level);
+    lo = glm::min(lo, glm::dvec3(1.0) + glm::dvec3(coord) * side);
+    hi = glm::max(hi, glm::dvec3(1.0) + glm::dvec3(coord + 1) * side);
+  };
+  struct Visit {
+    const ChildDescriptor* descriptor;
+    glm::ivec3 coord;
+    int level;
+  };
+  std::vector<Visit> stack{{root.root(), glm::ivec3(0), 0}};
+  while (!stack.empty()) {
+    const Visit v = stack.back();
+    stack.pop_back();
+    const ChildDescriptor* d = v.descriptor;
+    for (int slot = 0; slot < 8; ++slot) {
+      if (!(d->validMask() >> slot & 1u)) continue;
+      const glm::ivec3 coord = childCoord(v.coord, slot);
+      const ChildDescriptor* child = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
+      if (v.level + 1 == levels || !child || child->validMask() == 0)
+        include(coord, v.level + 1);
+      else
+        stack.push_back({child, coord, v.level + 1});
+    }
+  }
+  if (!(lo.x <= hi.x)) return sceneBox(scene);
+  return {scene.toWorld(lo), scene.toWorld(hi)};
 }
 
 Camera Camera::framingBox(glm::dvec3 lo, glm::dvec3 hi, glm::dvec3 viewDirection, int width, int height) {

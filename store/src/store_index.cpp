@@ -134,6 +134,13 @@ StoreIndex::StoreIndex(std::string name, const StoreHeader& header, std::span<co
                      [&](std::size_t i) { return std::size_t(slices_[i].voxelLevel); });
 }
 
+int StoreIndex::trunkLevels() const {
+  int levels = 0;
+  for (const SliceInfo& s : slices_)
+    if (s.cubeLevel == 0 && s.wholeCube()) levels = std::max(levels, int(s.voxelLevel));
+  return levels;
+}
+
 SliceError StoreIndex::sliceError(std::uint32_t id, const std::string& what) const {
   std::string name = "slice " + std::to_string(id);
   if (id < slices_.size()) {

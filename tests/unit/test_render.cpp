@@ -20,6 +20,7 @@
 #include <glm/geometric.hpp>
 
 #include "reference.hpp"
+#include "svo/builder/build.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo {
@@ -172,6 +173,31 @@ TEST(Camera, FramingFitsTheSceneCube) {
       }
     }
   }
+}
+
+TEST(Camera, OccupiedBoxHoldsTheGeometryWithinOneFramingCube) {
+  // A long thin rectangle, x in [0, 4] and z in [0, 0.5] at y = 0.25: its scene cube is at least 4 wide.
+  Mesh mesh;
+  mesh.positions = {{0.0, 0.25, 0.0}, {4.0, 0.25, 0.0}, {4.0, 0.25, 0.5}, {0.0, 0.25, 0.5}};
+  mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+  BuildOptions options;
+  options.levels = 8;
+  const Octree octree = buildOctree(mesh, options);
+  const WorldBox box = occupiedBox(octree.block.view(), octree.transform, options.levels);
+  // The box is made of whole cubes of the framing level (1/64 of the scene): it holds the rectangle and
+  // reaches at most one such cube past it on each side (the geometry's exact bounds).
+  const double cube = octree.transform.size / 64.0 * (1.0 + 1e-9);
+  const glm::dvec3 lo(0.0, 0.25, 0.0), hi(4.0, 0.25, 0.5);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_LE(box.lo[k], lo[k]) << k;
+    EXPECT_GE(box.lo[k], lo[k] - cube) << k;
+    EXPECT_GE(box.hi[k], hi[k]) << k;
+    EXPECT_LE(box.hi[k], hi[k] + cube) << k;
+  }
+  // The scene cube, which an octree without voxels below its root frames instead.
+  const WorldBox cubeBox = sceneBox(octree.transform);
+  EXPECT_EQ(cubeBox.lo, octree.transform.origin);
+  EXPECT_EQ(cubeBox.hi, octree.transform.origin + octree.transform.size);
 }
 
 // ---------------------------------------------------------------------------------------------------------

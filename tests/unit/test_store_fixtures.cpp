@@ -386,6 +386,7 @@ TEST(StoreFixtures, CubeDecodesAsWorkedOutByHand) {
   EXPECT_EQ(std::vector<std::uint8_t>(raw1.begin() + 103, raw1.begin() + 109), std::vector(y0, y0 + 6));
 
   const svo::StoreReader reader = readerOf(f);
+  EXPECT_EQ(reader.index().trunkLevels(), 4) << "one slice per level, all of the root cube";
   const svo::VoxelLevels levels = decodeChain(reader, 2);
   EXPECT_EQ(levels[0][0].childMask, 0xFF);
   ASSERT_EQ(levels[1].size(), 8u);
@@ -502,6 +503,7 @@ TEST(StoreFixtures, RunsDecodeAsWorkedOutByHand) {
 
   const svo::StoreReader reader = readerOf(f);
   EXPECT_FALSE(reader.slices()[2].wholeCube());
+  EXPECT_EQ(reader.index().trunkLevels(), 2) << "level 3 is in the octants' runs";
   svo::VoxelLevels levels = decodeChain(reader, 2);
   // The run's parents: octants 0-3's level-2 voxels, the first 28 in Morton order. Octant 0's, in order:
   // (0,0,0) a corner: all children but (1,1,1); (1,0,0) on -y and -z: children with y or z 0; (0,1,0) on -x,

@@ -42,7 +42,7 @@ TEST(FlyCamera, KeepsTheCameraItWasSetToExactlyUntilItMoves) {
   SceneTransform scene;
   scene.origin = glm::dvec3(-3.0), scene.size = 6.0;
   const Camera start = lookingAt({0.1, 0.7, 4.0}, {0.3, -0.2, 0.0});
-  FlyCamera fly(scene, start);
+  FlyCamera fly(scene, svo::sceneBox(scene), start);
   const Camera c = fly.camera(640, 480);
   EXPECT_EQ(c.eye, start.eye);
   EXPECT_EQ(c.target, start.target);
@@ -54,7 +54,7 @@ TEST(FlyCamera, KeepsTheCameraItWasSetToExactlyUntilItMoves) {
 TEST(FlyCamera, FliesAlongTheViewAtItsSpeedAndTurnsWithTheMouse) {
   SceneTransform scene;
   scene.size = 8.0;
-  FlyCamera fly(scene, lookingAt({0.0, 0.0, 5.0}, {0.0, 0.0, 0.0}));
+  FlyCamera fly(scene, svo::sceneBox(scene), lookingAt({0.0, 0.0, 5.0}, {0.0, 0.0, 0.0}));
   EXPECT_DOUBLE_EQ(fly.speed(), 8.0 / kSecondsToCrossScene);
   MoveKeys forward;
   forward.forward = true;
@@ -82,11 +82,13 @@ TEST(FlyCamera, FliesAlongTheViewAtItsSpeedAndTurnsWithTheMouse) {
 TEST(FlyCamera, FramingTheSceneKeepsTheHeadingAndMatchesTheRenderersFraming) {
   SceneTransform scene;
   scene.origin = glm::dvec3(1e6, -2e6, 3e6), scene.size = 0.5;  // far from the origin
-  FlyCamera fly(scene, lookingAt(scene.origin + glm::dvec3(9.0), scene.origin));
+  // The contents: a slab in the cube's lower half, as occupiedBox would find it.
+  const svo::WorldBox contents{scene.origin, scene.origin + glm::dvec3(0.5, 0.125, 0.25)};
+  FlyCamera fly(scene, contents, lookingAt(scene.origin + glm::dvec3(9.0), scene.origin));
   fly.frameScene();
   const Camera framed = fly.camera(320, 240);
   const glm::dvec3 heading = glm::normalize(framed.target - framed.eye);
-  const Camera reference = Camera::framing(scene, heading, 320, 240);
+  const Camera reference = Camera::framingBox(contents.lo, contents.hi, heading, 320, 240);
   EXPECT_LT(glm::length(framed.eye - reference.eye), 1e-9 * 1e6);
   EXPECT_NEAR(glm::dot(heading, glm::normalize(glm::dvec3(-1.0))), 1.0, 1e-12);
 }

@@ -51,9 +51,11 @@ glm::dvec3 viewDirectionOf(const CameraFlags& flags) {
   return vec3Of(flags.view);
 }
 
-Camera cameraOf(const CameraFlags& flags, const SceneTransform& scene) {
+Camera cameraOf(const CameraFlags& flags, const BlockView& root, const SceneTransform& scene,
+                const StoreIndex& index) {
   if (std::optional<Camera> camera = explicitCamera(flags)) return *camera;
-  Camera camera = Camera::framing(scene, viewDirectionOf(flags), flags.width, flags.height);
+  const WorldBox box = occupiedBox(root, scene, index.trunkLevels());
+  Camera camera = Camera::framingBox(box.lo, box.hi, viewDirectionOf(flags), flags.width, flags.height);
   camera.up = vec3Of(flags.up);
   camera.validate();
   return camera;

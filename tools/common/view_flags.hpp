@@ -9,6 +9,7 @@
 #include <CLI/CLI.hpp>
 
 #include "svo/client/render.hpp"
+#include "svo/store/store_index.hpp"
 
 namespace svo::tools {
 
@@ -25,8 +26,10 @@ struct CameraFlags {
 void addCameraFlags(CLI::App& cmd, CameraFlags& flags);
 // The camera the flags name: --camera's file, else --eye and --target, else nullopt (the scene framed).
 std::optional<Camera> explicitCamera(const CameraFlags& flags);
-// That camera, or the whole scene seen along --view at --width x --height.
-Camera cameraOf(const CameraFlags& flags, const SceneTransform& scene);
+// That camera, or what the octree under `root` holds (occupiedBox; `index` the store's) seen along --view at
+// --width x --height.
+Camera cameraOf(const CameraFlags& flags, const BlockView& root, const SceneTransform& scene,
+                const StoreIndex& index);
 glm::dvec3 viewDirectionOf(const CameraFlags& flags);
 
 // Adds --lod-pixels, --beam-tile, --filter, --threads (bound to `options`) and --no-contours.

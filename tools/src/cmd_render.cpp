@@ -51,8 +51,9 @@ PoolRenderer poolRendererOf(const RenderArgs& args, Pager& pager) {
   return args.gpu ? args.gpu->poolRenderer(pager) : nullptr;
 }
 
-Camera cameraOf(const RenderArgs& args, const SceneTransform& scene) {
-  return cameraOf(args.camera, scene);
+Camera cameraOf(const RenderArgs& args, const BlockView& root, const SceneTransform& scene,
+                const StoreIndex& index) {
+  return cameraOf(args.camera, root, scene, index);
 }
 
 PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
@@ -68,7 +69,7 @@ void renderConverged(const RenderArgs& args, std::shared_ptr<const SliceSource> 
   const std::filesystem::path out = args.out;
   const auto start = std::chrono::steady_clock::now();
   Pager pager(std::move(source), pagerOptions(budget, args));
-  const Camera camera = cameraOf(args, pager.transform());
+  const Camera camera = cameraOf(args, pager.trunk(), pager.transform(), pager.index());
   options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
   const PoolRenderer renderer = poolRendererOf(args, pager);
   const Frame first =
@@ -171,8 +172,8 @@ void renderStreaming(const RenderArgs& args, std::shared_ptr<const SliceSource> 
 }
 
 // The whole octree as one block, one frame.
-void renderWhole(const RenderArgs& args, const Octree& octree) {
-  const Camera camera = cameraOf(args, octree.transform);
+void renderWhole(const RenderArgs& args, const Octree& octree, const StoreIndex& index) {
+  const Camera camera = cameraOf(args, octree.block.view(), octree.transform, index);
   RenderOptions options = args.options;
   options.cast.contours = !args.noContours && octree.parameters.contours;
   const Frame frame =
@@ -216,7 +217,7 @@ void renderDefault(const RenderArgs& args) {
     }
     if (why.empty() && args.pathFile.empty()) {
       try {
-        return renderWhole(args, readOctree(store, args.pager.attributes));
+        return renderWhole(args, readOctree(store, args.pager.attributes), store.index());
       } catch (const BlockTooLarge&) {
         why = "the octree is too large for one block";
       }

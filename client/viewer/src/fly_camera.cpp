@@ -15,8 +15,8 @@ constexpr double kMaxSpeedPerSize = 10.0;
 
 }  // namespace
 
-FlyCamera::FlyCamera(const SceneTransform& scene, const Camera& start)
-    : scene_(scene), speed_(scene.size / kSecondsToCrossScene) {
+FlyCamera::FlyCamera(const SceneTransform& scene, const WorldBox& contents, const Camera& start)
+    : scene_(scene), contents_(contents), speed_(scene.size / kSecondsToCrossScene) {
   set(start);
 }
 
@@ -59,7 +59,7 @@ Camera FlyCamera::camera(int width, int height) const {
 }
 
 void FlyCamera::frameScene() {
-  const Camera framed = Camera::framing(scene_, forward(), camera_.width, camera_.height);
+  const Camera framed = Camera::framingBox(contents_.lo, contents_.hi, forward(), camera_.width, camera_.height);
   camera_.eye = framed.eye;
   camera_.fovYDegrees = framed.fovYDegrees;
   cameraFromHeading();

@@ -182,10 +182,11 @@ bool Viewer::opened() {
   stats_.opening = false;
   if (!fly_) {
     const glm::ivec2 size = window_.framebufferSize();
-    fly_.emplace(pager_->transform(),
-                 options_.camera
-                     ? *options_.camera
-                     : Camera::framing(pager_->transform(), options_.viewDirection, size.x, size.y));
+    const WorldBox contents = occupiedBox(pager_->trunk(), pager_->transform(), pager_->index().trunkLevels());
+    fly_.emplace(pager_->transform(), contents,
+                 options_.camera ? *options_.camera
+                                 : Camera::framingBox(contents.lo, contents.hi, options_.viewDirection, size.x,
+                                                      size.y));
   }
   frameCurrent_ = false;
   poolChanged_ = true;

@@ -50,6 +50,23 @@ struct Camera {
 // above and to the right, so that no face of the scene cube is seen edge-on.
 inline const glm::dvec3 kDefaultViewDirection{-0.35, -0.25, -1.0};
 
+// A world-space box: what a default view frames.
+struct WorldBox {
+  glm::dvec3 lo, hi;
+};
+// The scene cube.
+WorldBox sceneBox(const SceneTransform& scene);
+// How deep occupiedBox looks at most: cubes of 1/64 of the scene, a box at most 1.6% of the scene wider than
+// the geometry on each side, from at most a few tens of thousands of voxels.
+inline constexpr int kFramingLevels = 6;
+// The box of what the octree holds: its voxels down to min(kFramingLevels, trunkLevels) below the root, as
+// whole cubes (so at most one cube of that level wider than the geometry on each side; a stub, whose
+// children are elsewhere, counts whole). trunkLevels: the store's (StoreIndex::trunkLevels), so that a
+// pager's trunk and the whole octree give the same box. A default view frames this box rather than the
+// scene cube, whose bounding sphere leaves an elongated model a few percent of the pixels. The scene cube
+// for an octree without voxels.
+WorldBox occupiedBox(const BlockView& root, const SceneTransform& scene, int trunkLevels);
+
 // Camera from a JSON file: {"eye":[x,y,z], "target":[..], "up":[..], "fov":deg, "width":w, "height":h}.
 Camera loadCamera(const std::filesystem::path& path);
 // The same from JSON text; `where` names it in messages.

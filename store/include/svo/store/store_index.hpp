@@ -43,6 +43,10 @@ class StoreIndex {
     return ofLevel_.group(std::size_t(voxelLevel));
   }
 
+  // The levels the trunk holds (the slices of the whole root cube, which a pager loads at open): 1 to this
+  // level.
+  int trunkLevels() const;
+
   // An error about slice `slice`, naming the store, the slice, its level and cube.
   SliceError sliceError(std::uint32_t slice, const std::string& what) const;
   // Throws std::runtime_error "NAME: what".

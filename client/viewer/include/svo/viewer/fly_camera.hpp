@@ -27,13 +27,14 @@ inline constexpr double kMaxPitch = 1.55;
 
 class FlyCamera {
  public:
-  FlyCamera(const SceneTransform& scene, const Camera& start);
+  // `contents`: the box frameScene frames (occupiedBox of the scene's octree).
+  FlyCamera(const SceneTransform& scene, const WorldBox& contents, const Camera& start);
 
   // The camera for an image of width x height. Until the camera moves it is exactly the one it was set to.
   Camera camera(int width, int height) const;
   // Jumps to `camera` (its eye, target, up and field of view).
   void set(const Camera& camera);
-  // Looks at the whole scene from the current heading.
+  // Looks at the whole scene (its contents box) from the current heading.
   void frameScene();
   // Flies for `seconds` with `keys` down; returns whether the eye moved.
   bool move(const MoveKeys& keys, double seconds);
@@ -52,6 +53,7 @@ class FlyCamera {
   void cameraFromHeading();
 
   SceneTransform scene_;
+  WorldBox contents_;
   Camera camera_;
   glm::dvec3 up_{0.0, 1.0, 0.0};
   glm::dvec3 north_{0.0, 0.0, -1.0}, east_{1.0, 0.0, 0.0};  // the horizon's axes: yaw 0 and yaw pi/2
