@@ -59,7 +59,8 @@ Camera FlyCamera::camera(int width, int height) const {
 }
 
 void FlyCamera::frameScene() {
-  const Camera framed = Camera::framingBox(contents_.lo, contents_.hi, forward(), camera_.width, camera_.height);
+  const Camera framed =
+      Camera::framingBox(contents_.lo, contents_.hi, forward(), camera_.width, camera_.height);
   camera_.eye = framed.eye;
   camera_.fovYDegrees = framed.fovYDegrees;
   cameraFromHeading();

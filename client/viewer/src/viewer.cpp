@@ -182,11 +182,12 @@ bool Viewer::opened() {
   stats_.opening = false;
   if (!fly_) {
     const glm::ivec2 size = window_.framebufferSize();
-    const WorldBox contents = occupiedBox(pager_->trunk(), pager_->transform(), pager_->index().trunkLevels());
+    const WorldBox contents =
+        occupiedBox(pager_->trunk(), pager_->transform(), pager_->index().trunkLevels());
     fly_.emplace(pager_->transform(), contents,
-                 options_.camera ? *options_.camera
-                                 : Camera::framingBox(contents.lo, contents.hi, options_.viewDirection, size.x,
-                                                      size.y));
+                 options_.camera
+                     ? *options_.camera
+                     : Camera::framingBox(contents.lo, contents.hi, options_.viewDirection, size.x, size.y));
   }
   frameCurrent_ = false;
   poolChanged_ = true;
