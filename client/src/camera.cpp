@@ -145,7 +145,7 @@ WorldBox occupiedBox(const BlockView& root, const SceneTransform& scene, int tru
       if (!(d->validMask() >> slot & 1u)) continue;
       const glm::ivec3 coord = childCoord(v.coord, slot);
       const ChildDescriptor* child = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
-      if (v.level + 1 == levels || !child || child->validMask() == 0)
+      if (v.level + 1 == levels || !child || child->isStub())
         include(coord, v.level + 1);
       else
         stack.push_back({child, coord, v.level + 1});

@@ -264,8 +264,6 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   out.contours.reserve(n), out.colors.reserve(raw && colors ? n : 0),
       out.normals.reserve(raw && normals ? n : 0);
   out.queue.push_back({0, tree.voxels[0].color, tree.voxels[0].normal});
-  // Counted here, not through `stats`: a counter behind a reference is a store per voxel.
-  std::uint64_t inheritedColors = 0, inheritedNormals = 0, stubs = 0;
   for (std::size_t qi = 0; qi < out.queue.size(); ++qi) {
     const Queued parent = out.queue[qi];
     const VoxelRecord& r = tree.voxels[parent.voxel];
@@ -282,7 +280,7 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       std::uint32_t color = parent.color, normal = parent.normal;
       if (colors) {
         if (inherits.color(child.color, color)) {
-          ++inheritedColors;
+          ++stats.inheritedColors;
         } else {
           if (raw) out.colors.push_back(child.color);
           e.colorMask |= bit;
@@ -291,7 +289,7 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       }
       if (normals) {
         if (inherits.normal(child.normal, parentNormal)) {
-          ++inheritedNormals;
+          ++stats.inheritedNormals;
         } else {
           if (raw) out.normals.push_back(child.normal);
           e.normalMask |= bit;
@@ -301,14 +299,12 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       if (child.childMask != 0) {
         out.queue.push_back({c, color, normal});
       } else if (child.stub) {
-        ++stubs;  // all-zero stub descriptor and lookup entries (format.hpp)
+        ++stats.descriptorSlots;  // all-zero stub descriptor and lookup entries (format.hpp)
       } else {
         e.leafMask |= bit;
       }
     }
   }
-  stats.inheritedColors += inheritedColors, stats.inheritedNormals += inheritedNormals;
-  stats.descriptorSlots += stubs;
   return out;
 }
 

@@ -271,7 +271,7 @@ void addCpuRow(Table& table, std::size_t budget, const CloseUp& closeUp) {
   const double decoded = median([](const WorkerCpu& c) { return c.voxelsDecoded; });
   char nanosPerVoxel[32], perCore[32], bytesPerCpu[32], busy[32];
   std::snprintf(nanosPerVoxel, sizeof nanosPerVoxel, "%.0f ns", 1e9 * cpuSeconds / std::max(1.0, decoded));
-  std::snprintf(perCore, sizeof perCore, "%.0f M", voxelsPerCoreSecond(closeUp) / 1e6);
+  std::snprintf(perCore, sizeof perCore, "%.0f M", decoded / std::max(1e-9, cpuSeconds) / 1e6);
   std::snprintf(bytesPerCpu, sizeof bytesPerCpu, "%.0f MB/s",
                 summarize(closeUp.bytesPerCpuSecond).median / 1e6);
   std::snprintf(busy, sizeof busy, "%.2f", cpuSeconds / std::max(1e-9, summarize(closeUp.converge).median));

@@ -21,29 +21,26 @@ MeshShading::MeshShading(const Mesh& mesh, const RenderOptions& options)
       hasColor_(mesh.hasColor()),
       light_(glm::normalize(options.lightDirection)),
       background_(options.background) {
-  for (const glm::uvec3& t : mesh.triangles) {
-    // Area-weighted: the unnormalized cross product is twice the area times the unit normal.
-    const glm::dvec3 n =
-        glm::cross(mesh.positions[t.y] - mesh.positions[t.x], mesh.positions[t.z] - mesh.positions[t.x]);
-    for (int k = 0; k < 3; ++k) normals_[t[k]] += n;
-  }
-  if (!sampledTextures(mesh)) return;
-  uvGradients_.resize(mesh.triangles.size());
+  if (sampledTextures(mesh)) uvGradients_.resize(mesh.triangles.size());
   for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
     const glm::uvec3 t = mesh.triangles[i];
     const glm::dvec3 e0 = mesh.positions[t.y] - mesh.positions[t.x];
     const glm::dvec3 e1 = mesh.positions[t.z] - mesh.positions[t.x];
-    const glm::dvec2 du0 = glm::dvec2(mesh.uvs[t.y]) - glm::dvec2(mesh.uvs[t.x]);
-    const glm::dvec2 du1 = glm::dvec2(mesh.uvs[t.z]) - glm::dvec2(mesh.uvs[t.x]);
+    // Area-weighted: the unnormalized cross product is twice the area times the unit normal.
+    const glm::dvec3 n = glm::cross(e0, e1);
+    for (int k = 0; k < 3; ++k) normals_[t[k]] += n;
+    if (uvGradients_.empty()) continue;
     const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
     const double den = d00 * d11 - d01 * d01;
     if (!(den > 0.0)) continue;  // degenerate (loadMesh drops them): left zero, its lookups take the mean
     // A displacement r in the plane moves the barycentrics of vertices 1 and 2 by the solution of the 2x2
     // normal equations, b1 = (d11 e0 - d01 e1) . r / den and b2 = (d00 e1 - d01 e0) . r / den, and the UV
     // by b1 du0 + b2 du1.
+    const glm::dvec2 du0 = glm::dvec2(mesh.uvs[t.y]) - glm::dvec2(mesh.uvs[t.x]);
+    const glm::dvec2 du1 = glm::dvec2(mesh.uvs[t.z]) - glm::dvec2(mesh.uvs[t.x]);
     const glm::dvec3 g1 = (d11 * e0 - d01 * e1) / den, g2 = (d00 * e1 - d01 * e0) / den;
     uvGradients_[i] = {glm::vec3(du0.x * g1 + du1.x * g2), glm::vec3(du0.y * g1 + du1.y * g2),
-                       glm::vec3(glm::normalize(glm::cross(e0, e1)))};
+                       glm::vec3(glm::normalize(n))};
   }
 }
 
