@@ -54,8 +54,8 @@ CellPartition::CellPartition(std::filesystem::path folder, bool colors, bool uvs
       materials_(materials),
       orders_(orders),
       owner_(owner) {
-  recordBytes_ = sizeof(SourceTriangle::positions) + (colors ? sizeof(SourceTriangle::colors) : 0) +
-                 (uvs ? sizeof(SourceTriangle::uvs) : 0) +
+  recordBytes_ = sizeof(SourceTriangle::positions) + sizeof(SourceTriangle::normals) +
+                 (colors ? sizeof(SourceTriangle::colors) : 0) + (uvs ? sizeof(SourceTriangle::uvs) : 0) +
                  (materials ? sizeof(SourceTriangle::material) : 0) + (orders ? sizeof(std::uint32_t) : 0);
   if (!owner_) return;
   std::filesystem::remove_all(folder_);
@@ -96,6 +96,7 @@ void CellPartition::append(std::uint32_t cell, const SourceTriangle& t, std::uin
   const std::size_t at = b.size();
   b.resize(at + recordBytes_);
   char* out = put(b.data() + at, t.positions);
+  out = put(out, t.normals);
   if (colors_) out = put(out, t.colors);
   if (uvs_) out = put(out, t.uvs);
   if (materials_) out = put(out, t.material);
@@ -144,6 +145,7 @@ void CellPartition::forEach(
       SourceTriangle t;
       std::uint32_t order = 0;
       in = get(in, t.positions);
+      in = get(in, t.normals);
       if (colors_) in = get(in, t.colors);
       if (uvs_) in = get(in, t.uvs);
       if (materials_) in = get(in, t.material);

@@ -354,7 +354,8 @@ class CellVoxelizer {
         n.candidates.add(piece, t.normal, pieceWeight(piece, cube));
         if (errorStop_) {
           const std::optional<dvec4> color = colorOf(piece, t, s);
-          accumulate(n.sums, pieceWeight(piece, cube), t.normal, color ? &*color : nullptr);
+          accumulate(n.sums, pieceWeight(piece, cube), pieceNormal(piece, t, s.normals),
+                     color ? &*color : nullptr);
         }
       });
       for (TopNode& n : nodes)
@@ -365,7 +366,7 @@ class CellVoxelizer {
         extendExtents(n.directions, piece, cube, n.extents);
         if (errorStop_) {
           const std::optional<dvec4> color = colorOf(piece, t, s);
-          n.spread.add(n.sums, t.normal, color ? &*color : nullptr);
+          n.spread.add(n.sums, pieceNormal(piece, t, s.normals), color ? &*color : nullptr);
         }
       });
       for (const TopNode& n : nodes) {
@@ -563,12 +564,14 @@ VoxelTree buildCell(const TriangleSource& source, const SceneTransform& transfor
     const std::vector<SourceTriangle> triangles = binned.take(task);
     mesh.positions.reserve(3 * triangles.size());
     mesh.triangles.reserve(triangles.size());
+    mesh.normals.reserve(3 * triangles.size());
     if (source.hasVertexColors()) mesh.colors.reserve(3 * triangles.size());
     if (source.hasUvs()) mesh.uvs.reserve(3 * triangles.size());
     for (const SourceTriangle& s : triangles) {
       const std::uint32_t base = std::uint32_t(mesh.positions.size());
       mesh.triangles.emplace_back(base, base + 1, base + 2);
       mesh.positions.insert(mesh.positions.end(), s.positions.begin(), s.positions.end());
+      mesh.normals.insert(mesh.normals.end(), s.normals.begin(), s.normals.end());
       if (source.hasVertexColors()) mesh.colors.insert(mesh.colors.end(), s.colors.begin(), s.colors.end());
       if (source.hasUvs()) mesh.uvs.insert(mesh.uvs.end(), s.uvs.begin(), s.uvs.end());
       if (source.materials().size() > 1) mesh.triangleMaterials.push_back(s.material);
@@ -577,8 +580,8 @@ VoxelTree buildCell(const TriangleSource& source, const SceneTransform& transfor
   mesh.materials = source.materials();
   mesh.textures = source.textures();
   voxel::Aggregate sums;
-  VoxelTree tree =
-      voxel::Voxelizer(mesh, transform, options, source.hasColor()).runCell(cellLevel, task.coord, task.slabs, sums);
+  VoxelTree tree = voxel::Voxelizer(mesh, transform, options, source.hasColor())
+                       .runCell(cellLevel, task.coord, task.slabs, sums);
   root = {tree.voxels[0], {sums.weight, sums.color, sums.normal}};
   return tree;
 }
@@ -597,7 +600,8 @@ void checkCellLevel(const BuildOptions& options, int cellLevel) {
 VoxelTree voxelizeCells(const TriangleSource& source, const SceneTransform& transform,
                         const BuildOptions& options, int cellLevel, const CellCallbacks& callbacks,
                         int concurrency, const std::filesystem::path& scratch) {
-  return voxelizeCells(source, transform, options, cellLevel, callbacks, localCellRunner(concurrency), scratch);
+  return voxelizeCells(source, transform, options, cellLevel, callbacks, localCellRunner(concurrency),
+                       scratch);
 }
 
 VoxelTree voxelizeCells(const TriangleSource& source, const SceneTransform& transform,

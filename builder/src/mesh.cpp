@@ -2,6 +2,7 @@
 #include "svo/builder/mesh.hpp"
 
 #include <cmath>
+#include <numbers>
 #include <stdexcept>
 #include <string>
 
@@ -57,6 +58,58 @@ bool isDegenerate(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c)
   return !(glm::dot(n, n) > kDegenerateSine * kDegenerateSine * glm::dot(e1, e1) * glm::dot(e2, e2));
 }
 
+void VertexNormalSums::add(const glm::uvec3& corners, const std::array<glm::dvec3, 3>& positions) {
+  const glm::dvec3 n = glm::cross(positions[1] - positions[0], positions[2] - positions[0]);
+  const double length = glm::length(n);
+  if (!(length > 0.0) || !std::isfinite(length)) return;
+  for (int k = 0; k < 3; ++k) {
+    const glm::dvec3 a = positions[(k + 1) % 3] - positions[k], b = positions[(k + 2) % 3] - positions[k];
+    // The corner's angle, from atan2 (exact for thin corners where acos of a dot product is not).
+    sums_[corners[k]] += std::atan2(glm::length(glm::cross(a, b)), glm::dot(a, b)) / length * n;
+  }
+}
+
+std::vector<glm::vec3> VertexNormalSums::normals() const {
+  std::vector<glm::vec3> out(sums_.size(), glm::vec3(0.0f));
+  for (std::size_t v = 0; v < sums_.size(); ++v) {
+    const double length = glm::length(sums_[v]);
+    if (length > 0.0 && std::isfinite(length)) out[v] = glm::vec3(sums_[v] / length);
+  }
+  return out;
+}
+
+std::array<glm::vec3, 3> creasedCorners(const std::array<glm::dvec3, 3>& positions,
+                                        const std::array<glm::vec3, 3>& vertexNormals) {
+  static const double kCreaseCos = std::cos(kCreaseAngleDegrees * std::numbers::pi / 180.0);
+  const glm::dvec3 n = glm::cross(positions[1] - positions[0], positions[2] - positions[0]);
+  const double length = glm::length(n);
+  const glm::dvec3 face = length > 0.0 ? n / length : glm::dvec3(0.0);
+  std::array<glm::vec3, 3> out;
+  for (int k = 0; k < 3; ++k)
+    out[k] = glm::dot(glm::dvec3(vertexNormals[k]), face) >= kCreaseCos ? vertexNormals[k] : glm::vec3(face);
+  return out;
+}
+
+std::vector<std::array<glm::vec3, 3>> cornerNormals(const Mesh& mesh) {
+  std::vector<std::array<glm::vec3, 3>> out(mesh.triangles.size());
+  const auto positionsOf = [&](const glm::uvec3& t) {
+    return std::array<glm::dvec3, 3>{mesh.positions[t.x], mesh.positions[t.y], mesh.positions[t.z]};
+  };
+  if (!mesh.normals.empty()) {
+    for (std::size_t i = 0; i < out.size(); ++i)
+      for (int k = 0; k < 3; ++k) out[i][k] = mesh.normals[mesh.triangles[i][k]];
+    return out;
+  }
+  VertexNormalSums sums(mesh.positions.size());
+  for (const glm::uvec3& t : mesh.triangles) sums.add(t, positionsOf(t));
+  const std::vector<glm::vec3> vertex = sums.normals();
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    const glm::uvec3 t = mesh.triangles[i];
+    out[i] = creasedCorners(positionsOf(t), {vertex[t.x], vertex[t.y], vertex[t.z]});
+  }
+  return out;
+}
+
 std::size_t validateMesh(Mesh& mesh, const std::string& source) {
   const std::size_t nv = mesh.positions.size();
   for (std::size_t i = 0; i < nv; ++i) {
@@ -67,6 +120,10 @@ std::size_t validateMesh(Mesh& mesh, const std::string& source) {
   }
   if (!mesh.colors.empty() && mesh.colors.size() != nv) {
     throw std::runtime_error(source + ": " + std::to_string(mesh.colors.size()) + " vertex colors for " +
+                             std::to_string(nv) + " vertices");
+  }
+  if (!mesh.normals.empty() && mesh.normals.size() != nv) {
+    throw std::runtime_error(source + ": " + std::to_string(mesh.normals.size()) + " vertex normals for " +
                              std::to_string(nv) + " vertices");
   }
   if (!mesh.uvs.empty() && mesh.uvs.size() != nv) {

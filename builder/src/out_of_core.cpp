@@ -34,9 +34,10 @@ constexpr double kPeakBytesPerVoxel = 72.0;
 // Voxels (all levels) per finest-voxel-face of surface area: a surface crosses ~1.5 voxels per voxel face
 // of area on average over orientations (|nx| + |ny| + |nz|), and the coarser levels add a third.
 constexpr double kVoxelsPerArea = 2.0;
-// Resident bytes per triangle of a cell while it is built: its binned record (72-152 B) turned into a
-// mesh of its own (three corners each, ~130 B), the voxelizer's copy (88 B) and its per-level index lists.
-constexpr double kBytesPerCellTriangle = 320.0;
+// Resident bytes per triangle of a cell while it is built: its binned record (108-188 B) turned into a
+// mesh of its own (three corners each, ~166 B), the voxelizer's copy (88 B), its corner normals (36 B) and
+// its per-level index lists.
+constexpr double kBytesPerCellTriangle = 430.0;
 // Besides the source and the cells: the partition's buffers (64 MiB, cell_partition.cpp) and the top levels.
 constexpr double kPartitionBytes = 80.0 * (1 << 20);
 // The in-core build's peak per voxel (voxelize's records, then writeStore's per-level arrays beside them) and
@@ -50,7 +51,7 @@ constexpr double kInCoreBytesPerTriangle = 380.0;
 // need.
 constexpr int kDeepestChosenCellLevel = 9;
 // Work-folder format; a resume refuses a folder of another format.
-constexpr int kWorkFormat = 1;
+constexpr int kWorkFormat = 2;
 
 // What a resume must agree on: the input (hashed) and every option that changes the voxels or the slices.
 nlohmann::json manifestOf(const TriangleSource& source, const BuildOptions& options,
@@ -271,11 +272,7 @@ OutOfCoreReport buildStore(const TriangleSource& source, const BuildOptions& opt
   // The cells are loaded and planned on these threads, as many cells in flight.
   tbb::task_arena writing(ooc.writeThreads > 0 ? ooc.writeThreads : concurrency);
   writing.execute([&] { appendSpilledForest(writer, top, report.cellLevel, work, report); });
-  writer.finish({transform,
-                 storedParameters(options),
-                 top.hasColors,
-                 top.hasNormals,
-                 top.voxels[0].color,
+  writer.finish({transform, storedParameters(options), top.hasColors, top.hasNormals, top.voxels[0].color,
                  top.voxels[0].normal});
   report.phaseSeconds["write"] = seconds(phase);
   std::error_code ignored;

@@ -96,7 +96,7 @@ class MeshSource : public SummarizedSource {
  public:
   MeshSource(const Mesh& mesh, std::unique_ptr<Mesh> owned = nullptr, std::string format = "",
              std::size_t dropped = 0)
-      : owned_(std::move(owned)), mesh_(mesh) {
+      : owned_(std::move(owned)), mesh_(mesh), corners_(cornerNormals(mesh)) {
     summary_.format = format.empty() ? "mesh in memory" : std::move(format);
     summary_.triangles = mesh.triangles.size();
     summary_.dropped = dropped;
@@ -114,7 +114,7 @@ class MeshSource : public SummarizedSource {
     add(mesh.positions), add(mesh.triangles), add(mesh.colors), add(mesh.uvs), add(mesh.triangleMaterials);
     summary_.fingerprint = f.digest();
     summary_.residentBytes = bytesOf(mesh.positions) + bytesOf(mesh.colors) + bytesOf(mesh.uvs) +
-                             bytesOf(mesh.triangles) + bytesOf(mesh.triangleMaterials);
+                             bytesOf(mesh.triangles) + bytesOf(mesh.triangleMaterials) + bytesOf(corners_);
   }
 
   void readRange(std::uint64_t first, std::uint64_t last, const Batch& batch) const override {
@@ -129,6 +129,7 @@ class MeshSource : public SummarizedSource {
         if (!mesh_.colors.empty()) s.colors[k] = mesh_.colors[t[k]];
         if (!mesh_.uvs.empty()) s.uvs[k] = mesh_.uvs[t[k]];
       }
+      s.normals = corners_[i];
       s.material = mesh_.triangleMaterials.empty() ? 0 : mesh_.triangleMaterials[i];
       out.push_back(s);
       if (out.size() == kBatchTriangles) batch(out), out.clear();
@@ -140,6 +141,7 @@ class MeshSource : public SummarizedSource {
  private:
   std::unique_ptr<Mesh> owned_;
   const Mesh& mesh_;
+  std::vector<std::array<glm::vec3, 3>> corners_;  // shading normals by triangle
 };
 
 // ----- binary little-endian PLY ----------------------------------------------------------------------------
@@ -271,8 +273,11 @@ class PlySource : public SummarizedSource {
       if (summary_.triangles >= checkpoints_.back().ordinal + kCheckpointTriangles)
         checkpoints_.push_back({face, reader.offset(), summary_.triangles});
     };
-    summary_.dropped = scanFaces(reader, 0, atFace, [&](const SourceTriangle& t) {
+    // The first pass also sums the vertex normals, which every later pass gives the triangles' corners.
+    VertexNormalSums normalSums(vertexCount());
+    summary_.dropped = scanFaces(reader, 0, atFace, [&](const SourceTriangle& t, const glm::uvec3& corners) {
       ++summary_.triangles;
+      normalSums.add(corners, t.positions);
       for (int k = 0; k < 3; ++k) {
         summary_.lower = glm::min(summary_.lower, t.positions[k]);
         summary_.upper = glm::max(summary_.upper, t.positions[k]);
@@ -282,8 +287,9 @@ class PlySource : public SummarizedSource {
     });
     while (reader.need(1)) reader.skip(1);  // the fingerprint covers the whole file
     summary_.fingerprint = fingerprint.digest();
-    summary_.residentBytes =
-        bytesOf(floatPositions_) + bytesOf(doublePositions_) + bytesOf(colors_) + bytesOf(checkpoints_);
+    vertexNormals_ = normalSums.normals();
+    summary_.residentBytes = bytesOf(floatPositions_) + bytesOf(doublePositions_) + bytesOf(colors_) +
+                             bytesOf(vertexNormals_) + bytesOf(checkpoints_);
     if (summary_.triangles == 0)
       fail(path_, "mesh has no triangles" +
                       (summary_.dropped ? " (all " + std::to_string(summary_.dropped) + " are degenerate)"
@@ -294,9 +300,9 @@ class PlySource : public SummarizedSource {
     last = std::min(last, summary_.triangles);
     if (first >= last) return;
     // The last face noted at or before the range's first triangle.
-    const Checkpoint& from = *std::prev(std::upper_bound(
-        checkpoints_.begin(), checkpoints_.end(), first,
-        [](std::uint64_t ordinal, const Checkpoint& c) { return ordinal < c.ordinal; }));
+    const Checkpoint& from = *std::prev(
+        std::upper_bound(checkpoints_.begin(), checkpoints_.end(), first,
+                         [](std::uint64_t ordinal, const Checkpoint& c) { return ordinal < c.ordinal; }));
     File file(std::fopen(path_.c_str(), "rb"));
     if (!file || fseeko(file.get(), off_t(from.offset), SEEK_SET) != 0)
       fail(path_, "cannot read the file again");
@@ -304,12 +310,14 @@ class PlySource : public SummarizedSource {
     std::vector<SourceTriangle> out;
     out.reserve(std::size_t(std::min<std::uint64_t>(kBatchTriangles, last - first)));
     std::uint64_t ordinal = from.ordinal;
-    scanFaces(reader, from.face, [](std::uint64_t) {}, [&](const SourceTriangle& t) {
-      if (ordinal++ < first) return true;
-      out.push_back(t);
-      if (out.size() == kBatchTriangles) batch(out), out.clear();
-      return ordinal < last;
-    });
+    scanFaces(
+        reader, from.face, [](std::uint64_t) {},
+        [&](const SourceTriangle& t, const glm::uvec3&) {
+          if (ordinal++ < first) return true;
+          out.push_back(t);
+          if (out.size() == kBatchTriangles) batch(out), out.clear();
+          return ordinal < last;
+        });
     if (!out.empty()) batch(out);
   }
 
@@ -406,7 +414,8 @@ class PlySource : public SummarizedSource {
 
   // Visits the non-degenerate triangles of the faces from `firstFace` on, whose records `reader` starts at,
   // in file order (polygons fanned from their first corner), calling `atFace(face)` as each face begins;
-  // stops when `visit` returns false. Returns how many degenerate triangles it dropped.
+  // `visit(triangle, its vertex indices)` stops the scan by returning false. Returns how many degenerate
+  // triangles it dropped.
   template <class AtFace, class Visit>
   std::size_t scanFaces(ChunkReader& reader, std::uint64_t firstFace, AtFace&& atFace, Visit&& visit) const {
     std::size_t dropped = 0;
@@ -453,7 +462,9 @@ class PlySource : public SummarizedSource {
           continue;
         }
         if (!colors_.empty()) t.colors = {color(a), color(b), color(c)};
-        if (!visit(t)) return dropped;
+        if (!vertexNormals_.empty())
+          t.normals = creasedCorners(t.positions, {vertexNormals_[a], vertexNormals_[b], vertexNormals_[c]});
+        if (!visit(t, glm::uvec3(a, b, c))) return dropped;
       }
     }
     return dropped;
@@ -461,11 +472,12 @@ class PlySource : public SummarizedSource {
 
   fs::path path_;
   PlyLayout layout_;
-  std::vector<Checkpoint> checkpoints_;  // ascending; the first is the first face's
+  std::vector<Checkpoint> checkpoints_;      // ascending; the first is the first face's
   std::vector<glm::vec3> floatPositions_;    // when x, y, z are floats
   std::vector<glm::dvec3> doublePositions_;  // otherwise
   std::vector<glm::u8vec4> colors_;
-  std::array<glm::vec4, 256> linear_;  // 8-bit value -> linear, per channel (alpha is linear already)
+  std::vector<glm::vec3> vertexNormals_;  // unit, from the first pass (empty during it)
+  std::array<glm::vec4, 256> linear_;     // 8-bit value -> linear, per channel (alpha is linear already)
 };
 
 }  // namespace

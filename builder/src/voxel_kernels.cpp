@@ -71,15 +71,29 @@ double pieceWeight(const Piece& p, const geom::Cube& cube) {
   return p.area + kTouchWeight * cube.size * cube.size;
 }
 
+namespace {
+
+// Barycentric coordinates of x (in the triangle's plane) in t.
+dvec3 barycentricIn(const Triangle& t, const dvec3& x) {
+  const dvec3 e0 = t.p[1] - t.p[0], e1 = t.p[2] - t.p[0], r = x - t.p[0];
+  const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
+  const double d20 = glm::dot(r, e0), d21 = glm::dot(r, e1), den = d00 * d11 - d01 * d01;
+  const double v = (d11 * d20 - d01 * d21) / den, w = (d00 * d21 - d01 * d20) / den;
+  return dvec3(1.0 - v - w, v, w);
+}
+
+}  // namespace
+
+dvec3 pieceNormal(const Piece& piece, const Triangle& t, const std::array<glm::vec3, 3>& corners) {
+  const dvec3 b = barycentricIn(t, piece.centroid);
+  const dvec3 n = b.x * dvec3(corners[0]) + b.y * dvec3(corners[1]) + b.z * dvec3(corners[2]);
+  const double length = glm::length(n);
+  return length > 0.0 && std::isfinite(length) ? n / length : t.normal;
+}
+
 dvec4 pieceColor(const Piece& piece, const Triangle& t, const glm::vec4* colors, const glm::vec2* uvs,
                  const Material& material, const std::vector<std::shared_ptr<const TextureImage>>& textures) {
-  auto barycentric = [&](const dvec3& x) {
-    const dvec3 e0 = t.p[1] - t.p[0], e1 = t.p[2] - t.p[0], r = x - t.p[0];
-    const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
-    const double d20 = glm::dot(r, e0), d21 = glm::dot(r, e1), den = d00 * d11 - d01 * d01;
-    const double v = (d11 * d20 - d01 * d21) / den, w = (d00 * d21 - d01 * d20) / den;
-    return dvec3(1.0 - v - w, v, w);
-  };
+  const auto barycentric = [&](const dvec3& x) { return barycentricIn(t, x); };
   dvec4 color(material.baseColor);
   if (colors) {
     const dvec3 b = barycentric(piece.centroid);

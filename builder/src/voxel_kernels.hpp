@@ -100,6 +100,11 @@ double pieceWeight(const Piece& p, const geom::Cube& cube);
 dvec4 pieceColor(const Piece& piece, const Triangle& t, const glm::vec4* colors, const glm::vec2* uvs,
                  const Material& material, const std::vector<std::shared_ptr<const TextureImage>>& textures);
 
+// Shading normal of the source triangle at the piece: its corner normals (`corners`) interpolated at the
+// piece's area centroid, as a renderer interpolates them across the triangle (so the area-weighted sum over
+// the piece is exact), then normalized; the triangle's own normal where they cancel.
+dvec3 pieceNormal(const Piece& piece, const Triangle& t, const std::array<glm::vec3, 3>& corners);
+
 // Attribute sums and spreads (the error-driven stop's measures) over a voxel's pieces.
 void accumulate(Aggregate& a, double weight, const dvec3& normal, const dvec4* color);
 dvec3 meanNormal(const Aggregate& a);

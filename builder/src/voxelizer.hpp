@@ -20,7 +20,7 @@ constexpr int kParallelDepth = 3;
 class Voxelizer {
  public:
   Voxelizer(const Mesh& mesh, const SceneTransform& transform, const BuildOptions& options, bool colors)
-      : mesh_(mesh), options_(options), colors_(colors) {
+      : mesh_(mesh), corners_(cornerNormals(mesh)), options_(options), colors_(colors) {
     triangles_.reserve(mesh.triangles.size());
     for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
       const glm::uvec3 t = mesh.triangles[i];
@@ -108,14 +108,16 @@ class Voxelizer {
   Aggregate attributesOf(const std::vector<Piece>& pieces, const geom::Cube& cube, Spread* spread) const {
     Aggregate a;
     std::vector<dvec4> colors(colors_ ? pieces.size() : 0);
+    std::vector<dvec3> normals(pieces.size());
     for (std::size_t i = 0; i < pieces.size(); ++i) {
+      const Triangle& t = triangles_[pieces[i].triangle];
       if (colors_) colors[i] = colorOf(pieces[i]);
-      accumulate(a, pieceWeight(pieces[i], cube), triangles_[pieces[i].triangle].normal,
-                 colors_ ? &colors[i] : nullptr);
+      normals[i] = pieceNormal(pieces[i], t, corners_[t.source]);
+      accumulate(a, pieceWeight(pieces[i], cube), normals[i], colors_ ? &colors[i] : nullptr);
     }
     if (spread)
       for (std::size_t i = 0; i < pieces.size(); ++i)
-        spread->add(a, triangles_[pieces[i].triangle].normal, colors_ ? &colors[i] : nullptr);
+        spread->add(a, normals[i], colors_ ? &colors[i] : nullptr);
     return a;
   }
 
@@ -246,6 +248,7 @@ class Voxelizer {
   }
 
   const Mesh& mesh_;
+  const std::vector<std::array<glm::vec3, 3>> corners_;  // shading normals by source triangle
   const BuildOptions& options_;
   const bool colors_;
   std::vector<Triangle> triangles_;

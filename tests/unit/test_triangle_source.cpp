@@ -78,8 +78,17 @@ TEST(TriangleSource, BinaryPlyStreamsExactlyWhatLoadMeshLoads) {
   ASSERT_EQ(streamed->triangleCount(), want.size());
   std::size_t differing = 0;
   for (std::size_t t = 0; t < got.size(); ++t)
-    differing += got[t].positions != want[t].positions || got[t].colors != want[t].colors;
+    differing += got[t].positions != want[t].positions || got[t].colors != want[t].colors ||
+                 got[t].normals != want[t].normals;
   EXPECT_EQ(differing, 0u) << "of " << got.size() << " triangles";
+  // A terrain is smooth: its corners take their vertices' normals, not their triangles'.
+  std::size_t smoothCorners = 0;
+  for (const svo::SourceTriangle& t : got) {
+    const glm::dvec3 face =
+        glm::normalize(glm::cross(t.positions[1] - t.positions[0], t.positions[2] - t.positions[0]));
+    for (const glm::vec3& n : t.normals) smoothCorners += glm::dot(glm::dvec3(n), face) < 1.0 - 1e-6;
+  }
+  EXPECT_GT(smoothCorners, got.size());
   // Two passes give the same triangles (the out-of-core build reads twice).
   EXPECT_EQ(readAll(*streamed).size(), got.size());
 
@@ -145,10 +154,10 @@ TEST(TriangleSource, ARangeIsThatStretchOfTheWholeRead) {
   TempDir dir;
   constexpr int kSide = 300;  // a height field's grid of vertices
   constexpr std::uint32_t kFaces = 80000;
-  const std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " +
-                             std::to_string(kSide * kSide) +
-                             "\nproperty float x\nproperty float y\nproperty float z\nelement face " +
-                             std::to_string(kFaces) + "\nproperty list uchar int vertex_indices\nend_header\n";
+  const std::string header =
+      "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(kSide * kSide) +
+      "\nproperty float x\nproperty float y\nproperty float z\nelement face " + std::to_string(kFaces) +
+      "\nproperty list uchar int vertex_indices\nend_header\n";
   PlyBytes b;
   for (int y = 0; y < kSide; ++y)
     for (int x = 0; x < kSide; ++x) b.put(float(x)).put(float(y)).put(float((x * 7 + y * 13) % 5));
@@ -176,9 +185,15 @@ TEST(TriangleSource, ARangeIsThatStretchOfTheWholeRead) {
   ASSERT_EQ(source->triangleCount(), expected);
   ASSERT_GT(expected, 2u << 16);  // three stretches between noted faces at least
   const std::uint64_t n = expected, kNoted = 1u << 16;
-  const std::vector<std::pair<std::uint64_t, std::uint64_t>> ranges = {
-      {0, 1}, {5, 5}, {kNoted - 1, kNoted + 2}, {kNoted + 1, 2 * kNoted + 7}, {100, n - 100},
-      {n / 3, 2 * n / 3}, {n - 1, n}, {n - 3, n + 50}, {0, n}};
+  const std::vector<std::pair<std::uint64_t, std::uint64_t>> ranges = {{0, 1},
+                                                                       {5, 5},
+                                                                       {kNoted - 1, kNoted + 2},
+                                                                       {kNoted + 1, 2 * kNoted + 7},
+                                                                       {100, n - 100},
+                                                                       {n / 3, 2 * n / 3},
+                                                                       {n - 1, n},
+                                                                       {n - 3, n + 50},
+                                                                       {0, n}};
   for (const auto& [first, last] : ranges) {
     std::vector<svo::SourceTriangle> got;
     source->readRange(first, last, [&](std::span<const svo::SourceTriangle> batch) {

@@ -17,7 +17,7 @@ bool sampledTextures(const Mesh& mesh) {
 
 MeshShading::MeshShading(const Mesh& mesh, const RenderOptions& options)
     : mesh_(mesh),
-      normals_(mesh.positions.size(), glm::dvec3(0.0)),
+      corners_(cornerNormals(mesh)),
       hasColor_(mesh.hasColor()),
       light_(glm::normalize(options.lightDirection)),
       background_(options.background) {
@@ -26,10 +26,8 @@ MeshShading::MeshShading(const Mesh& mesh, const RenderOptions& options)
     const glm::uvec3 t = mesh.triangles[i];
     const glm::dvec3 e0 = mesh.positions[t.y] - mesh.positions[t.x];
     const glm::dvec3 e1 = mesh.positions[t.z] - mesh.positions[t.x];
-    // Area-weighted: the unnormalized cross product is twice the area times the unit normal.
-    const glm::dvec3 n = glm::cross(e0, e1);
-    for (int k = 0; k < 3; ++k) normals_[t[k]] += n;
     if (uvGradients_.empty()) continue;
+    const glm::dvec3 n = glm::cross(e0, e1);
     const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
     const double den = d00 * d11 - d01 * d01;
     if (!(den > 0.0)) continue;  // degenerate (loadMesh drops them): left zero, its lookups take the mean
@@ -67,7 +65,8 @@ glm::vec3 MeshShading::shade(std::uint32_t triangle, double u, double v, const g
                              const PixelFootprint& footprint) const {
   const glm::uvec3 t = mesh_.triangles[triangle];
   const double w0 = 1.0 - u - v;
-  glm::dvec3 n = w0 * normals_[t.x] + u * normals_[t.y] + v * normals_[t.z];
+  const std::array<glm::vec3, 3>& corners = corners_[triangle];
+  glm::dvec3 n = w0 * glm::dvec3(corners[0]) + u * glm::dvec3(corners[1]) + v * glm::dvec3(corners[2]);
   if (!(glm::length(n) > 0.0))
     n = glm::cross(mesh_.positions[t.y] - mesh_.positions[t.x], mesh_.positions[t.z] - mesh_.positions[t.x]);
   glm::vec3 albedo(kNeutralGreyAlbedo);

@@ -1,10 +1,12 @@
 // A triangle hit shaded as svo::render shades a voxel hit: the same Phong model (shadePhong), with normals
-// interpolated from the mesh's area-weighted vertex normals and colors from its vertex colors, materials and
-// base-color textures (a trilinear lookup for the pixel's footprint on the triangle, found by ray
-// differentials, as a renderer filters a texture; the builder averages it over each voxel's footprint). The
-// exact references of `svo bench quality` (kd-tree) and `svo bench raycast` (Embree) share it.
+// interpolated from the mesh's shading normals (cornerNormals, as the builder voxelizes them) and colors from
+// its vertex colors, materials and base-color textures (a trilinear lookup for the pixel's footprint on the
+// triangle, found by ray differentials, as a renderer filters a texture; the builder averages it over each
+// voxel's footprint). The exact references of `svo bench quality` (kd-tree) and `svo bench raycast` (Embree)
+// share it.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -44,8 +46,8 @@ class MeshShading {
                          const PixelFootprint& footprint) const;
 
   const Mesh& mesh_;
-  std::vector<glm::dvec3> normals_;      // per vertex, area-weighted, not normalized
-  std::vector<UvGradient> uvGradients_;  // per triangle where a material has a texture, else empty
+  std::vector<std::array<glm::vec3, 3>> corners_;  // shading normals by triangle, as the builder's
+  std::vector<UvGradient> uvGradients_;            // per triangle where a material has a texture, else empty
   bool hasColor_ = false;
   glm::vec3 light_, background_;
 };

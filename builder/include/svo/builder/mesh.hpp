@@ -43,6 +43,8 @@ struct Mesh {
   std::vector<glm::vec4> colors;      // per vertex RGBA in [0,1]; empty when the source has none
   std::vector<glm::vec2> uvs;         // per vertex; empty when no material has a texture
   std::vector<glm::uvec3> triangles;
+  // Per vertex shading normals (unit), taken as they are at every corner; empty: cornerNormals derives them.
+  std::vector<glm::vec3> normals;
   std::vector<std::uint32_t> triangleMaterials;  // per triangle; empty means material 0
   std::vector<Material> materials;               // may be empty: white
   std::vector<std::shared_ptr<const TextureImage>> textures;
@@ -71,9 +73,36 @@ std::size_t validateMesh(Mesh& mesh, const std::string& source);
 // The rule validateMesh drops triangles by: edges from the first corner parallel to within a tiny sine.
 bool isDegenerate(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c);
 
+// Shading normals, as the builder voxelizes them and the benches' triangle references interpolate them. A
+// vertex's is the mean of its triangles' normals weighted by their angles at it (Thurmer and Wuthrich 1998:
+// unlike area weights, the same for any triangulation of the same faces); a triangle's corner takes it where
+// it lies within kCreaseAngleDegrees of the triangle's own normal, else the triangle's normal (a crease): a
+// tessellated sphere or a terrain turns smooth, a box keeps its flat faces. Between the two: a box's corner
+// normal is 54.7 degrees off each of its faces, an icosahedron's 37.4 (a hexagonal tube's 30).
+inline constexpr double kCreaseAngleDegrees = 45.0;
+
+// Angle-weighted vertex normal sums, one triangle at a time (a streaming source adds them in input order).
+class VertexNormalSums {
+ public:
+  explicit VertexNormalSums(std::size_t vertices) : sums_(vertices, glm::dvec3(0.0)) {}
+  void add(const glm::uvec3& corners, const std::array<glm::dvec3, 3>& positions);
+  // Unit per vertex; zero where the triangles' normals cancel or no triangle uses the vertex.
+  std::vector<glm::vec3> normals() const;
+
+ private:
+  std::vector<glm::dvec3> sums_;
+};
+
+// A triangle's corner normals from its corners' vertex normals (unit or zero), by the crease rule above.
+std::array<glm::vec3, 3> creasedCorners(const std::array<glm::dvec3, 3>& positions,
+                                        const std::array<glm::vec3, 3>& vertexNormals);
+// Each triangle's corner normals: `mesh.normals` where given, else the crease rule over the vertex normals.
+std::vector<std::array<glm::vec3, 3>> cornerNormals(const Mesh& mesh);
+
 // One triangle as the out-of-core build streams it: what voxelizing it needs, nothing shared with others.
 struct SourceTriangle {
   std::array<glm::dvec3, 3> positions;
+  std::array<glm::vec3, 3> normals{};  // shading normals at the corners (cornerNormals)
   std::array<glm::vec4, 3> colors{glm::vec4(1.0f), glm::vec4(1.0f), glm::vec4(1.0f)};  // linear RGBA
   std::array<glm::vec2, 3> uvs{};
   std::uint32_t material = 0;
