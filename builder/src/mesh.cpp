@@ -83,7 +83,7 @@ std::array<glm::vec3, 3> creasedCorners(const std::array<glm::dvec3, 3>& positio
   static const double kCreaseCos = std::cos(kCreaseAngleDegrees * std::numbers::pi / 180.0);
   const glm::dvec3 n = glm::cross(positions[1] - positions[0], positions[2] - positions[0]);
   const double length = glm::length(n);
-  const glm::dvec3 face = length > 0.0 ? n / length : glm::dvec3(0.0);
+  const glm::dvec3 face = length > 0.0 && std::isfinite(length) ? n / length : glm::dvec3(0.0);
   std::array<glm::vec3, 3> out;
   for (int k = 0; k < 3; ++k)
     out[k] = glm::dot(glm::dvec3(vertexNormals[k]), face) >= kCreaseCos ? vertexNormals[k] : glm::vec3(face);
