@@ -162,6 +162,16 @@ Mesh loadDraco(const fs::path& path) {
     }
   }
 
+  if (const draco::PointAttribute* normal = dm.GetNamedAttribute(draco::GeometryAttribute::NORMAL);
+      normal && normal->num_components() == 3) {
+    mesh.normals.resize(np);
+    for (draco::PointIndex p(0); p < static_cast<std::uint32_t>(np); ++p) {
+      float n[3] = {0, 0, 0};
+      if (!normal->ConvertValue<float>(normal->mapped_index(p), 3, n)) fail(path, "Draco normal unreadable");
+      mesh.normals[p.value()] = glm::vec3(n[0], n[1], n[2]);
+    }
+  }
+
   mesh.triangles.reserve(dm.num_faces());
   for (draco::FaceIndex f(0); f < dm.num_faces(); ++f) {
     const draco::Mesh::Face& face = dm.face(f);
@@ -307,8 +317,11 @@ Mesh loadAssimp(const fs::path& path, std::string& format) {
     mesh.materials.push_back(convertMaterial(*scene->mMaterials[i], obj, textures));
   const bool anyTexture = std::any_of(mesh.materials.begin(), mesh.materials.end(),
                                       [](const Material& m) { return m.texture >= 0; });
-  bool anyColors = false;
-  for (unsigned i = 0; i < scene->mNumMeshes; ++i) anyColors |= scene->mMeshes[i]->HasVertexColors(0);
+  bool anyColors = false, allNormals = true;
+  for (unsigned i = 0; i < scene->mNumMeshes; ++i) {
+    anyColors |= scene->mMeshes[i]->HasVertexColors(0);
+    allNormals &= scene->mMeshes[i]->HasNormals();  // a part without them: every part's are derived
+  }
 
   std::size_t vertexCount = 0, faceCount = 0;
   for (unsigned i = 0; i < scene->mNumMeshes; ++i) {
@@ -318,6 +331,7 @@ Mesh loadAssimp(const fs::path& path, std::string& format) {
   mesh.positions.reserve(vertexCount);
   mesh.triangles.reserve(faceCount);
   if (anyColors) mesh.colors.reserve(vertexCount);
+  if (allNormals) mesh.normals.reserve(vertexCount);
   if (anyTexture) mesh.uvs.reserve(vertexCount);
   const bool perTriangleMaterial = scene->mNumMaterials > 1;
   if (perTriangleMaterial) mesh.triangleMaterials.reserve(faceCount);
@@ -329,6 +343,7 @@ Mesh loadAssimp(const fs::path& path, std::string& format) {
     for (unsigned v = 0; v < am.mNumVertices; ++v) {
       const aiVector3D& p = am.mVertices[v];
       mesh.positions.emplace_back(p.x, p.y, p.z);
+      if (allNormals) mesh.normals.emplace_back(am.mNormals[v].x, am.mNormals[v].y, am.mNormals[v].z);
       if (anyColors) {
         if (am.HasVertexColors(0)) {
           const aiColor4D& c = am.mColors[0][v];

@@ -111,7 +111,8 @@ class MeshSource : public SummarizedSource {
     summary_.textures = mesh.textures;
     Hasher f;
     const auto add = [&f](const auto& v) { f.add(v.data(), v.size()); };
-    add(mesh.positions), add(mesh.triangles), add(mesh.colors), add(mesh.uvs), add(mesh.triangleMaterials);
+    add(mesh.positions), add(mesh.triangles), add(mesh.colors), add(mesh.uvs), add(mesh.triangleMaterials),
+        add(mesh.normals);
     summary_.fingerprint = f.digest();
     summary_.residentBytes = bytesOf(mesh.positions) + bytesOf(mesh.colors) + bytesOf(mesh.uvs) +
                              bytesOf(mesh.triangles) + bytesOf(mesh.triangleMaterials) + bytesOf(corners_);
@@ -273,11 +274,13 @@ class PlySource : public SummarizedSource {
       if (summary_.triangles >= checkpoints_.back().ordinal + kCheckpointTriangles)
         checkpoints_.push_back({face, reader.offset(), summary_.triangles});
     };
-    // The first pass also sums the vertex normals, which every later pass gives the triangles' corners.
-    VertexNormalSums normalSums(vertexCount());
+    // Without the file's normals, the first pass also sums the vertex normals, which every later pass gives
+    // the triangles' corners.
+    fileNormals_ = !vertexNormals_.empty();
+    VertexNormalSums normalSums(fileNormals_ ? 0 : vertexCount());
     summary_.dropped = scanFaces(reader, 0, atFace, [&](const SourceTriangle& t, const glm::uvec3& corners) {
       ++summary_.triangles;
-      normalSums.add(corners, t.positions);
+      if (!fileNormals_) normalSums.add(corners, t.positions);
       for (int k = 0; k < 3; ++k) {
         summary_.lower = glm::min(summary_.lower, t.positions[k]);
         summary_.upper = glm::max(summary_.upper, t.positions[k]);
@@ -287,7 +290,7 @@ class PlySource : public SummarizedSource {
     });
     while (reader.need(1)) reader.skip(1);  // the fingerprint covers the whole file
     summary_.fingerprint = fingerprint.digest();
-    vertexNormals_ = normalSums.normals();
+    if (!fileNormals_) vertexNormals_ = normalSums.normals();
     summary_.residentBytes = bytesOf(floatPositions_) + bytesOf(doublePositions_) + bytesOf(colors_) +
                              bytesOf(vertexNormals_) + bytesOf(checkpoints_);
     if (summary_.triangles == 0)
@@ -335,14 +338,17 @@ class PlySource : public SummarizedSource {
   void readVertices(ChunkReader& reader) {
     skipElements(reader, layout_.vertexOffset - layout_.headerBytes, "vertices");
     const PlyElement& v = layout_.vertex;
-    std::optional<Channel> xyz[3], rgba[4];
+    std::optional<Channel> xyz[3], nxyz[3], rgba[4];
     std::size_t offset = 0;
     for (const PlyProperty& p : v.properties) {
       static const char* const kPosition[] = {"x", "y", "z"};
+      static const char* const kNormal[] = {"nx", "ny", "nz"};
       static const char* const kColor[][2] = {
           {"red", "diffuse_red"}, {"green", "diffuse_green"}, {"blue", "diffuse_blue"}, {"alpha", "alpha"}};
       for (int k = 0; k < 3; ++k)
         if (p.name == kPosition[k]) xyz[k] = Channel{offset, p.type};
+      for (int k = 0; k < 3; ++k)
+        if (p.name == kNormal[k]) nxyz[k] = Channel{offset, p.type};
       for (int k = 0; k < 4; ++k)
         if ((p.name == kColor[k][0] || p.name == kColor[k][1]) && p.type == PlyType::UInt8)
           rgba[k] = Channel{offset, p.type};
@@ -352,6 +358,7 @@ class PlySource : public SummarizedSource {
     const bool floats = xyz[0]->type == PlyType::Float32 && xyz[1]->type == PlyType::Float32 &&
                         xyz[2]->type == PlyType::Float32;
     summary_.vertexColors = rgba[0] && rgba[1] && rgba[2];
+    const bool fileNormals = nxyz[0] && nxyz[1] && nxyz[2];
     // Each 8-bit value decoded once, as loadMesh decodes it (assimp divides by 255 in float); the channels
     // decode independently, so one table serves them all.
     for (int v = 0; v < 256; ++v)
@@ -368,6 +375,7 @@ class PlySource : public SummarizedSource {
     else
       doublePositions_.reserve(expected);
     if (summary_.vertexColors) colors_.reserve(expected);
+    if (fileNormals) vertexNormals_.reserve(expected);
     for (std::uint64_t i = 0; i < v.count; ++i) {
       if (!reader.need(record))
         fail(path_,
@@ -381,6 +389,11 @@ class PlySource : public SummarizedSource {
         floatPositions_.emplace_back(p);
       else
         doublePositions_.push_back(p);
+      // As assimp reads them: floats, taken as they are.
+      if (fileNormals)
+        vertexNormals_.emplace_back(valueAt(r + nxyz[0]->offset, nxyz[0]->type),
+                                    valueAt(r + nxyz[1]->offset, nxyz[1]->type),
+                                    valueAt(r + nxyz[2]->offset, nxyz[2]->type));
       if (summary_.vertexColors) {
         glm::u8vec4 c(255);
         for (int k = 0; k < 4; ++k)
@@ -462,7 +475,9 @@ class PlySource : public SummarizedSource {
           continue;
         }
         if (!colors_.empty()) t.colors = {color(a), color(b), color(c)};
-        if (!vertexNormals_.empty())
+        if (fileNormals_)
+          t.normals = {vertexNormals_[a], vertexNormals_[b], vertexNormals_[c]};
+        else if (!vertexNormals_.empty())
           t.normals = creasedCorners(t.positions, {vertexNormals_[a], vertexNormals_[b], vertexNormals_[c]});
         if (!visit(t, glm::uvec3(a, b, c))) return dropped;
       }
@@ -476,8 +491,9 @@ class PlySource : public SummarizedSource {
   std::vector<glm::vec3> floatPositions_;    // when x, y, z are floats
   std::vector<glm::dvec3> doublePositions_;  // otherwise
   std::vector<glm::u8vec4> colors_;
-  std::vector<glm::vec3> vertexNormals_;  // unit, from the first pass (empty during it)
-  std::array<glm::vec4, 256> linear_;     // 8-bit value -> linear, per channel (alpha is linear already)
+  std::vector<glm::vec3> vertexNormals_;  // the file's, else unit sums from the first pass (empty during it)
+  bool fileNormals_ = false;
+  std::array<glm::vec4, 256> linear_;  // 8-bit value -> linear, per channel (alpha is linear already)
 };
 
 }  // namespace

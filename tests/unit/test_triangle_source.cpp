@@ -148,6 +148,36 @@ TEST(TriangleSource, BinaryPlyFansPolygonsSkipsUnknownPropertiesAndDecodesColors
   EXPECT_NEAR(c.a, 128 / 255.0, 1e-6);
 }
 
+// A PLY with nx, ny, nz (floats here, doubles for ny) streams them as its corners' normals, as they are and
+// as loadMesh (assimp) reads them.
+TEST(TriangleSource, BinaryPlyStreamsTheFilesNormals) {
+  TempDir dir;
+  const std::string header =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+      "property float z\nproperty float nx\nproperty double ny\nproperty float nz\nelement face 2\n"
+      "property list uchar int vertex_indices\nend_header\n";
+  const float xyz[4][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0.5f}, {0, 1, 0}};
+  const float n[4][3] = {{0, 0, 1}, {0.6f, 0, 0.8f}, {0, 0.28f, 0.96f}, {0, 0, 2}};  // the last not unit
+  PlyBytes b;
+  for (int v = 0; v < 4; ++v)
+    b.put(xyz[v][0]).put(xyz[v][1]).put(xyz[v][2]).put(n[v][0]).put(double(n[v][1])).put(n[v][2]);
+  b.put(std::uint8_t(3)).put(0).put(1).put(2);
+  b.put(std::uint8_t(3)).put(0).put(2).put(3);
+  const fs::path ply = dir.file("normals.ply", header + b.bytes);
+  const std::vector<svo::SourceTriangle> got = readAll(*svo::openTriangleSource(ply));
+  const svo::Mesh loaded = svo::loadMesh(ply);
+  ASSERT_EQ(loaded.normals.size(), loaded.positions.size());
+  const std::vector<svo::SourceTriangle> want = readAll(*svo::meshTriangleSource(loaded));
+  ASSERT_EQ(got.size(), 2u);
+  ASSERT_EQ(want.size(), 2u);
+  const int corners[2][3] = {{0, 1, 2}, {0, 2, 3}};
+  for (int t = 0; t < 2; ++t) {
+    EXPECT_EQ(got[t].normals, want[t].normals) << "triangle " << t;
+    for (int k = 0; k < 3; ++k)
+      EXPECT_EQ(got[t].normals[k], glm::vec3(n[corners[t][k]][0], n[corners[t][k]][1], n[corners[t][k]][2]));
+  }
+}
+
 // A range of a streamed PLY starts at the face noted nearest before it (every 2^16 triangles) and must give
 // exactly that stretch of the whole read: polygons fanned across the noted faces, degenerate faces dropped.
 TEST(TriangleSource, ARangeIsThatStretchOfTheWholeRead) {

@@ -43,7 +43,8 @@ struct Mesh {
   std::vector<glm::vec4> colors;      // per vertex RGBA in [0,1]; empty when the source has none
   std::vector<glm::vec2> uvs;         // per vertex; empty when no material has a texture
   std::vector<glm::uvec3> triangles;
-  // Per vertex shading normals (unit), taken as they are at every corner; empty: cornerNormals derives them.
+  // Per vertex shading normals, the file's where every part of it has them (loadMesh), taken as they are at
+  // every corner; empty: cornerNormals derives them.
   std::vector<glm::vec3> normals;
   std::vector<std::uint32_t> triangleMaterials;  // per triangle; empty means material 0
   std::vector<Material> materials;               // may be empty: white
@@ -138,8 +139,9 @@ class TriangleSource {
   virtual void readRange(std::uint64_t first, std::uint64_t last, const Batch& batch) const = 0;
 };
 
-// Binary PLY is streamed from the file, holding only its vertices (positions in the file's precision and
-// 8-bit colors); other formats are loaded whole with loadMesh. Errors as loadMesh's.
+// Binary PLY is streamed from the file, holding only its vertices (positions in the file's precision, 8-bit
+// colors, and normals: the file's nx, ny, nz, else the first pass's); other formats are loaded whole with
+// loadMesh. Errors as loadMesh's.
 std::unique_ptr<TriangleSource> openTriangleSource(const std::filesystem::path& path);
 // A mesh already in memory (validated), which must outlive the source.
 std::unique_ptr<TriangleSource> meshTriangleSource(const Mesh& mesh, std::string name = "mesh");
