@@ -13,6 +13,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
@@ -96,7 +97,7 @@ class MeshSource : public SummarizedSource {
  public:
   MeshSource(const Mesh& mesh, std::unique_ptr<Mesh> owned = nullptr, std::string format = "",
              std::size_t dropped = 0)
-      : owned_(std::move(owned)), mesh_(mesh), corners_(cornerNormals(mesh)) {
+      : owned_(std::move(owned)), mesh_(mesh) {
     summary_.format = format.empty() ? "mesh in memory" : std::move(format);
     summary_.triangles = mesh.triangles.size();
     summary_.dropped = dropped;
@@ -115,11 +116,14 @@ class MeshSource : public SummarizedSource {
         add(mesh.normals);
     summary_.fingerprint = f.digest();
     summary_.residentBytes = bytesOf(mesh.positions) + bytesOf(mesh.colors) + bytesOf(mesh.uvs) +
-                             bytesOf(mesh.triangles) + bytesOf(mesh.triangleMaterials) + bytesOf(corners_);
+                             bytesOf(mesh.triangles) + bytesOf(mesh.triangleMaterials) +
+                             mesh.triangles.size() * sizeof(Corners);  // made by the first read
   }
 
   void readRange(std::uint64_t first, std::uint64_t last, const Batch& batch) const override {
     last = std::min<std::uint64_t>(last, mesh_.triangles.size());
+    // On the first read only: an in-core build, which reads the mesh itself, never pays for them.
+    std::call_once(cornersMade_, [&] { corners_ = cornerNormals(mesh_); });
     std::vector<SourceTriangle> out;
     out.reserve(std::size_t(std::min<std::uint64_t>(kBatchTriangles, last - std::min(first, last))));
     for (std::size_t i = std::size_t(first); i < last; ++i) {
@@ -142,7 +146,9 @@ class MeshSource : public SummarizedSource {
  private:
   std::unique_ptr<Mesh> owned_;
   const Mesh& mesh_;
-  std::vector<std::array<glm::vec3, 3>> corners_;  // shading normals by triangle
+  using Corners = std::array<glm::vec3, 3>;
+  mutable std::once_flag cornersMade_;
+  mutable std::vector<Corners> corners_;  // shading normals by triangle
 };
 
 // ----- binary little-endian PLY ----------------------------------------------------------------------------
