@@ -8,8 +8,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <vector>
 
+#include <tbb/task_group.h>
 #include <glm/vec3.hpp>
 
 #include "svo/store/block.hpp"
@@ -57,16 +59,28 @@ class StoreFileWriter {
   void finish(const StoreContents& contents);
 
  private:
+  struct PendingSlice {
+    std::uint32_t id;
+    std::vector<std::byte> raw;
+    std::vector<char> compressed;
+  };
   void put(const void* data, std::size_t bytes);
-  // Compresses and writes one slice; fills the directory entry `reserved` or appends one. Returns its id.
+  // Queues one slice for compression and writing; fills the directory entry `reserved` or appends one.
+  // Returns its id. A full queue is compressed in parallel in the background while the next one fills,
+  // then written in the order its slices came.
   std::uint32_t writeSlice(const std::vector<std::byte>& raw, SliceInfo info,
                            std::uint32_t reserved = SliceInfo::kNoSlice);
+  // Writes the batch being compressed (once it is), then starts compressing the queue.
+  void startCompressing();
+  // Every queued slice compressed and written, its directory entry complete.
+  void flush();
   std::filesystem::path path_, temp_;
   StoreWriteOptions options_;
   std::FILE* file_ = nullptr;
   std::uint64_t offset_ = 0;
   std::vector<SliceInfo> slices_;
-  std::vector<char> compressed_;
+  std::vector<PendingSlice> pending_, compressing_;
+  std::unique_ptr<tbb::task_group> compression_;  // compresses `compressing_`
 };
 
 // Writes the voxel tree as a slice store, atomically: `path` either keeps its old content or gets the
