@@ -165,7 +165,7 @@ void StoreFileWriter::put(const void* data, std::size_t bytes) {
 std::uint32_t StoreFileWriter::writeSlice(const std::vector<std::byte>& raw, SliceInfo info,
                                           std::uint32_t reserved) {
   info.rawBytes = std::uint32_t(raw.size());
-  info.compressedBytes = 0;  // until flush writes it
+  info.compressedBytes = 0;  // until its batch is written (startCompressing)
   std::uint32_t id = reserved;
   if (reserved != SliceInfo::kNoSlice) {
     slices_[reserved] = info;
