@@ -15,12 +15,15 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <random>
 #include <set>
 #include <sstream>
 #include <string>
 #include <tuple>
 #include <vector>
+
+#include <tbb/global_control.h>
 
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
@@ -101,6 +104,28 @@ TEST(Store, RoundTripGivesTheInCoreBlockByteForByte) {
       fs::remove(path);
     }
   }
+}
+
+// The writer compresses slices in parallel batches and writes them in the order they came: one thread and
+// every thread write the same file, here of far more slices than one batch.
+TEST(Store, TheFileIsTheSameOnAnyThreadCount) {
+  const svo::Octree octree = coloredSphere(7);
+  svo::StoreWriteOptions options;
+  options.sliceBytes = 256;
+  std::string written[2];
+  for (const std::size_t threads : {std::size_t(1), std::size_t(0)}) {
+    const fs::path path = tempPath("threads.svo");
+    {
+      std::optional<tbb::global_control> limit;
+      if (threads) limit.emplace(tbb::global_control::max_allowed_parallelism, threads);
+      svo::writeOctree(path, octree, options);
+    }
+    written[threads == 0] = slurp(path);
+    ASSERT_GT(svo::StoreReader(path).slices().size(), 100u);
+    EXPECT_TRUE(sameBlock(octree, svo::readOctree(path)));
+    fs::remove(path);
+  }
+  EXPECT_TRUE(written[0] == written[1]);
 }
 
 TEST(Store, WritingTheBuilderTreeDirectlyGivesTheSameOctree) {
