@@ -137,7 +137,7 @@ nlohmann::json info(const Scene& scene) {
   const glm::dvec3 lo = h.transform.origin, hi = h.transform.toWorld(glm::dvec3(2.0));
   return {{"name", scene.name},
           {"etag", scene.etag},
-          {"formatVersion", kFileVersion},
+          {"formatVersion", h.version},
           {"fileBytes", h.fileBytes},
           {"levels", h.parameters.levels},
           {"sliceBytes", h.sliceBytes},

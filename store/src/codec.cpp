@@ -49,11 +49,32 @@ class ContourPositionPredictor {
   int twicePosition_;  // 62 p: 31 x twice the parent's position field
 };
 
+// What predicts the normal fields of a contour among a parent's children: the parent's contour in format v5
+// where it has one, else the store's prediction from each child's normal (predictedContourNormalBits). A
+// contour follows the geometry, which the parent's contour describes at the next scale up; a voxel's normal
+// is its shading normal, off its triangles' own by up to the crease angle (format v4 predates those).
+class ContourNormalPredictor {
+ public:
+  ContourNormalPredictor(bool parentContourPredicts, bool parentHasContour, std::uint32_t parentContour)
+      : fromParent_(parentContourPredicts && parentHasContour) {
+    const ContourFields f = contourFields(parentContour);
+    parentBits_ = packContourBits(f.normal[0], f.normal[1], f.normal[2], 0, 0);
+  }
+  // `childNormalBits`: predictedContourNormalBits of the child's normal (0 in a store without normals).
+  std::uint32_t operator()(std::uint32_t childNormalBits) const {
+    return fromParent_ ? parentBits_ : childNormalBits;
+  }
+
+ private:
+  bool fromParent_;
+  std::uint32_t parentBits_;
+};
+
 using ContourResidual = std::array<std::uint8_t, kContourBytes>;
 using NormalResidual = std::array<std::uint8_t, kNormalBytes>;
 
-// `predicted`: the normal fields predictedContourNormalBits gives for the voxel's normal (0 in a store
-// without normals) and the position field ContourPositionPredictor gives.
+// `predicted`: the normal fields ContourNormalPredictor gives and the position field ContourPositionPredictor
+// gives.
 // Fields are differences modulo their widths (packContourBits masks them).
 ContourResidual contourResidual(std::uint32_t contour, std::uint32_t predicted) {
   const ContourFields c = contourFields(contour), p = contourFields(predicted);
@@ -137,6 +158,7 @@ void SliceSections::addParent(const SliceParent& parent, std::span<const SliceCh
   if (parent.childMask == 0) return;
   masks_.push_back(parent.childMask);
   const ContourPositionPredictor position(parent.hasContour, parent.contour);
+  const ContourNormalPredictor contourNormal(kFileVersion >= 5, parent.hasContour, parent.contour);
   const std::uint16_t parentCode = hasNormals_ ? octNormalCodeOf(parent.normal) : 0;
   const SliceChild* child = children.data();
   for (int slot = 0; slot < 8; ++slot) {
@@ -145,8 +167,8 @@ void SliceSections::addParent(const SliceParent& parent, std::span<const SliceCh
     const std::uint16_t code = hasNormals_ ? octNormalCodeOf(c.normal) : 0;
     contourBits_.push(c.hasContour);
     if (c.hasContour)
-      contours_.push_back(
-          contourResidual(c.contour, (hasNormals_ ? predictedContourNormalBits(code) : 0) | position(slot)));
+      contours_.push_back(contourResidual(
+          c.contour, contourNormal(hasNormals_ ? predictedContourNormalBits(code) : 0) | position(slot)));
     if (hasColors_) {
       colorBits_.push(c.storesColor);
       if (c.storesColor) colors_.push_back(c.color);
@@ -280,6 +302,7 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
   if (header.hasNormals) normals.emplace(sections, head.voxelCount, head.normalCount);
   const std::uint32_t* const lattice = latticeNormalTable();
   const std::uint32_t* const contourNormals = contourNormalPredictionTable();
+  const bool parentContourPredicts = header.version >= 5;
 
   const std::size_t firstAdded = children.size();
   // At most 8 children per split voxel, whose masks are bytes of this slice: a hostile count reserves no
@@ -301,6 +324,7 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
       throw SliceDecodeError("valid masks do not match the voxel count");
     p.childMask = mask;
     const ContourPositionPredictor position(p.hasContour, p.contour);
+    const ContourNormalPredictor contourNormal(parentContourPredicts, p.hasContour, p.contour);
     const std::uint16_t parentCode = normals ? codes(p) : 0;
     for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++added) {
       const int slot = std::countr_zero(rest);
@@ -318,7 +342,7 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
         ContourResidual r;
         for (std::size_t plane = 0; plane < kContourBytes; ++plane) r[plane] = contours.planeByte(plane, k);
         child.hasContour = true;
-        child.contour = contourOf(r, (normals ? contourNormals[code] : 0) | position(slot));
+        child.contour = contourOf(r, contourNormal(normals ? contourNormals[code] : 0) | position(slot));
       }
     }
   }

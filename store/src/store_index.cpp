@@ -23,9 +23,9 @@ void checkHeader(const std::string& name, const file::Header& h, std::size_t hea
   if (headerRead < sizeof h.magic || std::memcmp(h.magic, kFileMagic, sizeof h.magic) != 0)
     fail(name, "not an svostream file (bad magic)");
   if (headerRead < offsetof(file::Header, headerBytes)) fail(name, "truncated header");
-  if (h.version != kFileVersion)
+  if (h.version < kOldestReadVersion || h.version > kFileVersion)
     fail(name, "unsupported file version " + std::to_string(h.version) + " (this build reads " +
-                   std::to_string(kFileVersion) + ")");
+                   std::to_string(kOldestReadVersion) + " to " + std::to_string(kFileVersion) + ")");
   if (headerRead != sizeof h) fail(name, "truncated header");
   if (h.headerBytes != sizeof h || (file::kCheckChecksums && file::headerChecksum(h) != h.headerChecksum))
     fail(name, "header checksum mismatch");
@@ -73,6 +73,7 @@ StoreHeader parseStoreHeader(const std::string& name, std::span<const std::byte>
   std::memcpy(&h, bytes.data(), headerRead);
   checkHeader(name, h, headerRead, fileBytes);
   StoreHeader header;
+  header.version = h.version;
   header.transform.origin = {h.origin[0], h.origin[1], h.origin[2]};
   header.transform.size = h.size;
   header.parameters = {h.levels, h.geometryError, h.colorError, h.normalError, h.contours};

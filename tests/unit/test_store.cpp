@@ -295,6 +295,14 @@ TEST(Store, TruncationsAndForeignFilesGiveClearErrors) {
   version[8] = 1;  // a version-1 (single block) file
   spit(path, version);
   EXPECT_NE(loadError(path).find("unsupported file version 1"), std::string::npos) << loadError(path);
+  for (const std::uint32_t unread : {svo::kOldestReadVersion - 1, svo::kFileVersion + 1}) {
+    version[8] = char(unread);
+    spit(path, version);
+    const std::string expected = "unsupported file version " + std::to_string(unread) +
+                                 " (this build reads " + std::to_string(svo::kOldestReadVersion) + " to " +
+                                 std::to_string(svo::kFileVersion) + ")";
+    EXPECT_NE(loadError(path).find(expected), std::string::npos) << loadError(path);
+  }
   spit(path, bytes + "trailing");
   EXPECT_NE(loadError(path).find("unexpected bytes after the directory"), std::string::npos);
   EXPECT_NE(loadError(tempPath("missing.svo")).find("no such file"), std::string::npos);

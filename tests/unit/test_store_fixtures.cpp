@@ -1,16 +1,17 @@
-// Format v4 pinned by fixture stores (tests/data/fixtures; README there). The fixtures are what writeStore
-// makes of voxel trees defined below by integer rules (no mesh, no builder, so a builder change cannot move
-// them): a cube's surface, a sphere's with contours and colors, and the cube again with 256-byte slices,
-// whose level 3 packs the root cube's sub-cubes into runs. The tests check that
-//  - the current reader decodes them exactly: header and directory fields read here by byte offset, the
-//    first slice decompressed here with zstd and compared byte for byte with its layout worked out by hand
-//    from the format (codec.hpp), the first slices' decoded masks, coordinates, normals, contours and colors
-//    against hand-derived literals, and every voxel: the loaded store lays out to the block of its tree;
-//  - the current writer reproduces them byte for byte from the same trees.
-// So no change to writer and reader together can change format v4 unnoticed. A format change must bump
+// Formats v4 and v5 pinned by fixture stores (tests/data/fixtures; README there). The fixtures are what
+// writeStore makes (v5) or made (v4) of voxel trees defined below by integer rules (no mesh, no builder, so a
+// builder change cannot move them): a cube's surface, a sphere's with contours and colors, and the cube again
+// with 256-byte slices, whose level 3 packs the root cube's sub-cubes into runs. The tests check that
+//  - the current reader decodes both versions exactly: header and directory fields read here by byte offset,
+//    the first slice decompressed here with zstd and compared byte for byte with its layout worked out by
+//    hand from the format (codec.hpp), the first slices' decoded masks, coordinates, normals, contours and
+//    colors against hand-derived literals, and every voxel: the loaded store lays out to the block of its
+//    tree;
+//  - the current writer reproduces the v5 ones byte for byte from the same trees.
+// So no change to writer and reader together can change a format unnoticed. A format change must bump
 // kFileVersion (store_types.hpp) and add fixtures of the new version, checked by hand as these are.
-// SVO_WRITE_FIXTURES=DIR makes StoreFixtures.WriterReproducesThemByteForByte write the fixtures into DIR
-// instead (only for a new version).
+// SVO_WRITE_FIXTURES=DIR makes StoreFixtures.WriterReproducesThemByteForByte write the newest version's
+// fixtures into DIR instead (only for a new version).
 #include <gtest/gtest.h>
 
 #include <array>
@@ -151,6 +152,7 @@ VoxelRule sphereRule(int levels) {
 
 struct Fixture {
   std::string file;
+  std::uint32_t version;
   VoxelRule rule;
   svo::VoxelTree tree;
   svo::BuildParameters parameters;
@@ -160,17 +162,25 @@ struct Fixture {
 // The scene: [-1, 1]^3.
 const svo::SceneTransform kScene{glm::dvec3(-1.0), 2.0};
 
-Fixture cubeFixture(const std::string& file, int levels, std::uint32_t sliceBytes) {
-  const VoxelRule rule = cubeRule();
-  return {file, rule, treeOf(levels, false, true, rule), {levels, 0, 0, 0, 0}, sliceBytes};
+std::string fileOf(const std::string& name, std::uint32_t version) {
+  return name + "-v" + std::to_string(version) + ".svo";
 }
-Fixture fixture(const std::string& name) {
-  if (name == "cube") return cubeFixture("cube-v4.svo", 4, svo::kDefaultSliceBytes);
-  if (name == "runs") return cubeFixture("runs-v4.svo", 3, 256);
+Fixture cubeFixture(const std::string& name, std::uint32_t version, int levels, std::uint32_t sliceBytes) {
+  const VoxelRule rule = cubeRule();
+  return {fileOf(name, version), version,   rule, treeOf(levels, false, true, rule),
+          {levels, 0, 0, 0, 0},  sliceBytes};
+}
+Fixture fixture(const std::string& name, std::uint32_t version) {
+  if (name == "cube") return cubeFixture(name, version, 4, svo::kDefaultSliceBytes);
+  if (name == "runs") return cubeFixture(name, version, 3, 256);
   const VoxelRule rule = sphereRule(4);
-  return {"sphere-v4.svo", rule, treeOf(4, true, true, rule), {4, 0, 0, 0, 1}, svo::kDefaultSliceBytes};
+  return {fileOf(name, version),       version,         rule,
+          treeOf(4, true, true, rule), {4, 0, 0, 0, 1}, svo::kDefaultSliceBytes};
 }
 const char* const kFixtures[] = {"cube", "sphere", "runs"};
+// Every version readers decode has fixtures; the writer makes the last.
+constexpr std::uint32_t kVersions[] = {4, 5};
+static_assert(kVersions[0] == svo::kOldestReadVersion && kVersions[1] == svo::kFileVersion);
 
 fs::path fixturePath(const Fixture& f) {
   return fs::path(SVO_TEST_DATA) / "fixtures" / f.file;
@@ -225,7 +235,7 @@ Entry entry(const std::string& bytes, std::size_t i) {
 void checkHeader(const std::string& bytes, const Fixture& f, bool colors, std::uint32_t sliceCount) {
   ASSERT_GE(bytes.size(), kHeaderBytes);
   EXPECT_EQ(bytes.substr(0, 8), std::string("SVOSTRM\0", 8));
-  EXPECT_EQ(at<std::uint32_t>(bytes, 8), 4u);                                  // version
+  EXPECT_EQ(at<std::uint32_t>(bytes, 8), f.version);                           // version
   EXPECT_EQ(at<std::uint32_t>(bytes, 12), kHeaderBytes);                       // header bytes
   for (int k = 0; k < 3; ++k) EXPECT_EQ(at<double>(bytes, 16 + 8 * k), -1.0);  // origin
   EXPECT_EQ(at<double>(bytes, 40), 2.0);                                       // size
@@ -358,10 +368,7 @@ void checkCubeTop(const std::string& bytes) {
   EXPECT_EQ(rawSlice(bytes, 0), cubeSlice0());
 }
 
-}  // namespace
-
-TEST(StoreFixtures, CubeDecodesAsWorkedOutByHand) {
-  const Fixture f = fixture("cube");
+void checkCube(const Fixture& f) {
   const std::string bytes = slurp(fixturePath(f));
   checkHeader(bytes, f, false, 4);
   // Level L has n^3 - (n - 2)^3 voxels, n = 2^L; a corner voxel has 7 children (6 store a normal: the one
@@ -405,8 +412,7 @@ TEST(StoreFixtures, CubeDecodesAsWorkedOutByHand) {
   }
 }
 
-TEST(StoreFixtures, SphereDecodesAsWorkedOutByHand) {
-  const Fixture f = fixture("sphere");
+void checkSphere(const Fixture& f) {
   const std::string bytes = slurp(fixturePath(f));
   checkHeader(bytes, f, true, 4);
   // Levels 1 and 2 by hand: every octant meets the sphere; of its children at level 2 all but the outer
@@ -469,8 +475,9 @@ TEST(StoreFixtures, SphereDecodesAsWorkedOutByHand) {
   }
   EXPECT_EQ(levels[2][2].contour, svo::packContourBits(-10, -10, -31, -7, 7));
   EXPECT_EQ(code(levels[2][6]), kCornerCodes[0]);  // (1,1,1) lies on octant 0's diagonal: inherits
-  // Its residual bytes: the code (-102, -102) of (-1, -1, -3) predicts the normal exactly; octant 0's
-  // contour predicts position round((62 x -8 + 21 x 31) / 31) = 5 for slot 3, so -7 - 5 = -12 (0x74).
+  // Its residual bytes. Normal, format v4: the code (-102, -102) of (-1, -1, -3) predicts it exactly; v5:
+  // octant 0's contour normal (-31, -31, -31) predicts it, so (21, 21, 0). Position: octant 0's contour
+  // predicts round((62 x -8 + 21 x 31) / 31) = 5 for slot 3, so -7 - 5 = -12 (0x74).
   // Contour presence: octant s lists its children c != s in slot order; those on two of its inner sides
   // (c and s differ in two bits) have contours.
   std::vector<std::uint8_t> contourBits(7, 0);
@@ -485,13 +492,15 @@ TEST(StoreFixtures, SphereDecodesAsWorkedOutByHand) {
   ASSERT_EQ(raw1.size(), 502u);
   EXPECT_EQ(std::vector<std::uint8_t>(raw1.begin() + 41, raw1.begin() + 48), contourBits);
   const std::size_t contours = 48;  // head 32, split bits 1, masks 8, contour presence bits 7
+  const std::array<std::uint8_t, 5> residual = f.version == 4
+                                                   ? std::array<std::uint8_t, 5>{0, 0, 0, 0x74, 7}
+                                                   : std::array<std::uint8_t, 5>{21, 21, 0, 0x74, 7};
   for (std::size_t plane = 0; plane < 5; ++plane)
-    EXPECT_EQ(raw1[contours + 24 * plane], (std::array<std::uint8_t, 5>{0, 0, 0, 0x74, 7}[plane])) << plane;
+    EXPECT_EQ(raw1[contours + 24 * plane], residual[plane]) << plane;
   EXPECT_EQ(code(levels[2][2]), 0x9A9A);
 }
 
-TEST(StoreFixtures, RunsDecodeAsWorkedOutByHand) {
-  const Fixture f = fixture("runs");
+void checkRuns(const Fixture& f) {
   const std::string bytes = slurp(fixturePath(f));
   checkHeader(bytes, f, false, 4);
   // Level 3 of the whole cube takes 457 bytes > 256: its 8 octants (each 7 parents, 37 voxels, 18 normals)
@@ -520,37 +529,49 @@ TEST(StoreFixtures, RunsDecodeAsWorkedOutByHand) {
   EXPECT_EQ(code(added[1]), 0x4081);
 }
 
-// Every voxel, every slice: the store loaded whole lays out to the block of the tree it was written from,
-// and svo verify's walk counts that tree's voxels.
-TEST(StoreFixtures, ReaderDecodesEveryVoxel) {
-  for (const char* name : kFixtures) {
-    const Fixture f = fixture(name);
-    SCOPED_TRACE(f.file);
-    const svo::StoreReader reader = readerOf(f);
-    EXPECT_TRUE(sameBlock(svo::layoutBlock(reader.loadTree()), svo::layoutBlock(f.tree)));
-    EXPECT_EQ(reader.verify(), f.tree.voxels.size());
-    EXPECT_EQ(reader.header().transform.origin, kScene.origin);
-    EXPECT_EQ(reader.header().transform.size, kScene.size);
+}  // namespace
+
+// Both versions: the cube has no contours, so only the header's version differs.
+TEST(StoreFixtures, CubeDecodesAsWorkedOutByHand) {
+  for (const std::uint32_t version : kVersions) {
+    SCOPED_TRACE("format v" + std::to_string(version));
+    checkCube(fixture("cube", version));
   }
 }
 
-// The same trees as stores of an earlier writer (zstd level 3 instead of today's settings): the compressor's
-// settings are no part of the format, so every such store reads as it did.
-TEST(StoreFixtures, EarlierWritersStoresDecodeTheSame) {
-  for (const char* name : kFixtures) {
-    Fixture f = fixture(name);
-    f.file = fs::path(f.file).stem().string() + "-zstd-level3.svo";
-    SCOPED_TRACE(f.file);
-    const svo::StoreReader reader = readerOf(f);
-    EXPECT_TRUE(sameBlock(svo::layoutBlock(reader.loadTree()), svo::layoutBlock(f.tree)));
-    EXPECT_EQ(reader.verify(), f.tree.voxels.size());
+TEST(StoreFixtures, SphereDecodesAsWorkedOutByHand) {
+  for (const std::uint32_t version : kVersions) {
+    SCOPED_TRACE("format v" + std::to_string(version));
+    checkSphere(fixture("sphere", version));
   }
+}
+
+TEST(StoreFixtures, RunsDecodeAsWorkedOutByHand) {
+  for (const std::uint32_t version : kVersions) {
+    SCOPED_TRACE("format v" + std::to_string(version));
+    checkRuns(fixture("runs", version));
+  }
+}
+
+// Every voxel, every slice: the store loaded whole lays out to the block of the tree it was written from,
+// and svo verify's walk counts that tree's voxels.
+TEST(StoreFixtures, ReaderDecodesEveryVoxel) {
+  for (const std::uint32_t version : kVersions)
+    for (const char* name : kFixtures) {
+      const Fixture f = fixture(name, version);
+      SCOPED_TRACE(f.file);
+      const svo::StoreReader reader = readerOf(f);
+      EXPECT_TRUE(sameBlock(svo::layoutBlock(reader.loadTree()), svo::layoutBlock(f.tree)));
+      EXPECT_EQ(reader.verify(), f.tree.voxels.size());
+      EXPECT_EQ(reader.header().transform.origin, kScene.origin);
+      EXPECT_EQ(reader.header().transform.size, kScene.size);
+    }
 }
 
 TEST(StoreFixtures, WriterReproducesThemByteForByte) {
   const char* regenerate = std::getenv("SVO_WRITE_FIXTURES");
   for (const char* name : kFixtures) {
-    const Fixture f = fixture(name);
+    const Fixture f = fixture(name, svo::kFileVersion);
     svo::StoreWriteOptions options;
     options.sliceBytes = f.sliceBytes;
     if (regenerate && *regenerate) {

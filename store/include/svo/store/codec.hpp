@@ -1,5 +1,5 @@
-// The slice codec (format v4): one slice's decoded bytes from the voxels it adds, and back. The writer
-// encodes (slice_plan.hpp); every reader, local or remote, decodes (store_reader.hpp). Compression and
+// The slice codec (format v5, and v4 read): one slice's decoded bytes from the voxels it adds, and back. The
+// writer encodes (slice_plan.hpp); every reader, local or remote, decodes (store_reader.hpp). Compression and
 // checksums are the reader's and writer's: the codec sees decoded bytes only.
 //
 // A slice adds one level below its *parents*: the voxels of the level above in its cube or run of
@@ -8,9 +8,9 @@
 //   hierarchy  a split bit per parent (bit i in byte i / 8, LSB first), then a valid mask byte per split
 //              parent: the new voxels, each parent's in slot order;
 //   contours   a presence bit per new voxel, then 5 byte planes of the present ones (byte 0 of every value,
-//              then byte 1, ...): the normal's three 6-bit fields minus those its voxel's normal predicts
-//              (mod 64), the position field minus the one its parent's contour predicts (mod 128), the
-//              thickness;
+//              then byte 1, ...): the normal's three 6-bit fields minus its parent contour's (mod 64), or
+//              where the parent has none (and in format v4 always) minus those its voxel's normal predicts;
+//              the position field minus the one its parent's contour predicts (mod 128); the thickness;
 //   colors     (stores with colors) a presence bit per new voxel, then the present ABGR words;
 //   normals    (stores with normals) a presence bit per new voxel, then 2 byte planes of the present ones:
 //              the octahedral code (format.hpp) minus its parent's effective normal's, per byte (mod 256).

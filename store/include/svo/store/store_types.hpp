@@ -36,7 +36,9 @@ inline constexpr char kFileMagic[8] = {'S', 'V', 'O', 'S', 'T', 'R', 'M', '\0'};
 // their parent's.
 // Any change to the bytes a writer makes bumps this and adds fixtures of the new version
 // (tests/data/fixtures/README.md): the fixtures pin every version's bytes.
-inline constexpr std::uint32_t kFileVersion = 4;
+inline constexpr std::uint32_t kFileVersion = 5;
+// The oldest version readers decode: 4 differs from 5 only in what predicts a contour's normal (codec.hpp).
+inline constexpr std::uint32_t kOldestReadVersion = 4;
 // Default slice size: "about 1 MB at most" (sec. 7); a cube whose next level would exceed it splits.
 inline constexpr std::uint32_t kDefaultSliceBytes = 1u << 20;
 
@@ -152,6 +154,7 @@ using SliceBytes = std::vector<std::byte, UninitializedAllocator<std::byte>>;
 
 // What a store's header says.
 struct StoreHeader {
+  std::uint32_t version = kFileVersion;  // the file's format version
   SceneTransform transform;
   BuildParameters parameters;
   bool hasColors = false, hasNormals = false;
