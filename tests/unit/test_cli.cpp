@@ -329,7 +329,15 @@ TEST_F(Cli, VerifyAndInspect) {
   for (const auto& level : j.at("perLevel")) voxels += level.at("voxels").get<std::uint64_t>();
   const svo::VoxelTree tree = svo::StoreReader(store).loadTree();
   EXPECT_EQ(voxels + 1, tree.voxels.size());
+  EXPECT_EQ(j.at("formatVersion"), svo::kFileVersion);
   EXPECT_EQ(svo("inspect " + store.string()).exitCode, 0);
+  // A store of the previous format reads, and inspect says a rebuild writes the current one.
+  const CommandResult old =
+      svo("inspect " + (fs::path(SVO_TEST_DATA) / "fixtures" / "sphere-v4.svo").string());
+  EXPECT_EQ(old.exitCode, 0) << old.err;
+  EXPECT_NE(old.out.find("format 4, "), std::string::npos) << old.out;
+  EXPECT_NE(old.out.find("svo build writes format " + std::to_string(svo::kFileVersion)), std::string::npos)
+      << old.out;
   // A flipped byte inside the slices: verify fails with one line naming the slice.
   std::string bytes = slurp(store);
   bytes[300] ^= 0x10;

@@ -53,6 +53,7 @@ void inspect(const std::string& path, const std::string& token, bool json) {
   if (json) {
     nlohmann::json j;
     j["file"] = path;
+    j["formatVersion"] = h.version;
     j["fileBytes"] = h.fileBytes;
     j["levels"] = h.parameters.levels;
     j["sliceBytes"] = h.sliceBytes;
@@ -77,9 +78,13 @@ void inspect(const std::string& path, const std::string& token, bool json) {
     std::printf("%s\n", j.dump(2).c_str());
     return;
   }
-  fmt::print("{}: {:.2f} MiB, {} levels, {} slices (slice size {} B), attachments:{}{}\n", path,
-             double(h.fileBytes) / (1 << 20), h.parameters.levels, reader.slices().size(), h.sliceBytes,
-             h.hasColors ? " color" : "", h.hasNormals ? " normal" : (h.hasColors ? "" : " none"));
+  fmt::print("{}: format {}, {:.2f} MiB, {} levels, {} slices (slice size {} B), attachments:{}{}\n", path,
+             h.version, double(h.fileBytes) / (1 << 20), h.parameters.levels, reader.slices().size(),
+             h.sliceBytes, h.hasColors ? " color" : "",
+             h.hasNormals ? " normal" : (h.hasColors ? "" : " none"));
+  if (h.version < kFileVersion)
+    fmt::print("(format {} is read as it is; svo build writes format {}, smaller on disk)\n", h.version,
+               kFileVersion);
   fmt::print("{:>5} {:>7} {:>11} {:>6} {:>9} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10}\n", "level", "slices",
              "voxels", "branch", "B/v disk", "B/v raw", "hierarchy", "contours", "colors", "normals",
              "max slice");
