@@ -49,32 +49,41 @@ class ContourPositionPredictor {
   int twicePosition_;  // 62 p: 31 x twice the parent's position field
 };
 
-// What predicts the normal fields of a contour among a parent's children: the parent's contour in format v5
-// where it has one, else the store's prediction from each child's normal (predictedContourNormalBits). A
-// contour follows the geometry, which the parent's contour describes at the next scale up; a voxel's normal
-// is its shading normal, off its triangles' own by up to the crease angle (format v4 predates those).
-class ContourNormalPredictor {
+// The normal fields a parent's contour predicts for its children's contours (kParentContourPrediction): its
+// own, where it has one; else the prediction from each child's normal. A contour follows the geometry, which
+// the parent's contour describes one scale up.
+class ParentContourNormal {
  public:
-  ContourNormalPredictor(bool parentContourPredicts, bool parentHasContour, std::uint32_t parentContour)
-      : fromParent_(parentContourPredicts && parentHasContour) {
+  ParentContourNormal(bool parentHasContour, std::uint32_t parentContour) : has_(parentHasContour) {
     const ContourFields f = contourFields(parentContour);
-    parentBits_ = packContourBits(f.normal[0], f.normal[1], f.normal[2], 0, 0);
+    bits_ = packContourBits(f.normal[0], f.normal[1], f.normal[2], 0, 0);
   }
-  // `childNormalBits`: predictedContourNormalBits of the child's normal (0 in a store without normals).
-  std::uint32_t operator()(std::uint32_t childNormalBits) const {
-    return fromParent_ ? parentBits_ : childNormalBits;
-  }
+  // `fromChildNormal`: predictedContourNormalBits of the child's normal (0 in a store without normals).
+  std::uint32_t operator()(std::uint32_t fromChildNormal) const { return has_ ? bits_ : fromChildNormal; }
 
  private:
-  bool fromParent_;
-  std::uint32_t parentBits_;
+  bool has_;
+  std::uint32_t bits_;
 };
+
+// Bits an order-0 entropy coder needs for the values the histograms count, each field apart.
+template <class Histograms>
+double entropyBits(const Histograms& histograms) {
+  double bits = 0.0;
+  for (const auto& h : histograms) {
+    std::uint64_t n = 0;
+    for (const std::uint32_t c : h) n += c;
+    for (const std::uint32_t c : h)
+      if (c) bits += double(c) * std::log2(double(n) / double(c));
+  }
+  return bits;
+}
 
 using ContourResidual = std::array<std::uint8_t, kContourBytes>;
 using NormalResidual = std::array<std::uint8_t, kNormalBytes>;
 
-// `predicted`: the normal fields ContourNormalPredictor gives and the position field ContourPositionPredictor
-// gives.
+// `predicted`: the normal fields predicted (from the voxel's normal, or its parent's contour) and the
+// position field ContourPositionPredictor gives.
 // Fields are differences modulo their widths (packContourBits masks them).
 ContourResidual contourResidual(std::uint32_t contour, std::uint32_t predicted) {
   const ContourFields c = contourFields(contour), p = contourFields(predicted);
@@ -158,7 +167,7 @@ void SliceSections::addParent(const SliceParent& parent, std::span<const SliceCh
   if (parent.childMask == 0) return;
   masks_.push_back(parent.childMask);
   const ContourPositionPredictor position(parent.hasContour, parent.contour);
-  const ContourNormalPredictor contourNormal(kFileVersion >= 5, parent.hasContour, parent.contour);
+  const ParentContourNormal fromParent(parent.hasContour, parent.contour);
   const std::uint16_t parentCode = hasNormals_ ? octNormalCodeOf(parent.normal) : 0;
   const SliceChild* child = children.data();
   for (int slot = 0; slot < 8; ++slot) {
@@ -166,9 +175,14 @@ void SliceSections::addParent(const SliceParent& parent, std::span<const SliceCh
     const SliceChild& c = *child++;
     const std::uint16_t code = hasNormals_ ? octNormalCodeOf(c.normal) : 0;
     contourBits_.push(c.hasContour);
-    if (c.hasContour)
-      contours_.push_back(contourResidual(
-          c.contour, contourNormal(hasNormals_ ? predictedContourNormalBits(code) : 0) | position(slot)));
+    if (c.hasContour) {
+      const std::uint32_t fromNormal = hasNormals_ ? predictedContourNormalBits(code) : 0;
+      const ContourResidual a = contourResidual(c.contour, fromNormal | position(slot));
+      const ContourResidual b = contourResidual(c.contour, fromParent(fromNormal));
+      contours_.push_back(a);
+      parentPredicted_.push_back({b[0], b[1], b[2]});
+      for (int k = 0; k < 3; ++k) ++voxelNormalCounts_[k][a[k]], ++parentContourCounts_[k][b[k]];
+    }
     if (hasColors_) {
       colorBits_.push(c.storesColor);
       if (c.storesColor) colors_.push_back(c.color);
@@ -186,11 +200,19 @@ void SliceSections::append(const SliceSections& o) {
   colorBits_.append(o.colorBits_), normalBits_.append(o.normalBits_);
   masks_.insert(masks_.end(), o.masks_.begin(), o.masks_.end());
   contours_.insert(contours_.end(), o.contours_.begin(), o.contours_.end());
+  parentPredicted_.insert(parentPredicted_.end(), o.parentPredicted_.begin(), o.parentPredicted_.end());
+  for (int k = 0; k < 3; ++k)
+    for (int v = 0; v < 64; ++v)
+      voxelNormalCounts_[k][v] += o.voxelNormalCounts_[k][v],
+          parentContourCounts_[k][v] += o.parentContourCounts_[k][v];
   colors_.insert(colors_.end(), o.colors_.begin(), o.colors_.end());
   normals_.insert(normals_.end(), o.normals_.begin(), o.normals_.end());
 }
 
-std::vector<std::byte> encodeSlice(const SliceHead& head, const SliceSections& s) {
+std::vector<std::byte> encodeSlice(const SliceHead& plannedHead, const SliceSections& s) {
+  SliceHead head = plannedHead;
+  const bool fromParents = entropyBits(s.parentContourCounts_) < entropyBits(s.voxelNormalCounts_);
+  if (fromParents) head.attachments |= kParentContourPrediction;
   std::vector<std::byte> out(sizeof head);
   std::memcpy(out.data(), &head, sizeof head);
   out.reserve(sliceRawBytes(head));
@@ -205,7 +227,10 @@ std::vector<std::byte> encodeSlice(const SliceHead& head, const SliceSections& s
   };
   s.split_.writeTo(out);
   for (const std::uint8_t mask : s.masks_) out.push_back(std::byte(mask));
-  s.contourBits_.writeTo(out), planes(s.contours_);
+  s.contourBits_.writeTo(out);
+  for (std::size_t k = 0; k < kContourBytes; ++k)  // the normal fields as the head says, then the rest
+    for (std::size_t i = 0; i < s.contours_.size(); ++i)
+      out.push_back(std::byte(fromParents && k < 3 ? s.parentPredicted_[i][k] : s.contours_[i][k]));
   if (head.attachments & 1u) s.colorBits_.writeTo(out), words(s.colors_);
   if (head.attachments & 2u) s.normalBits_.writeTo(out), planes(s.normals_);
   if (out.size() != sliceRawBytes(head))
@@ -248,7 +273,9 @@ SliceHead checkedHead(std::span<const std::byte> raw, const SliceInfo& s, const 
   if (head.magic != kSliceMagic || head.parentCount != s.parentCount || head.voxelCount != s.voxelCount ||
       head.contourCount != s.contourCount || head.colorCount != s.colorCount ||
       head.normalCount != s.normalCount ||
-      head.attachments != sliceAttachments(header.hasColors, header.hasNormals) ||
+      (head.attachments & ~kParentContourPrediction) !=
+          sliceAttachments(header.hasColors, header.hasNormals) ||
+      ((head.attachments & kParentContourPrediction) && header.version < 5) ||
       head.splitCount > head.parentCount)
     throw SliceDecodeError("its head does not match the directory");
   if (sliceRawBytes(head) != raw.size()) throw SliceDecodeError("section sizes do not add up to its size");
@@ -302,7 +329,7 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
   if (header.hasNormals) normals.emplace(sections, head.voxelCount, head.normalCount);
   const std::uint32_t* const lattice = latticeNormalTable();
   const std::uint32_t* const contourNormals = contourNormalPredictionTable();
-  const bool parentContourPredicts = header.version >= 5;
+  const bool parentContourPredicts = (head.attachments & kParentContourPrediction) != 0;
 
   const std::size_t firstAdded = children.size();
   // At most 8 children per split voxel, whose masks are bytes of this slice: a hostile count reserves no
@@ -324,7 +351,7 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
       throw SliceDecodeError("valid masks do not match the voxel count");
     p.childMask = mask;
     const ContourPositionPredictor position(p.hasContour, p.contour);
-    const ContourNormalPredictor contourNormal(parentContourPredicts, p.hasContour, p.contour);
+    const ParentContourNormal fromParent(parentContourPredicts && p.hasContour, p.contour);
     const std::uint16_t parentCode = normals ? codes(p) : 0;
     for (unsigned rest = mask; rest != 0; rest &= rest - 1, ++added) {
       const int slot = std::countr_zero(rest);
@@ -342,7 +369,7 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
         ContourResidual r;
         for (std::size_t plane = 0; plane < kContourBytes; ++plane) r[plane] = contours.planeByte(plane, k);
         child.hasContour = true;
-        child.contour = contourOf(r, contourNormal(normals ? contourNormals[code] : 0) | position(slot));
+        child.contour = contourOf(r, fromParent(normals ? contourNormals[code] : 0) | position(slot));
       }
     }
   }

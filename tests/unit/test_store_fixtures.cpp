@@ -150,6 +150,17 @@ VoxelRule sphereRule(int levels) {
           }};
 }
 
+// The sphere again with every normal +z: its voxels' normals say nothing of its contours, so format v5 codes
+// those of the levels below the first against their parents' contours (kParentContourPrediction).
+VoxelRule flatShadedSphereRule(int levels) {
+  VoxelRule rule = sphereRule(levels);
+  rule.attributes = [sphere = rule.attributes](int level, glm::ivec3 c, svo::VoxelRecord& r) {
+    sphere(level, c, r);
+    r.normal = svo::latticeNormal(glm::vec3(0, 0, 1));
+  };
+  return rule;
+}
+
 struct Fixture {
   std::string file;
   std::uint32_t version;
@@ -173,14 +184,20 @@ Fixture cubeFixture(const std::string& name, std::uint32_t version, int levels, 
 Fixture fixture(const std::string& name, std::uint32_t version) {
   if (name == "cube") return cubeFixture(name, version, 4, svo::kDefaultSliceBytes);
   if (name == "runs") return cubeFixture(name, version, 3, 256);
-  const VoxelRule rule = sphereRule(4);
+  const VoxelRule rule = name == "shaded" ? flatShadedSphereRule(4) : sphereRule(4);
   return {fileOf(name, version),       version,         rule,
           treeOf(4, true, true, rule), {4, 0, 0, 0, 1}, svo::kDefaultSliceBytes};
 }
-const char* const kFixtures[] = {"cube", "sphere", "runs"};
-// Every version readers decode has fixtures; the writer makes the last.
+// Every version readers decode has fixtures; the writer makes the last. The shaded sphere pins what only
+// format v5 has (kParentContourPrediction).
 constexpr std::uint32_t kVersions[] = {4, 5};
 static_assert(kVersions[0] == svo::kOldestReadVersion && kVersions[1] == svo::kFileVersion);
+struct FixtureFile {
+  const char* name;
+  std::uint32_t version;
+};
+constexpr FixtureFile kFixtureFiles[] = {{"cube", 4},   {"sphere", 4}, {"runs", 4},  {"cube", 5},
+                                         {"sphere", 5}, {"runs", 5},   {"shaded", 5}};
 
 fs::path fixturePath(const Fixture& f) {
   return fs::path(SVO_TEST_DATA) / "fixtures" / f.file;
@@ -475,9 +492,9 @@ void checkSphere(const Fixture& f) {
   }
   EXPECT_EQ(levels[2][2].contour, svo::packContourBits(-10, -10, -31, -7, 7));
   EXPECT_EQ(code(levels[2][6]), kCornerCodes[0]);  // (1,1,1) lies on octant 0's diagonal: inherits
-  // Its residual bytes. Normal, format v4: the code (-102, -102) of (-1, -1, -3) predicts it exactly; v5:
-  // octant 0's contour normal (-31, -31, -31) predicts it, so (21, 21, 0). Position: octant 0's contour
-  // predicts round((62 x -8 + 21 x 31) / 31) = 5 for slot 3, so -7 - 5 = -12 (0x74).
+  // Its residual bytes: the code (-102, -102) of (-1, -1, -3) predicts the normal exactly (so format v5 keeps
+  // that prediction: the head's bit 2 is clear); octant 0's contour predicts position
+  // round((62 x -8 + 21 x 31) / 31) = 5 for slot 3, so -7 - 5 = -12 (0x74).
   // Contour presence: octant s lists its children c != s in slot order; those on two of its inner sides
   // (c and s differ in two bits) have contours.
   std::vector<std::uint8_t> contourBits(7, 0);
@@ -492,12 +509,47 @@ void checkSphere(const Fixture& f) {
   ASSERT_EQ(raw1.size(), 502u);
   EXPECT_EQ(std::vector<std::uint8_t>(raw1.begin() + 41, raw1.begin() + 48), contourBits);
   const std::size_t contours = 48;  // head 32, split bits 1, masks 8, contour presence bits 7
-  const std::array<std::uint8_t, 5> residual = f.version == 4
-                                                   ? std::array<std::uint8_t, 5>{0, 0, 0, 0x74, 7}
-                                                   : std::array<std::uint8_t, 5>{21, 21, 0, 0x74, 7};
+  EXPECT_EQ(raw1[28], 3) << "attachment bits: colors, normals";
   for (std::size_t plane = 0; plane < 5; ++plane)
-    EXPECT_EQ(raw1[contours + 24 * plane], residual[plane]) << plane;
+    EXPECT_EQ(raw1[contours + 24 * plane], (std::array<std::uint8_t, 5>{0, 0, 0, 0x74, 7}[plane])) << plane;
   EXPECT_EQ(code(levels[2][2]), 0x9A9A);
+}
+
+// Format v5 only: the sphere with every normal +z (flatShadedSphereRule). Its first slice codes the octants'
+// contours as the sphere's does, against the root's +z: the store predicts (0, 0, 31) from it, so residuals
+// (+-31 - 0, +-31 - 0, +-31 - 31) = (31 or 33, 31 or 33, 0 or 2); the root has no contour, so both
+// predictions agree and the head's bit 2 stays clear. Its second slice's contours are far from (0, 0, 31)
+// but near their parents' (+-31, +-31, +-31): the writer sets bit 2, and the first, child (1,1,0) of octant
+// 0 with normal (-10, -10, -31), has residuals (21, 21, 0).
+void checkShaded(const Fixture& f) {
+  const std::string bytes = slurp(fixturePath(f));
+  checkHeader(bytes, f, true, 4);
+  checkEntry(bytes, 0, {1, 0, 7, 1, 8, 8, 8, 0, 109, svo::SliceInfo::kNoSlice});
+  std::vector<std::uint8_t> slice0 = head(1, 1, 8, 8, 8, 0, 3);
+  append(slice0, {0x01, 0xFF, 0xFF});
+  for (const int bit : {1, 2})
+    for (int s = 0; s < 8; ++s) slice0.push_back(s & bit ? 0x1F : 0x21);  // x, y residuals
+  for (int s = 0; s < 8; ++s) slice0.push_back(s & 4 ? 0x00 : 0x02);      // z residuals
+  append(slice0, {0x78, 0x78, 0x78, 0x78, 0x78, 0x78, 0x78, 0x78});       // positions, as the sphere's
+  append(slice0, {0x0B, 0x0B, 0x0B, 0x0B, 0x0B, 0x0B, 0x0B, 0x0B});       // thicknesses
+  append(slice0, {0xFF});
+  for (int s = 0; s < 8; ++s) {
+    const auto channel = [&](int bit) { return std::uint8_t(s & bit ? 0xBF : 0x3F); };
+    append(slice0, {channel(1), channel(2), channel(4), 0xFF});
+  }
+  append(slice0, {0x00});  // every normal +z: all inherit the root's
+  EXPECT_EQ(rawSlice(bytes, 0), slice0);
+
+  const std::vector<std::uint8_t> raw1 = rawSlice(bytes, 1);
+  ASSERT_GT(raw1.size(), 48u + 5 * 24u);
+  EXPECT_EQ(raw1[28], 7) << "attachment bits: colors, normals, kParentContourPrediction";
+  for (std::size_t plane = 0; plane < 5; ++plane)
+    EXPECT_EQ(raw1[48 + 24 * plane], (std::array<std::uint8_t, 5>{21, 21, 0, 0x74, 7}[plane])) << plane;
+
+  const svo::VoxelLevels levels = decodeChain(readerOf(f), 2);
+  ASSERT_EQ(levels[2].size(), 56u);
+  EXPECT_EQ(levels[2][2].contour, svo::packContourBits(-10, -10, -31, -7, 7));
+  for (const svo::SliceVoxel& v : levels[2]) EXPECT_EQ(v.normal, svo::latticeNormal(glm::vec3(0, 0, 1)));
 }
 
 void checkRuns(const Fixture& f) {
@@ -546,6 +598,24 @@ TEST(StoreFixtures, SphereDecodesAsWorkedOutByHand) {
   }
 }
 
+TEST(StoreFixtures, ShadedSphereDecodesAsWorkedOutByHand) {
+  checkShaded(fixture("shaded", 5));
+}
+
+// Bit 2 of a slice head means nothing in format v4: the same slice under a v4 header is refused.
+TEST(StoreFixtures, AVersion4HeaderRefusesParentContourPrediction) {
+  const svo::StoreReader reader = readerOf(fixture("shaded", 5));
+  svo::VoxelLevels levels = decodeChain(reader, 1);
+  svo::StoreHeader v4 = reader.header();
+  v4.version = 4;
+  std::vector<svo::SliceVoxel> added;
+  const svo::SliceBytes raw = reader.readSlice(1);
+  EXPECT_THROW(svo::decodeSlice(std::span(raw.data(), raw.size()), reader.slices()[1], v4, levels[1], added),
+               svo::SliceDecodeError);
+  EXPECT_NO_THROW(svo::decodeSlice(std::span(raw.data(), raw.size()), reader.slices()[1], reader.header(),
+                                   levels[1], added));
+}
+
 TEST(StoreFixtures, RunsDecodeAsWorkedOutByHand) {
   for (const std::uint32_t version : kVersions) {
     SCOPED_TRACE("format v" + std::to_string(version));
@@ -556,22 +626,22 @@ TEST(StoreFixtures, RunsDecodeAsWorkedOutByHand) {
 // Every voxel, every slice: the store loaded whole lays out to the block of the tree it was written from,
 // and svo verify's walk counts that tree's voxels.
 TEST(StoreFixtures, ReaderDecodesEveryVoxel) {
-  for (const std::uint32_t version : kVersions)
-    for (const char* name : kFixtures) {
-      const Fixture f = fixture(name, version);
-      SCOPED_TRACE(f.file);
-      const svo::StoreReader reader = readerOf(f);
-      EXPECT_TRUE(sameBlock(svo::layoutBlock(reader.loadTree()), svo::layoutBlock(f.tree)));
-      EXPECT_EQ(reader.verify(), f.tree.voxels.size());
-      EXPECT_EQ(reader.header().transform.origin, kScene.origin);
-      EXPECT_EQ(reader.header().transform.size, kScene.size);
-    }
+  for (const auto& [name, version] : kFixtureFiles) {
+    const Fixture f = fixture(name, version);
+    SCOPED_TRACE(f.file);
+    const svo::StoreReader reader = readerOf(f);
+    EXPECT_TRUE(sameBlock(svo::layoutBlock(reader.loadTree()), svo::layoutBlock(f.tree)));
+    EXPECT_EQ(reader.verify(), f.tree.voxels.size());
+    EXPECT_EQ(reader.header().transform.origin, kScene.origin);
+    EXPECT_EQ(reader.header().transform.size, kScene.size);
+  }
 }
 
 TEST(StoreFixtures, WriterReproducesThemByteForByte) {
   const char* regenerate = std::getenv("SVO_WRITE_FIXTURES");
-  for (const char* name : kFixtures) {
-    const Fixture f = fixture(name, svo::kFileVersion);
+  for (const auto& [name, version] : kFixtureFiles) {
+    if (version != svo::kFileVersion) continue;
+    const Fixture f = fixture(name, version);
     svo::StoreWriteOptions options;
     options.sliceBytes = f.sliceBytes;
     if (regenerate && *regenerate) {

@@ -8,9 +8,10 @@
 //   hierarchy  a split bit per parent (bit i in byte i / 8, LSB first), then a valid mask byte per split
 //              parent: the new voxels, each parent's in slot order;
 //   contours   a presence bit per new voxel, then 5 byte planes of the present ones (byte 0 of every value,
-//              then byte 1, ...): the normal's three 6-bit fields minus its parent contour's (mod 64), or
-//              where the parent has none (and in format v4 always) minus those its voxel's normal predicts;
-//              the position field minus the one its parent's contour predicts (mod 128); the thickness;
+//              then byte 1, ...): the normal's three 6-bit fields minus those its voxel's normal predicts
+//              (mod 64), or in a slice whose head has kParentContourPrediction (format v5) minus its parent
+//              contour's where the parent has one; the position field minus the one its parent's contour
+//              predicts (mod 128); the thickness;
 //   colors     (stores with colors) a presence bit per new voxel, then the present ABGR words;
 //   normals    (stores with normals) a presence bit per new voxel, then 2 byte planes of the present ones:
 //              the octahedral code (format.hpp) minus its parent's effective normal's, per byte (mod 256).
@@ -20,6 +21,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <span>
@@ -44,6 +46,11 @@ static_assert(sizeof(SliceHead) == 32);
 constexpr std::uint32_t sliceAttachments(bool hasColors, bool hasNormals) {
   return (hasColors ? 1u : 0u) | (hasNormals ? 2u : 0u);
 }
+// Format v5, a head's bit 2: the slice's contour normals are coded against their parents' contours where
+// those have one. The writer sets it where that costs less than the prediction from the voxels' normals:
+// shading normals (meshes) stray from the geometry the contours follow, while a scan's or a volume's voxel
+// normals give the contour's exactly.
+inline constexpr std::uint32_t kParentContourPrediction = 4u;
 
 // Bytes per stored value: a contour residual, a color, a normal residual.
 inline constexpr std::size_t kContourBytes = 5;
@@ -103,11 +110,17 @@ class SliceSections {
   };
   using ContourResidual = std::array<std::uint8_t, kContourBytes>;
   using NormalResidual = std::array<std::uint8_t, kNormalBytes>;
+  using ContourNormalResidual = std::array<std::uint8_t, 3>;
 
   bool hasColors_, hasNormals_;
   Bits split_, contourBits_, colorBits_, normalBits_;
   std::vector<std::uint8_t> masks_;
-  std::vector<ContourResidual> contours_;
+  std::vector<ContourResidual> contours_;               // normal fields against the voxels' normals
+  std::vector<ContourNormalResidual> parentPredicted_;  // against the parents' contours where they have one
+  // How often each value of each normal field's residual occurs under either prediction: the slice uses the
+  // one of lower entropy (what zstd's Huffman coding of the planes comes near).
+  using FieldHistograms = std::array<std::array<std::uint32_t, 64>, 3>;
+  FieldHistograms voxelNormalCounts_{}, parentContourCounts_{};
   std::vector<std::uint32_t> colors_;
   std::vector<NormalResidual> normals_;
 
