@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <cassert>
+#include <cmath>
 #include <cstring>
 #include <optional>
 #include <string>
@@ -202,9 +203,10 @@ void SliceSections::append(const SliceSections& o) {
   contours_.insert(contours_.end(), o.contours_.begin(), o.contours_.end());
   parentPredicted_.insert(parentPredicted_.end(), o.parentPredicted_.begin(), o.parentPredicted_.end());
   for (int k = 0; k < 3; ++k)
-    for (int v = 0; v < 64; ++v)
-      voxelNormalCounts_[k][v] += o.voxelNormalCounts_[k][v],
-          parentContourCounts_[k][v] += o.parentContourCounts_[k][v];
+    for (int v = 0; v < 64; ++v) {
+      voxelNormalCounts_[k][v] += o.voxelNormalCounts_[k][v];
+      parentContourCounts_[k][v] += o.parentContourCounts_[k][v];
+    }
   colors_.insert(colors_.end(), o.colors_.begin(), o.colors_.end());
   normals_.insert(normals_.end(), o.normals_.begin(), o.normals_.end());
 }
