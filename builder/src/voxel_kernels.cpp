@@ -93,16 +93,15 @@ dvec3 pieceNormal(const Piece& piece, const Triangle& t, const std::array<glm::v
 
 dvec4 pieceColor(const Piece& piece, const Triangle& t, const glm::vec4* colors, const glm::vec2* uvs,
                  const Material& material, const std::vector<std::shared_ptr<const TextureImage>>& textures) {
-  const auto barycentric = [&](const dvec3& x) { return barycentricIn(t, x); };
   dvec4 color(material.baseColor);
   if (colors) {
-    const dvec3 b = barycentric(piece.centroid);
+    const dvec3 b = barycentricIn(t, piece.centroid);
     color *= b.x * dvec4(colors[0]) + b.y * dvec4(colors[1]) + b.z * dvec4(colors[2]);
   }
   if (material.texture >= 0 && uvs) {
     glm::vec2 uv[geom::kMaxClippedVertices + 3];
     for (int k = 0; k < piece.polygon.n; ++k) {
-      const dvec3 b = barycentric(piece.polygon.v[k]);
+      const dvec3 b = barycentricIn(t, piece.polygon.v[k]);
       uv[k] = glm::vec2(b.x * glm::dvec2(uvs[0]) + b.y * glm::dvec2(uvs[1]) + b.z * glm::dvec2(uvs[2]));
     }
     color *= dvec4(textures[material.texture]->average({uv, std::size_t(piece.polygon.n)}));

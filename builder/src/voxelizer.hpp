@@ -108,12 +108,13 @@ class Voxelizer {
   Aggregate attributesOf(const std::vector<Piece>& pieces, const geom::Cube& cube, Spread* spread) const {
     Aggregate a;
     std::vector<dvec4> colors(colors_ ? pieces.size() : 0);
-    std::vector<dvec3> normals(pieces.size());
+    std::vector<dvec3> normals(spread ? pieces.size() : 0);  // kept for the spread's second pass only
     for (std::size_t i = 0; i < pieces.size(); ++i) {
       const Triangle& t = triangles_[pieces[i].triangle];
       if (colors_) colors[i] = colorOf(pieces[i]);
-      normals[i] = pieceNormal(pieces[i], t, corners_[t.source]);
-      accumulate(a, pieceWeight(pieces[i], cube), normals[i], colors_ ? &colors[i] : nullptr);
+      const dvec3 normal = pieceNormal(pieces[i], t, corners_[t.source]);
+      if (spread) normals[i] = normal;
+      accumulate(a, pieceWeight(pieces[i], cube), normal, colors_ ? &colors[i] : nullptr);
     }
     if (spread)
       for (std::size_t i = 0; i < pieces.size(); ++i)

@@ -73,6 +73,11 @@ AngleStats normalError(const svo::Octree& octree, int rays, Truth truth, Use use
   return s;
 }
 
+// normalError's `use` that keeps every hit.
+bool everywhere(const glm::dvec3&) {
+  return true;
+}
+
 }  // namespace
 
 // A box's corners are 54.7 degrees off each of its faces: every corner keeps its face's normal (a crease).
@@ -130,9 +135,9 @@ TEST(ShadingNormals, VoxelNormalsFollowTheSurfaceACoarseMeshApproximates) {
   svo::BuildOptions options;
   options.levels = 6;
   const auto radial = [&](const glm::dvec3& p) { return p - centre; };
-  const auto all = [](const glm::dvec3&) { return true; };
-  const AngleStats smooth = normalError(svo::buildOctree(sphere, options), 4000, radial, all);
-  const AngleStats faceted = normalError(svo::buildOctree(unshared(sphere), options), 4000, radial, all);
+  const AngleStats smooth = normalError(svo::buildOctree(sphere, options), 4000, radial, everywhere);
+  const AngleStats faceted =
+      normalError(svo::buildOctree(unshared(sphere), options), 4000, radial, everywhere);
   std::printf(
       "[ NORMALS  ] coarse sphere L6: shading normals mean %.2f max %.2f deg; face normals mean %.2f "
       "max %.2f deg (%zu / %zu hits)\n",
@@ -192,9 +197,8 @@ TEST(ShadingNormals, AFilesOwnNormalsAreKept) {
   options.levels = 5;
   const auto isLeaning = [](const glm::dvec3&) { return glm::dvec3(0.0, 0.6, 0.8); };
   const auto isPlane = [](const glm::dvec3&) { return glm::dvec3(0.0, 0.0, 1.0); };
-  const auto all = [](const glm::dvec3&) { return true; };
-  const AngleStats kept = normalError(svo::buildOctree(leaning, options), 2000, isLeaning, all);
-  const AngleStats derived = normalError(svo::buildOctree(plain, options), 2000, isPlane, all);
+  const AngleStats kept = normalError(svo::buildOctree(leaning, options), 2000, isLeaning, everywhere);
+  const AngleStats derived = normalError(svo::buildOctree(plain, options), 2000, isPlane, everywhere);
   std::printf(
       "[ NORMALS  ] square with the file's normals: mean %.3f max %.3f deg; without: mean %.3f max %.3f "
       "deg (%zu / %zu hits)\n",
