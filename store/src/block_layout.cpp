@@ -19,6 +19,7 @@
 #include <glm/geometric.hpp>
 
 #include "svo/store/block.hpp"
+#include "svo/store/store_types.hpp"  // UninitializedAllocator
 
 namespace svo {
 namespace {
@@ -104,14 +105,113 @@ struct Segment {
   int half;
 };
 
+// Per non-leaf voxel, breadth first from the root (so each child's effective, possibly inherited, value is
+// known from its parent's): its children's contours and, in the raw layout, which children keep a value of
+// their own. What the slot plan and the descriptors need is kept per queue entry, so the passes after this
+// one read the voxels with children in queue order and never the leaves (three in four voxels).
+struct Queued {
+  std::uint32_t voxel, color, normal;  // the voxel and its effective values
+};
+struct Entry {
+  std::uint32_t contourFirst, colorFirst, normalFirst;
+  std::uint32_t firstChildEntry;  // queue entry of its first child with children (the others follow)
+  std::uint32_t firstChild;       // its first child's record (VoxelRecord::firstChild)
+  std::uint8_t childMask, contourMask, colorMask, normalMask, leafMask;
+  std::uint8_t stubMask;  // children laid out as stubs: descriptor slots, not queued
+};
+template <class T>
+using Scratch = std::vector<T, UninitializedAllocator<T>>;  // every element is written before it is read
+struct Collected {
+  Scratch<Queued> queue;
+  Scratch<Entry> entries;
+  Scratch<std::uint32_t> contours, colors, normals;
+};
+
+Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutStats& stats) {
+  const std::size_t n = tree.voxels.size();
+  // The compressed layout keeps no values here, but its units need the effective values too.
+  const bool raw = options.attributes == AttributeLayout::Raw;
+  const bool colors = tree.hasColors, normals = tree.hasNormals;
+  const InheritanceRule inherits(options);
+  Collected out;
+  // Sized for the most there can be and written through pointers, then cut to what was written: a
+  // push_back's bounds check and size update per value were a third of this pass.
+  out.queue.resize(n), out.entries.resize(n);
+  out.contours.resize(n), out.colors.resize(raw && colors ? n : 0),
+      out.normals.resize(raw && normals ? n : 0);
+  Queued* const queue = out.queue.data();
+  std::uint32_t* const contourOut = out.contours.data();
+  std::uint32_t* const colorOut = out.colors.data();
+  std::uint32_t* const normalOut = out.normals.data();
+  std::size_t queued = 1, contourCount = 0, colorCount = 0, normalCount = 0;
+  std::uint64_t inheritedColors = 0, inheritedNormals = 0, stubs = 0;
+  queue[0] = {0, tree.voxels[0].color, tree.voxels[0].normal};
+  std::size_t qi = 0;
+  for (; qi < queued; ++qi) {
+    const Queued parent = queue[qi];
+    const VoxelRecord& r = tree.voxels[parent.voxel];
+    Entry& e = out.entries[qi];
+    e = Entry{std::uint32_t(contourCount),
+              std::uint32_t(colorCount),
+              std::uint32_t(normalCount),
+              std::uint32_t(queued),
+              r.firstChild,
+              r.childMask,
+              0,
+              0,
+              0,
+              0,
+              0};
+    const InheritanceRule::ParentNormal parentNormal =
+        normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
+    // Set bits only, and only voxels with children queued.
+    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
+      const std::uint8_t bit = std::uint8_t(mask & (0u - mask));
+      const VoxelRecord& child = tree.voxels[c];
+      if (child.hasContour) contourOut[contourCount++] = child.contour, e.contourMask |= bit;
+      std::uint32_t color = parent.color, normal = parent.normal;
+      if (colors) {
+        if (inherits.color(child.color, color)) {
+          ++inheritedColors;
+        } else {
+          if (raw) colorOut[colorCount++] = child.color;
+          e.colorMask |= bit;
+          color = child.color;
+        }
+      }
+      if (normals) {
+        if (inherits.normal(child.normal, parentNormal)) {
+          ++inheritedNormals;
+        } else {
+          if (raw) normalOut[normalCount++] = child.normal;
+          e.normalMask |= bit;
+          normal = child.normal;
+        }
+      }
+      if (child.childMask != 0) {
+        queue[queued++] = {c, color, normal};
+      } else if (child.stub) {
+        e.stubMask |= bit, ++stubs;  // all-zero stub descriptor and lookup entries (format.hpp)
+      } else {
+        e.leafMask |= bit;
+      }
+    }
+  }
+  out.queue.resize(queued), out.entries.resize(queued);
+  out.contours.resize(contourCount), out.colors.resize(colorCount), out.normals.resize(normalCount);
+  stats.inheritedColors += inheritedColors, stats.inheritedNormals += inheritedNormals;
+  stats.descriptorSlots += stubs;
+  return out;
+}
+
 // One layout pass for a given set of far voxels. A voxel's far flag is read once, when its parent's run is
 // reserved, before the voxel's own run is: so the pass marks the voxels whose run it puts out of reach as it
 // goes, without changing its own outcome, and the caller repeats it until it marks none.
 class SlotPlanner {
  public:
-  SlotPlanner(const VoxelTree& tree, std::vector<std::uint8_t>& needsFar, std::uint32_t maxNearPointer,
-              const UnitPlacement& units)
-      : tree_(tree), needsFar_(needsFar), maxNearPointer_(maxNearPointer), units_(units) {}
+  SlotPlanner(const VoxelTree& tree, const Collected& collected, std::vector<std::uint8_t>& needsFar,
+              std::uint32_t maxNearPointer, const UnitPlacement& units)
+      : tree_(tree), c_(collected), needsFar_(needsFar), maxNearPointer_(maxNearPointer), units_(units) {}
 
   SlotPlan plan() {
     const std::size_t n = tree_.voxels.size();
@@ -130,8 +230,6 @@ class SlotPlanner {
   std::uint32_t newlyFar() const { return newlyFar_; }
 
  private:
-  bool isNonLeaf(std::uint32_t v) const { return tree_.voxels[v].childMask != 0 || tree_.voxels[v].stub; }
-
   // Reserves `count` consecutive slots inside one page (a run must not straddle a page header). With `half`
   // 0 or 1 the run starts on that half of a unit, and a run starting on a second half follows an empty slot,
   // so that its first descriptor has its unit to itself.
@@ -184,15 +282,16 @@ class SlotPlanner {
     return segments;
   }
 
-  // Depth first: the run of v's non-leaf children (followed by their far slots), then each child's subtree.
-  // In the compressed layout, where the children need more than one run to pair into units as they must, the
-  // run holds links and each segment follows in a run of its own.
-  void place(std::uint32_t v) {
-    const VoxelRecord& r = tree_.voxels[v];
+  // Depth first from queue entry q: the run of its voxel's non-leaf children (followed by their far slots),
+  // then each child's subtree. In the compressed layout, where the children need more than one run to pair
+  // into units as they must, the run holds links and each segment follows in a run of its own.
+  void place(std::uint32_t q) {
+    const Entry& e = c_.entries[q];
+    const std::uint32_t nonLeaf = e.childMask & ~e.leafMask;
+    if (nonLeaf == 0) return;
     std::uint32_t children[8], count = 0;
-    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c)
-      if (isNonLeaf(c)) children[count++] = c;
-    if (count == 0) return;
+    for (std::uint32_t mask = e.childMask, c = e.firstChild; mask; mask &= mask - 1, ++c)
+      if (nonLeaf & mask & (0u - mask)) children[count++] = c;
     std::uint32_t first;
     if (!units_.compressed) {
       first = reserve(count + farCount(children, 0, count));
@@ -208,12 +307,16 @@ class SlotPlanner {
         placeRun(children, s.begin, s.end,
                  reserve(s.end - s.begin + farCount(children, s.begin, s.end), s.half));
     }
+    const std::uint32_t v = c_.queue[q].voxel;
     plan_.runOf[v] = first;
     if (!needsFar_[v] && first - plan_.slotOf[v] > maxNearPointer_) needsFar_[v] = 1, ++newlyFar_;
-    for (std::uint32_t k = 0; k < count; ++k) place(children[k]);
+    // The children with children of their own are the queue entries from firstChildEntry on; stubs have none.
+    const std::uint32_t entries = std::uint32_t(std::popcount(nonLeaf & ~std::uint32_t(e.stubMask)));
+    for (std::uint32_t k = 0; k < entries; ++k) place(e.firstChildEntry + k);
   }
 
   const VoxelTree& tree_;
+  const Collected& c_;
   std::vector<std::uint8_t>& needsFar_;
   const std::uint32_t maxNearPointer_;
   const UnitPlacement units_;
@@ -223,89 +326,16 @@ class SlotPlanner {
 
 // Far pointers: lay out, mark every voxel whose run is out of reach, repeat until nothing changes. The marked
 // set only grows, so this ends; in practice after one or two extra passes.
-SlotPlan planSlots(const VoxelTree& tree, const LayoutOptions& options, const UnitPlacement& units,
-                   std::uint64_t& farVoxels) {
+SlotPlan planSlots(const VoxelTree& tree, const Collected& collected, const LayoutOptions& options,
+                   const UnitPlacement& units, std::uint64_t& farVoxels) {
   std::vector<std::uint8_t> needsFar(tree.voxels.size(), 0);
   farVoxels = 0;
   for (;;) {
-    SlotPlanner planner(tree, needsFar, options.maxNearPointer, units);
+    SlotPlanner planner(tree, collected, needsFar, options.maxNearPointer, units);
     SlotPlan plan = planner.plan();
     if (planner.newlyFar() == 0) return plan;
     farVoxels += planner.newlyFar();
   }
-}
-
-// Per non-leaf voxel, breadth first from the root (so each child's effective, possibly inherited, value is
-// known from its parent's): its children's contours and, in the raw layout, which children keep a value of
-// their own. What the descriptors need is kept per queue entry, so the passes after this one read the voxels
-// with children in queue order and skip the leaves (three in four voxels).
-struct Queued {
-  std::uint32_t voxel, color, normal;  // the voxel and its effective values
-};
-struct Entry {
-  std::uint32_t contourFirst, colorFirst, normalFirst;
-  std::uint32_t firstChildEntry;  // queue entry of its first child with children (the others follow)
-  std::uint8_t contourMask, colorMask, normalMask, leafMask;
-};
-struct Collected {
-  std::vector<Queued> queue;
-  std::vector<Entry> entries;
-  std::vector<std::uint32_t> contours, colors, normals;
-};
-
-Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutStats& stats) {
-  const std::size_t n = tree.voxels.size();
-  // The compressed layout keeps no values here, but its units need the effective values too.
-  const bool raw = options.attributes == AttributeLayout::Raw;
-  const bool colors = tree.hasColors, normals = tree.hasNormals;
-  const InheritanceRule inherits(options);
-  Collected out;
-  out.queue.reserve(n / 2 + 1), out.entries.reserve(n / 2 + 1);
-  out.contours.reserve(n), out.colors.reserve(raw && colors ? n : 0),
-      out.normals.reserve(raw && normals ? n : 0);
-  out.queue.push_back({0, tree.voxels[0].color, tree.voxels[0].normal});
-  for (std::size_t qi = 0; qi < out.queue.size(); ++qi) {
-    const Queued parent = out.queue[qi];
-    const VoxelRecord& r = tree.voxels[parent.voxel];
-    Entry& e = out.entries.emplace_back(
-        Entry{std::uint32_t(out.contours.size()), std::uint32_t(out.colors.size()),
-              std::uint32_t(out.normals.size()), std::uint32_t(out.queue.size()), 0, 0, 0, 0});
-    const InheritanceRule::ParentNormal parentNormal =
-        normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
-    // Set bits only, and only voxels with children queued.
-    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
-      const std::uint8_t bit = std::uint8_t(mask & (0u - mask));
-      const VoxelRecord& child = tree.voxels[c];
-      if (child.hasContour) out.contours.push_back(child.contour), e.contourMask |= bit;
-      std::uint32_t color = parent.color, normal = parent.normal;
-      if (colors) {
-        if (inherits.color(child.color, color)) {
-          ++stats.inheritedColors;
-        } else {
-          if (raw) out.colors.push_back(child.color);
-          e.colorMask |= bit;
-          color = child.color;
-        }
-      }
-      if (normals) {
-        if (inherits.normal(child.normal, parentNormal)) {
-          ++stats.inheritedNormals;
-        } else {
-          if (raw) out.normals.push_back(child.normal);
-          e.normalMask |= bit;
-          normal = child.normal;
-        }
-      }
-      if (child.childMask != 0) {
-        out.queue.push_back({c, color, normal});
-      } else if (child.stub) {
-        ++stats.descriptorSlots;  // all-zero stub descriptor and lookup entries (format.hpp)
-      } else {
-        e.leafMask |= bit;
-      }
-    }
-  }
-  return out;
 }
 
 // The compressed layout's units, before the block is sized: per pair of slots, a unit of the effective
@@ -535,10 +565,10 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   units.compressed = compressed;
   units.tree = &tree;
   if (compressed && units.carried(0)) units.rootHalf = units.carried(0)->half;
-  std::uint64_t farVoxels = 0;
-  SlotPlan plan = planSlots(tree, options, units, farVoxels);
   LayoutStats stats;
   const Collected c = collect(tree, options, stats);
+  std::uint64_t farVoxels = 0;
+  SlotPlan plan = planSlots(tree, c, options, units, farVoxels);
   const std::uint32_t slotCount = plan.slotCount;
   const EncodedUnits encoded = compressed ? UnitEncoder(tree, plan, c, options).encode() : EncodedUnits{};
   const Sections s = sections(tree, options, slotCount, c, encoded);
@@ -583,7 +613,6 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
 
   for (std::size_t qi = 0; qi < c.queue.size(); ++qi) {
     const std::uint32_t v = c.queue[qi].voxel;
-    const VoxelRecord& r = tree.voxels[v];
     const std::uint32_t slot = plan.slotOf[v];
     const Entry& e = c.entries[qi];
     std::uint32_t pointer = 0;
@@ -609,7 +638,7 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
             "a block pool");
       contourPointer = std::uint32_t(contourWords);
     }
-    slots[slot] = ChildDescriptor::make(pointer, far, r.childMask, e.leafMask, contourPointer, e.contourMask);
+    slots[slot] = ChildDescriptor::make(pointer, far, e.childMask, e.leafMask, contourPointer, e.contourMask);
     if (!compressed && tree.hasColors)
       colorWords[slot] = AttributeLookup::make(slotCount + e.colorFirst, e.colorMask).bits;
     if (!compressed && tree.hasNormals)
