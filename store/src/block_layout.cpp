@@ -137,8 +137,9 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   // Sized for the most there can be and written through pointers, then cut to what was written: a
   // push_back's bounds check and size update per value were a third of this pass.
   out.queue.resize(n), out.entries.resize(n);
-  out.contours.resize(n), out.colors.resize(raw && colors ? n : 0),
-      out.normals.resize(raw && normals ? n : 0);
+  // A value is written at its cursor before the cursor moves: one element where none is kept.
+  out.contours.resize(n), out.colors.resize(raw && colors ? n : 1),
+      out.normals.resize(raw && normals ? n : 1);
   Queued* const queue = out.queue.data();
   std::uint32_t* const contourOut = out.contours.data();
   std::uint32_t* const colorOut = out.colors.data();
@@ -164,38 +165,46 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
               0};
     const InheritanceRule::ParentNormal parentNormal =
         normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
-    // Set bits only, and only voxels with children queued.
+    // Set bits only, and only voxels with children queued. Without branches on the children's values
+    // (whether a child has a contour, a value of its own or children is as good as random): each output
+    // is written at its cursor, and the cursor moves where the child has one.
+    std::uint32_t contourMask = 0, colorMask = 0, normalMask = 0, leafMask = 0, stubMask = 0;
     for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
-      const std::uint8_t bit = std::uint8_t(mask & (0u - mask));
+      const std::uint32_t bit = mask & (0u - mask);
       const VoxelRecord& child = tree.voxels[c];
-      if (child.hasContour) contourOut[contourCount++] = child.contour, e.contourMask |= bit;
+      contourOut[contourCount] = child.contour;
+      contourCount += child.hasContour;
+      contourMask |= child.hasContour ? bit : 0u;
       std::uint32_t color = parent.color, normal = parent.normal;
       if (colors) {
-        if (inherits.color(child.color, color)) {
-          ++inheritedColors;
-        } else {
-          if (raw) colorOut[colorCount++] = child.color;
-          e.colorMask |= bit;
-          color = child.color;
-        }
+        const bool own = !inherits.color(child.color, color);
+        colorOut[colorCount] = child.color;
+        colorCount += raw && own;
+        colorMask |= own ? bit : 0u;
+        color = own ? child.color : color;
       }
       if (normals) {
-        if (inherits.normal(child.normal, parentNormal)) {
-          ++inheritedNormals;
-        } else {
-          if (raw) normalOut[normalCount++] = child.normal;
-          e.normalMask |= bit;
-          normal = child.normal;
-        }
+        const bool own = !inherits.normal(child.normal, parentNormal);
+        normalOut[normalCount] = child.normal;
+        normalCount += raw && own;
+        normalMask |= own ? bit : 0u;
+        normal = own ? child.normal : normal;
       }
-      if (child.childMask != 0) {
-        queue[queued++] = {c, color, normal};
-      } else if (child.stub) {
-        e.stubMask |= bit, ++stubs;  // all-zero stub descriptor and lookup entries (format.hpp)
-      } else {
-        e.leafMask |= bit;
-      }
+      queue[queued] = {c, color, normal};
+      const bool hasChildren = child.childMask != 0, stub = !hasChildren && child.stub;
+      queued += hasChildren;
+      stubMask |= stub ? bit : 0u;  // all-zero stub descriptor and lookup entries (format.hpp)
+      leafMask |= !hasChildren && !stub ? bit : 0u;
     }
+    e.contourMask = std::uint8_t(contourMask);
+    e.colorMask = std::uint8_t(colorMask);
+    e.normalMask = std::uint8_t(normalMask);
+    e.leafMask = std::uint8_t(leafMask);
+    e.stubMask = std::uint8_t(stubMask);
+    const int children = std::popcount(r.childMask);
+    if (colors) inheritedColors += std::uint64_t(children - std::popcount(colorMask));
+    if (normals) inheritedNormals += std::uint64_t(children - std::popcount(normalMask));
+    stubs += std::uint32_t(std::popcount(stubMask));
   }
   out.queue.resize(queued), out.entries.resize(queued);
   out.contours.resize(contourCount), out.colors.resize(colorCount), out.normals.resize(normalCount);
