@@ -386,8 +386,8 @@ void runStreamBench(StreamArgs args) {
   printTitle("pager workers' CPU during the close-up, until all converged (thread CPU time, medians)");
   cpuTable.print();
   std::printf(
-      "assemble: the resident levels a load deepens, read back from their block; layout: voxel tree, block "
-      "layout, pool pages\n"
+      "assemble: the levels a load builds on, read back from the pool (a region's own, or its parent "
+      "region's below its cube); layout: voxel tree, block layout, pool pages\n"
       "CPU / wall: cores busy on average; voxels per core s: voxels decoded per worker CPU second (goal: "
       "%.0f M); bytes per CPU s: compressed bytes read per worker CPU second (view / seq <= %s needs the "
       "workers to keep up with the disk: about its sequential rate per busy core)\n",
