@@ -13,10 +13,11 @@
 namespace svo {
 
 // The allocator policy of a streaming process, set once before its first pager: freed memory is kept for
-// reuse. The pager's workers allocate and free a region's voxel arrays and its new block for every load;
-// glibc's defaults hand freed memory back to the OS and map every allocation over 128 KB afresh, so each
-// load would pay a page fault per 4 KB it had just freed. The process keeps at most its peak transient use;
-// the pool and its budget are unaffected. glibc only (a no-op elsewhere).
+// reuse, in the one heap every thread allocates from. The pager's workers allocate and free a region's voxel
+// arrays and its new block for every load; glibc's defaults hand freed memory back to the OS and map every
+// allocation over 128 KB afresh, so each load would pay a page fault per 4 KB it had just freed. The process
+// keeps at most its peak transient use; the pool and its budget are unaffected. glibc only (a no-op
+// elsewhere).
 void keepFreedMemoryForReuse();
 
 struct StreamedFrame {
