@@ -146,25 +146,33 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   std::uint32_t* const normalOut = out.normals.data();
   std::size_t queued = 1, contourCount = 0, colorCount = 0, normalCount = 0;
   std::uint64_t inheritedColors = 0, inheritedNormals = 0, stubs = 0;
+  // A child's value is written at its cursor, which moves where the child keeps a value of its own (raw
+  // layout); returns the value the child's children inherit.
+  const auto keep = [raw](bool own, std::uint32_t value, std::uint32_t inherited, std::uint32_t bit,
+                          std::uint32_t* values, std::size_t& count, std::uint32_t& mask) {
+    values[count] = value;
+    count += raw && own;
+    mask |= own ? bit : 0u;
+    return own ? value : inherited;
+  };
   queue[0] = {0, tree.voxels[0].color, tree.voxels[0].normal};
-  std::size_t qi = 0;
-  for (; qi < queued; ++qi) {
+  for (std::size_t qi = 0; qi < queued; ++qi) {
     const Queued parent = queue[qi];
     const VoxelRecord& r = tree.voxels[parent.voxel];
-    Entry& e = out.entries[qi];
-    e = Entry{std::uint32_t(contourCount),
-              std::uint32_t(colorCount),
-              std::uint32_t(normalCount),
-              std::uint32_t(queued),
-              r.firstChild,
-              r.childMask,
-              0,
-              0,
-              0,
-              0,
-              0};
     const InheritanceRule::ParentNormal parentNormal =
         normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
+    Entry& e = out.entries[qi];
+    e = Entry{.contourFirst = std::uint32_t(contourCount),
+              .colorFirst = std::uint32_t(colorCount),
+              .normalFirst = std::uint32_t(normalCount),
+              .firstChildEntry = std::uint32_t(queued),
+              .firstChild = r.firstChild,
+              .childMask = r.childMask,
+              .contourMask = 0,  // the masks are set once the children are read
+              .colorMask = 0,
+              .normalMask = 0,
+              .leafMask = 0,
+              .stubMask = 0};
     // Set bits only, and only voxels with children queued. Without branches on the children's values
     // (whether a child has a contour, a value of its own or children is as good as random): each output
     // is written at its cursor, and the cursor moves where the child has one.
@@ -176,20 +184,12 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       contourCount += child.hasContour;
       contourMask |= child.hasContour ? bit : 0u;
       std::uint32_t color = parent.color, normal = parent.normal;
-      if (colors) {
-        const bool own = !inherits.color(child.color, color);
-        colorOut[colorCount] = child.color;
-        colorCount += raw && own;
-        colorMask |= own ? bit : 0u;
-        color = own ? child.color : color;
-      }
-      if (normals) {
-        const bool own = !inherits.normal(child.normal, parentNormal);
-        normalOut[normalCount] = child.normal;
-        normalCount += raw && own;
-        normalMask |= own ? bit : 0u;
-        normal = own ? child.normal : normal;
-      }
+      if (colors)
+        color = keep(!inherits.color(child.color, color), child.color, color, bit, colorOut, colorCount,
+                     colorMask);
+      if (normals)
+        normal = keep(!inherits.normal(child.normal, parentNormal), child.normal, normal, bit, normalOut,
+                      normalCount, normalMask);
       queue[queued] = {c, color, normal};
       const bool hasChildren = child.childMask != 0, stub = !hasChildren && child.stub;
       queued += hasChildren;
@@ -204,7 +204,7 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     const int children = std::popcount(r.childMask);
     if (colors) inheritedColors += std::uint64_t(children - std::popcount(colorMask));
     if (normals) inheritedNormals += std::uint64_t(children - std::popcount(normalMask));
-    stubs += std::uint32_t(std::popcount(stubMask));
+    stubs += std::uint64_t(std::popcount(stubMask));
   }
   out.queue.resize(queued), out.entries.resize(queued);
   out.contours.resize(contourCount), out.colors.resize(colorCount), out.normals.resize(normalCount);
