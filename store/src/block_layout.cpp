@@ -134,8 +134,8 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   const bool colors = tree.hasColors, normals = tree.hasNormals;
   const InheritanceRule inherits(options);
   Collected out;
-  // Sized for the most there can be and written through pointers, then cut to what was written: a
-  // push_back's bounds check and size update per value were a third of this pass.
+  // Sized for the most there can be and written through pointers, then cut to what was written: no bounds
+  // check or size update per value.
   out.queue.resize(n), out.entries.resize(n);
   // A value is written at its cursor before the cursor moves: one element where none is kept.
   out.contours.resize(n), out.colors.resize(raw && colors ? n : 1),
@@ -173,9 +173,8 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
               .normalMask = 0,
               .leafMask = 0,
               .stubMask = 0};
-    // Set bits only, and only voxels with children queued. Without branches on the children's values
-    // (whether a child has a contour, a value of its own or children is as good as random): each output
-    // is written at its cursor, and the cursor moves where the child has one.
+    // Set bits only, and only voxels with children queued. No branch on a child's values: each output is
+    // written at its cursor, and the cursor moves where the child has one.
     std::uint32_t contourMask = 0, colorMask = 0, normalMask = 0, leafMask = 0, stubMask = 0;
     for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
       const std::uint32_t bit = mask & (0u - mask);
