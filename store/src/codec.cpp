@@ -277,7 +277,7 @@ SliceHead checkedHead(std::span<const std::byte> raw, const SliceInfo& s, const 
       head.normalCount != s.normalCount ||
       (head.attachments & ~kParentContourPrediction) !=
           sliceAttachments(header.hasColors, header.hasNormals) ||
-      ((head.attachments & kParentContourPrediction) && header.version < 5) ||
+      ((head.attachments & kParentContourPrediction) && header.version < kParentContourPredictionSince) ||
       head.splitCount > head.parentCount)
     throw SliceDecodeError("its head does not match the directory");
   if (sliceRawBytes(head) != raw.size()) throw SliceDecodeError("section sizes do not add up to its size");

@@ -50,6 +50,7 @@ constexpr std::uint32_t sliceAttachments(bool hasColors, bool hasNormals) {
 // shading normals (meshes) stray from the geometry the contours follow, while a scan's or a volume's voxel
 // normals give the contour's exactly.
 inline constexpr std::uint32_t kParentContourPrediction = 4u;
+inline constexpr std::uint32_t kParentContourPredictionSince = 5;  // the first format version with the bit
 
 // Bytes per stored value: a contour residual, a color, a normal residual.
 inline constexpr std::size_t kContourBytes = 5;
