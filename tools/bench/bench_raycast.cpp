@@ -7,6 +7,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -138,11 +139,30 @@ void printScenes(const std::vector<SceneResult>& scenes) {
   table.print();
 }
 
+const std::map<std::string, PacketSimd>& packetSimdNames() {
+  static const std::map<std::string, PacketSimd> names{{"widest", PacketSimd::Widest},
+                                                       {"avx512", PacketSimd::Avx512},
+                                                       {"avx2", PacketSimd::Avx2},
+                                                       {"none", PacketSimd::None}};
+  return names;
+}
+
+std::string packetLoopName(PacketSimd used) {
+  switch (used) {
+    case PacketSimd::Avx512:
+      return "16-ray AVX-512 packets";
+    case PacketSimd::Avx2:
+      return "8-ray AVX2 packets";
+    default:
+      return "one ray at a time";
+  }
+}
+
 void printComparison(const std::vector<SceneResult>& scenes, const RaycastArgs& args) {
   printTitle(
-      fmt::format("Ray casting: ESVO vs Embree 3, same rays, same threads (Mrays/s, median of {} runs, the "
-                  "methods in turn)",
-                  args.runs));
+      fmt::format("Ray casting: ESVO ({}) vs Embree 3, same rays, same threads (Mrays/s, median of {} runs, "
+                  "the methods in turn)",
+                  packetLoopName(packetSimdUsed(args.simd)), args.runs));
   Table table({"scene", "camera", "thr", "LOD", "hit px", "depth ESVO", "Embree", "ESVO/Embree",
                "shaded ESVO", "Embree", "ESVO/Embree", "iter/ray", "PSNR dB", "depth p99", "silhouette"});
   for (const SceneResult& s : scenes)
@@ -367,6 +387,12 @@ void addRaycastBench(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_flag("--images", args->images, "write each camera's ESVO and Embree frames as PNG");
   addAttributeLayoutFlag(*cmd, args->attributes);
+  cmd->add_option(
+         "--simd", args->simd,
+         "ESVO's packet loop: widest (what this CPU has), avx512 (16 rays), avx2 (8 rays), none (one "
+         "ray at a time); a loop the CPU lacks falls back to the next narrower one")
+      ->transform(CLI::CheckedTransformer(packetSimdNames(), CLI::ignore_case))
+      ->default_str("widest");
   cmd->callback([args] { runRaycastBench(*args); });
 }
 

@@ -31,6 +31,7 @@ struct RaycastArgs {
   std::string output = "raycast-report";              // folder for the plot and images
   bool images = false;                                // write each camera's ESVO and Embree images as PNG
   AttributeLayout attributes = AttributeLayout::Raw;  // of the timed octree
+  PacketSimd simd = PacketSimd::Widest;               // ESVO's packet loop
 };
 
 // A method's timed frames: the median and spread of its runs and the last run's result.

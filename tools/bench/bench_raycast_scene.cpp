@@ -295,6 +295,7 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
 #endif
 
   RenderOptions options;
+  options.cast.simd = args.simd;
   const MeshShading shading(mesh, options);
   const glm::dvec3 view = parseDirection(args.view, "--view");
   glm::dvec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());

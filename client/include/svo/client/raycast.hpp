@@ -24,10 +24,24 @@ struct OctreeRay {
   float footprintSlope = 0.0f;
 };
 
+// The SIMD loop castPacket runs: the widest this CPU has, or a narrower one (each is castRay bit for bit;
+// tests compare every one, and the bench can time them side by side). A loop the CPU lacks falls back to the
+// next narrower one.
+enum class PacketSimd : std::uint8_t {
+  Widest,
+  Avx512,  // 16 lanes (castTile's 4x4 pixel block)
+  Avx2,    // 8 lanes: a packet of 16 rays cast as two halves
+  None,    // castRay, ray by ray
+};
+bool cpuHas(PacketSimd simd);
+// The loop castPacket runs on this CPU for `requested`.
+PacketSimd packetSimdUsed(PacketSimd requested);
+
 struct CastOptions {
   bool contours = true;  // intersect contour slabs (sec. 5.2); off: cube voxels
   // Iteration cap: a ray that would loop this often is reported as a miss (released code does the same).
   int maxIterations = 4096;
+  PacketSimd simd = PacketSimd::Widest;  // castPacket's loop
 };
 
 struct CastHit {
@@ -51,11 +65,11 @@ struct CastHit {
 // Casts one ray through the block. Never returns NaN; never loops forever.
 CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options = {});
 
-// Rays castPacket casts together: the lanes of an AVX2 register (castTile: a 4x2 block of pixels).
-inline constexpr int kPacketLanes = 8;
-// castRay for `count` <= kPacketLanes rays at once, in SIMD lanes on a CPU with AVX2, else one by one;
-// coherent rays (neighbouring pixels) keep the lanes busy together. hits[i] is castRay(block, rays[i],
-// options) bit for bit.
+// Rays castPacket casts together: the lanes of an AVX-512 register (castTile: a 4x4 block of pixels).
+inline constexpr int kPacketLanes = 16;
+// castRay for `count` <= kPacketLanes rays at once, in SIMD lanes (options.simd), else one by one; coherent
+// rays (neighbouring pixels) keep the lanes busy together. hits[i] is castRay(block, rays[i], options) bit
+// for bit.
 void castPacket(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
                 CastHit* hits);
 

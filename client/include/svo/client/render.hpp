@@ -182,13 +182,13 @@ std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const Pixe
     if (!(tStart < std::numeric_limits<float>::infinity())) return 0;
   }
   std::uint64_t iterations = 0;
-  // 4x2 pixel blocks, cast together (castPacket).
-  static_assert(kPacketLanes == 8);
-  for (int y = tile.y0; y < tile.y1; y += 2) {
+  // 4x4 pixel blocks, cast together (castPacket).
+  static_assert(kPacketLanes == 16);
+  for (int y = tile.y0; y < tile.y1; y += 4) {
     for (int x = tile.x0; x < tile.x1; x += 4) {
       OctreeRay quad[kPacketLanes];
       int qx[kPacketLanes], qy[kPacketLanes], count = 0;
-      for (int dy = 0; dy < 2 && y + dy < tile.y1; ++dy)
+      for (int dy = 0; dy < 4 && y + dy < tile.y1; ++dy)
         for (int dx = 0; dx < 4 && x + dx < tile.x1; ++dx) {
           qx[count] = x + dx, qy[count] = y + dy;
           quad[count] = rays(x + dx, y + dy);

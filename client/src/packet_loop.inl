@@ -1,0 +1,297 @@
+// castPacket's loop for one instruction set: raycast_packet.cpp includes this file once per target, inside a
+// namespace of its own that defines kLanes, under that target's pragma. Work done once per iteration (the
+// loop's control, a shared descent's descriptor and contour) is shared by every lane, so 16 lanes cast more
+// rays per instruction than 8 where neighbouring pixels stay together. No includes here.
+constexpr int N = kLanes;
+using Floats = float __attribute__((vector_size(sizeof(float) * N)));
+using Ints = std::int32_t __attribute__((vector_size(sizeof(std::int32_t) * N)));
+
+// std::min(a, b) and std::max(a, b) lane by lane, NaN handling included ((b < a) ? b : a; (a < b) ? b : a).
+inline Floats minOf(Floats a, Floats b) {
+  return b < a ? b : a;
+}
+inline Floats maxOf(Floats a, Floats b) {
+  return a < b ? b : a;
+}
+inline Floats absOf(Floats a) {
+  return a < Floats{} ? -a : a;
+}
+// The lanes of a mask as the bits of an integer, lane l as bit l: loops over them visit only the set lanes,
+// one branch a lane instead of an unpredictable one for each lane.
+inline unsigned lanesOf(Ints mask) {
+#ifdef SVO_PACKET_AVX512
+  return unsigned(_mm512_movepi32_mask(__m512i(mask)));
+#else
+  return unsigned(_mm256_movemask_ps(__m256(mask)));
+#endif
+}
+inline bool any(Ints mask) {
+  return lanesOf(mask) != 0;
+}
+
+// {f(p[0]), ..., f(p[N - 1])} as 32-bit lanes.
+template <class T, class F, std::size_t... L>
+inline Ints gatherLanes(const T* const* p, F f, std::index_sequence<L...>) {
+  return Ints{std::int32_t(f(p[L]))...};
+}
+template <class T, class F>
+inline Ints gather(const T* const (&p)[N], F f) {
+  return gatherLanes(p, f, std::make_index_sequence<N>());
+}
+
+// castRay's state, one lane per ray (names as in castRay). No member initializers: start() sets every one
+// (GCC 12 fails to compile the implicit constructor of 256-bit members at -O0).
+struct Lanes {
+  // The mirrored rays' constants.
+  Floats tx_coef, ty_coef, tz_coef, tx_bias, ty_bias, tz_bias, dx, dy, dz, slope, origin;
+  Ints octantMask;
+  // The loop's state.
+  Floats t_min, t_max, scale_exp2, px, py, pz;
+  Ints idx, scale, iterations, active, found;
+  const ChildDescriptor* parent[N];
+  struct StackEntry {
+    const ChildDescriptor* parent;
+    float t_max;
+  } stack[N][kScaleMax + 1];
+};
+
+// castRay's set-up for each ray; lanes past `count` and rays that cannot hit start inactive.
+[[gnu::always_inline]] inline void start(Lanes& s, const BlockView& block, const OctreeRay* rays, int count,
+                                         CastHit* hits) {
+  const Floats zero{};
+  s.tx_coef = s.ty_coef = s.tz_coef = s.tx_bias = s.ty_bias = s.tz_bias = zero;
+  s.dx = s.dy = s.dz = s.slope = s.origin = s.t_min = s.t_max = s.scale_exp2 = s.px = s.py = s.pz = zero;
+  s.octantMask = s.idx = s.scale = s.iterations = s.active = s.found = Ints{};
+  for (int l = 0; l < N; ++l) {
+    s.parent[l] = block.root();
+    if (l < count) new (&hits[l]) CastHit;  // as castRay's: the path arrays are written by each PUSH
+    MirroredRay m;
+    if (l >= count || !mirrorRay(rays[l], m)) continue;
+    s.active[l] = -1;
+    s.tx_coef[l] = m.tx_coef, s.ty_coef[l] = m.ty_coef, s.tz_coef[l] = m.tz_coef;
+    s.tx_bias[l] = m.tx_bias, s.ty_bias[l] = m.ty_bias, s.tz_bias[l] = m.tz_bias;
+    s.dx[l] = m.d.x, s.dy[l] = m.d.y, s.dz[l] = m.d.z;
+    s.slope[l] = rays[l].footprintSlope, s.origin[l] = rays[l].footprintOrigin;
+    s.octantMask[l] = m.octant_mask;
+    s.t_min[l] = m.t_min, s.t_max[l] = m.t_max;
+    s.idx[l] = m.idx;
+    s.px[l] = m.pos.x, s.py[l] = m.pos.y, s.pz[l] = m.pos.z;
+    s.scale[l] = kScaleMax - 1;
+    s.scale_exp2[l] = 0.5f;
+  }
+}
+
+// clipToContour for the `clip` lanes, given each lane's decoded contour: raises t_min, lowers tv_max.
+[[gnu::always_inline]] inline void clipLanes(const Lanes& s, Ints clip, Floats nx, Floats ny, Floats nz,
+                                             Floats position, Floats thickness, Floats tx_center,
+                                             Floats ty_center, Floats tz_center, Floats& t_min,
+                                             Floats& tv_max) {
+  const Floats den = nx * s.dx + ny * s.dy + nz * s.dz;
+  const Floats num =
+      nx * s.dx * tx_center + ny * s.dy * ty_center + nz * s.dz * tz_center + s.scale_exp2 * position;
+  const Floats halfWidth = 0.5f * s.scale_exp2 * thickness;
+  const Ints crossing = clip & (absOf(den) > kParallelContour);
+  const Floats inv = 1.0f / (crossing ? den : Floats{} + 1.0f);
+  const Floats tmid = num * inv, tdiff = absOf(halfWidth * inv);
+  t_min = crossing ? maxOf(t_min, tmid - tdiff) : t_min;
+  tv_max = crossing ? minOf(tv_max, tmid + tdiff) : tv_max;
+  const Ints outside = clip & ~crossing & (absOf(num) > halfWidth);
+  tv_max = outside ? Floats{} - 1.0f : tv_max;  // parallel and outside: the voxel's shape is not on this ray
+}
+
+// clipToContour for the `clip` lanes: their contour words gathered and decoded as decodeContour decodes one.
+[[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
+                                                  Floats tx_center, Floats ty_center, Floats tz_center,
+                                                  Floats& tv_max) {
+  static constexpr std::uint32_t kNoContour = 0;
+  const std::uint32_t* address[N];
+  for (int l = 0; l < N; ++l)
+    address[l] = clip[l] ? reinterpret_cast<const std::uint32_t*>(s.parent[l]) +
+                               (std::uint32_t(contourWord[l]) >> 8) +
+                               childRank(std::uint8_t(contourWord[l]), slot[l])
+                         : &kNoContour;
+  const Ints bits = gather(address, [](const std::uint32_t* word) { return *word; });
+  const Floats nx = __builtin_convertvector(bits >> 26, Floats) / kContourNormalScale;
+  const Floats ny = __builtin_convertvector((bits << 6) >> 26, Floats) / kContourNormalScale;
+  const Floats nz = __builtin_convertvector((bits << 12) >> 26, Floats) / kContourNormalScale;
+  const Floats position = __builtin_convertvector((bits << 18) >> 25, Floats) * kContourPositionStep;
+  const Floats thickness = __builtin_convertvector(bits & 127, Floats) * kContourThicknessStep;
+  clipLanes(s, clip, nx, ny, nz, position, thickness, tx_center, ty_center, tz_center, s.t_min, tv_max);
+}
+
+// The child each `meets` lane enters: a leaf (or a stub) is the lane's hit, else PUSH. Returns the lanes
+// that pushed.
+[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints nonLeaf, Ints slot, CastHit* hits) {
+  Ints pushed{};
+  for (unsigned lanes = lanesOf(meets); lanes != 0; lanes &= lanes - 1) {
+    const int l = __builtin_ctz(lanes);
+    const ChildDescriptor* child = nonLeaf[l] ? BlockView::child(s.parent[l], slot[l]) : nullptr;
+    if (!child || child->isStub()) {
+      s.found[l] = -1;
+      s.active[l] = 0;
+      hits[l].leaf = true;
+      continue;
+    }
+    prefetchBelow(child);
+    const int scale = s.scale[l];
+    s.stack[l][scale] = {s.parent[l], s.t_max[l]};
+    hits[l].pathParent[scale] = s.parent[l];
+    hits[l].pathSlot[scale] = std::uint8_t(slot[l]);
+    s.parent[l] = child;
+    pushed[l] = -1;
+  }
+  return pushed;
+}
+
+// The rest of PUSH for the `pushed` lanes: one scale down, into the child cube holding the ray at t_min (the
+// ray is past a child's centre plane on each axis where that plane's t-value is not above t_min).
+[[gnu::always_inline]] inline void enterChildren(Lanes& s, Ints pushed, Floats half, Floats tx_center,
+                                                 Floats ty_center, Floats tz_center, Floats tv_max) {
+  s.scale -= pushed & 1;
+  s.scale_exp2 = pushed ? half : s.scale_exp2;
+  const Ints upX = pushed & (tx_center > s.t_min), upY = pushed & (ty_center > s.t_min),
+             upZ = pushed & (tz_center > s.t_min);
+  s.idx = pushed ? ((upX & 1) | (upY & 2) | (upZ & 4)) : s.idx;
+  s.px = upX ? s.px + s.scale_exp2 : s.px;
+  s.py = upY ? s.py + s.scale_exp2 : s.py;
+  s.pz = upZ ? s.pz + s.scale_exp2 : s.pz;
+  s.t_max = pushed ? tv_max : s.t_max;
+}
+
+// POP for the `pop` lanes, which left their parent: the new scale from the highest differing bit.
+[[gnu::always_inline]] inline void pop(Lanes& s, Ints pop, Ints step_mask) {
+  for (unsigned lanes = lanesOf(pop); lanes != 0; lanes &= lanes - 1) {
+    const int l = __builtin_ctz(lanes);
+    std::uint32_t differing_bits = 0;
+    if (step_mask[l] & 1) differing_bits |= asBits(s.px[l]) ^ asBits(s.px[l] + s.scale_exp2[l]);
+    if (step_mask[l] & 2) differing_bits |= asBits(s.py[l]) ^ asBits(s.py[l] + s.scale_exp2[l]);
+    if (step_mask[l] & 4) differing_bits |= asBits(s.pz[l]) ^ asBits(s.pz[l] + s.scale_exp2[l]);
+    const int scale = int(asBits(float(differing_bits)) >> 23) - 127;
+    if (scale >= kScaleMax) {  // left the octree
+      s.active[l] = 0;
+      continue;
+    }
+    s.scale[l] = scale;
+    s.scale_exp2[l] = asFloat(std::uint32_t(scale - kScaleMax + 127) << 23);
+    s.parent[l] = s.stack[l][scale].parent;
+    s.t_max[l] = s.stack[l][scale].t_max;
+    const std::uint32_t shx = asBits(s.px[l]) >> scale, shy = asBits(s.py[l]) >> scale,
+                        shz = asBits(s.pz[l]) >> scale;
+    s.px[l] = asFloat(shx << scale), s.py[l] = asFloat(shy << scale), s.pz[l] = asFloat(shz << scale);
+    s.idx[l] = int((shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2));
+  }
+}
+
+// The lanes that share their voxel descend together. While they are in the same child slot of the same
+// parent (a packet of neighbouring pixels, a few voxels apart at most), each step is castRay's iteration for
+// a lane that enters a valid voxel with resident children and pushes into it: the descriptor, contour and
+// child are looked up once for all of them, and no lane's decision branches. A lane in another slot, or whose
+// iteration would do anything else (advance, stop by level of detail, the iteration cap, a contour that
+// misses), leaves the group with its state untouched, and the loop goes on from there.
+[[gnu::always_inline]] inline void descendTogether(Lanes& s, const CastOptions& options, CastHit* hits) {
+  Ints together = s.active;
+  while (any(together)) {
+    const int leader = __builtin_ctz(lanesOf(together));
+    const Ints slots = s.idx ^ s.octantMask ^ 7;
+    const int slot = slots[leader];
+    const ChildDescriptor* parent = s.parent[leader];   // every lane of the group has it
+    if (!(parent->nonLeafMask() >> slot & 1u)) return;  // empty or a leaf: the loop's iteration decides
+    const ChildDescriptor* child = BlockView::child(parent, slot);
+    if (child->isStub()) return;
+    together &= (slots == slot) & (s.iterations < options.maxIterations) & (s.t_min <= s.t_max);
+    const Floats tx_corner = s.px * s.tx_coef - s.tx_bias;
+    const Floats ty_corner = s.py * s.ty_coef - s.ty_bias;
+    const Floats tz_corner = s.pz * s.tz_coef - s.tz_bias;
+    const Floats tc_max = minOf(minOf(tx_corner, ty_corner), tz_corner);
+    together &= ~(tc_max * s.slope + s.origin >= s.scale_exp2);
+    Floats tv_max = minOf(s.t_max, tc_max), t_min = s.t_min;
+    const Floats half = s.scale_exp2 * 0.5f;
+    const Floats tx_center = half * s.tx_coef + tx_corner;
+    const Floats ty_center = half * s.ty_coef + ty_corner;
+    const Floats tz_center = half * s.tz_coef + tz_corner;
+    if (options.contours && (parent->contourMask() >> slot & 1u)) {
+      const Contour c = contourOf(parent, *parent, slot);
+      const Floats none{};
+      clipLanes(s, together, none + c.normal.x, none + c.normal.y, none + c.normal.z, none + c.position,
+                none + c.thickness, tx_center, ty_center, tz_center, t_min, tv_max);
+    }
+    together &= t_min <= tv_max;
+    if (!any(together)) return;
+    // PUSH
+    prefetchBelow(child);
+    const int scale = s.scale[leader];
+    for (unsigned lanes = lanesOf(together); lanes != 0; lanes &= lanes - 1) {
+      const int l = __builtin_ctz(lanes);
+      s.stack[l][scale] = {parent, s.t_max[l]};
+      hits[l].pathParent[scale] = parent;
+      hits[l].pathSlot[scale] = std::uint8_t(slot);
+      s.parent[l] = child;
+    }
+    s.iterations -= together;
+    s.t_min = together ? t_min : s.t_min;
+    enterChildren(s, together, half, tx_center, ty_center, tz_center, tv_max);
+  }
+}
+
+void castLanes(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
+               CastHit* hits) {
+  Lanes s;
+  start(s, block, rays, count, hits);
+  descendTogether(s, options, hits);
+  while (any(s.active)) {
+    // The iteration cap, then each lane's voxel: valid, with or without a contour, a non-leaf or not. Every
+    // lane loads (a finished one its last parent, still a descriptor), so the vectors are built without
+    // branches.
+    s.iterations -= s.active;
+    s.active &= s.iterations <= options.maxIterations;
+    const Ints topology = gather(s.parent, [](const ChildDescriptor* d) { return d->topology; });
+    const Ints contourWord = gather(s.parent, [](const ChildDescriptor* d) { return d->contour; });
+    const Ints slot = s.idx ^ s.octantMask ^ 7;
+    const Ints valid = -((topology >> 8 >> slot) & 1), leaf = -((topology >> slot) & 1);
+    const Ints contoured = options.contours ? -((contourWord >> slot) & 1) : Ints{};
+    const Floats tx_corner = s.px * s.tx_coef - s.tx_bias;
+    const Floats ty_corner = s.py * s.ty_coef - s.ty_bias;
+    const Floats tz_corner = s.pz * s.tz_coef - s.tz_bias;
+    const Floats tc_max = minOf(minOf(tx_corner, ty_corner), tz_corner);
+
+    const Ints entered = s.active & valid & (s.t_min <= s.t_max);
+    // Level of detail: the voxel is no larger than the ray's footprint where the ray leaves it.
+    const Ints lodStop = entered & (tc_max * s.slope + s.origin >= s.scale_exp2);
+    s.found |= lodStop;
+    s.active &= ~lodStop;
+    const Ints intersect = entered & ~lodStop;
+
+    // INTERSECT: the cube, then the voxel's contour slab.
+    Floats tv_max = minOf(s.t_max, tc_max);
+    const Floats half = s.scale_exp2 * 0.5f;
+    const Floats tx_center = half * s.tx_coef + tx_corner;
+    const Floats ty_center = half * s.ty_coef + ty_corner;
+    const Floats tz_center = half * s.tz_coef + tz_corner;
+    const Ints clip = intersect & contoured;
+    if (any(clip)) clipToContours(s, clip, contourWord, slot, tx_center, ty_center, tz_center, tv_max);
+
+    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), valid & ~leaf, slot, hits);
+    if (any(pushed)) enterChildren(s, pushed, half, tx_center, ty_center, tz_center, tv_max);
+
+    // ADVANCE the others: step to the next cube of the same scale along the ray.
+    const Ints advance = s.active & ~pushed;
+    if (!any(advance)) continue;
+    const Ints stepX = advance & (tx_corner <= tc_max), stepY = advance & (ty_corner <= tc_max),
+               stepZ = advance & (tz_corner <= tc_max);
+    s.px = stepX ? s.px - s.scale_exp2 : s.px;
+    s.py = stepY ? s.py - s.scale_exp2 : s.py;
+    s.pz = stepZ ? s.pz - s.scale_exp2 : s.pz;
+    s.t_min = advance ? tc_max : s.t_min;
+    const Ints step_mask = (stepX & 1) | (stepY & 2) | (stepZ & 4);
+    s.idx ^= step_mask;
+    // POP when a bit flipped against the ray direction: the ray left the parent.
+    pop(s, advance & ((s.idx & step_mask) != 0), step_mask);
+  }
+
+  for (int l = 0; l < count; ++l) {
+    hits[l].iterations = s.iterations[l];
+    if (s.found[l])
+      completeHit(rays[l], s.octantMask[l], glm::vec3(s.px[l], s.py[l], s.pz[l]), s.scale_exp2[l], s.scale[l],
+                  s.t_min[l], s.parent[l], s.idx[l], hits[l]);
+  }
+}
