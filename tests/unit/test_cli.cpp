@@ -521,7 +521,15 @@ TEST_F(Cli, BenchRaycastPrintsBothCamerasAndTheScalingPlot) {
                           "tet +close +2 +2 px +100.0% "})
     EXPECT_TRUE(std::regex_search(r.out, std::regex(row))) << row << "\n" << r.out;
 
+  // The packet loop by name (any case); the title names the loop that ran.
+  const CommandResult oneByOne = svo("bench raycast " + tetrahedron().string() +
+                                     " --levels 5 --size 32 --runs 1 --threads 1 --simd NONE");
+  ASSERT_EQ(oneByOne.exitCode, 0) << oneByOne.err;
+  EXPECT_NE(oneByOne.out.find("ESVO (one ray at a time) vs Embree"), std::string::npos) << oneByOne.out;
+
   const fs::path out = dir_ / "raycast";
+  expectCleanFailure(svo("bench raycast " + tetrahedron().string() + " --simd sse -o " + out.string() + "x"),
+                     "--simd", out.string() + "x");
   const CommandResult scaling =
       svo("bench raycast --scaling 200,2k --levels 5 --size 32 --runs 1 --cameras whole -o " + out.string());
   ASSERT_EQ(scaling.exitCode, 0) << scaling.err;

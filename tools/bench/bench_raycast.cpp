@@ -7,7 +7,6 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
-#include <map>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -137,14 +136,6 @@ void printScenes(const std::vector<SceneResult>& scenes) {
          formatSeconds(s.esvoBuildSeconds),
          s.embreeBuildSeconds > 0.0 ? formatSeconds(s.embreeBuildSeconds) : std::string(kPeerNotBuilt)});
   table.print();
-}
-
-const std::map<std::string, PacketSimd>& packetSimdNames() {
-  static const std::map<std::string, PacketSimd> names{{"widest", PacketSimd::Widest},
-                                                       {"avx512", PacketSimd::Avx512},
-                                                       {"avx2", PacketSimd::Avx2},
-                                                       {"none", PacketSimd::None}};
-  return names;
 }
 
 std::string packetLoopName(PacketSimd used) {
@@ -387,12 +378,7 @@ void addRaycastBench(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_flag("--images", args->images, "write each camera's ESVO and Embree frames as PNG");
   addAttributeLayoutFlag(*cmd, args->attributes);
-  cmd->add_option(
-         "--simd", args->simd,
-         "ESVO's packet loop: widest (what this CPU has), avx512 (16 rays), avx2 (8 rays), none (one "
-         "ray at a time); a loop the CPU lacks falls back to the next narrower one")
-      ->transform(CLI::CheckedTransformer(packetSimdNames(), CLI::ignore_case))
-      ->default_str("widest");
+  addPacketSimdFlag(*cmd, args->simd);
   cmd->callback([args] { runRaycastBench(*args); });
 }
 

@@ -3,8 +3,9 @@
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
 
-#include <map>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "remote.hpp"
 
@@ -34,16 +35,49 @@ void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options) {
       ->capture_default_str();
 }
 
+namespace {
+
+// An enum option given by name. Bound to the enum itself, CLI11 would print an 8-bit enum's values as
+// characters in the help and in its error message.
+template <class Enum>
+void addNamedOption(CLI::App& cmd, const std::string& flag, Enum& value,
+                    const std::vector<std::pair<std::string, Enum>>& names, const std::string& description) {
+  std::vector<std::string> keys;
+  std::string current;
+  for (const auto& [name, v] : names) {
+    keys.push_back(name);
+    if (v == value) current = name;
+  }
+  cmd.add_option_function<std::string>(
+         flag,
+         [&value, names](const std::string& given) {
+           for (const auto& [name, v] : names)
+             if (CLI::detail::to_lower(name) == CLI::detail::to_lower(given)) value = v;
+         },
+         description)
+      ->check(CLI::IsMember(keys, CLI::ignore_case))
+      ->default_str(current);
+}
+
+}  // namespace
+
 void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout) {
-  const std::map<std::string, AttributeLayout> names{
-      {nameOf(AttributeLayout::Raw), AttributeLayout::Raw},
-      {nameOf(AttributeLayout::Compressed), AttributeLayout::Compressed}};
-  cmd.add_option(
-         "--attributes", layout,
-         "colors and normals in memory: raw (32-bit values, children inherit equal ones; sec. 5.4) or "
-         "compressed (units of 16 child slots, about a byte per color and two per normal; sec. 5.5)")
-      ->transform(CLI::CheckedTransformer(names, CLI::ignore_case))
-      ->default_str(nameOf(layout));
+  addNamedOption(
+      cmd, "--attributes", layout,
+      {{nameOf(AttributeLayout::Raw), AttributeLayout::Raw},
+       {nameOf(AttributeLayout::Compressed), AttributeLayout::Compressed}},
+      "colors and normals in memory: raw (32-bit values, children inherit equal ones; sec. 5.4) or "
+      "compressed (units of 16 child slots, about a byte per color and two per normal; sec. 5.5)");
+}
+
+void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd) {
+  addNamedOption(cmd, "--simd", simd,
+                 {{"widest", PacketSimd::Widest},
+                  {"avx512", PacketSimd::Avx512},
+                  {"avx2", PacketSimd::Avx2},
+                  {"none", PacketSimd::None}},
+                 "the ray caster's packet loop: widest (what this CPU has), avx512 (16 rays), avx2 (8 rays), "
+                 "none (one ray at a time); a loop the CPU lacks falls back to the next narrower one");
 }
 
 int resolvedFetchThreads(int flag, const std::string& locator) {

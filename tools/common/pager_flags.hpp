@@ -1,9 +1,11 @@
-// The pager's threads as command-line flags, for every command that streams.
+// The pager's threads and the octree's in-memory choices as command-line flags, for every command that
+// streams or casts rays.
 #pragma once
 
 #include <string>
 
 #include "svo/client/pager.hpp"
+#include "svo/client/raycast.hpp"
 
 namespace CLI {
 class App;
@@ -20,5 +22,7 @@ int resolvedFetchThreads(int flag, const std::string& locator);
 // Adds --attributes raw|compressed: how the octree's blocks (the pool's, or the one block of a store read
 // whole) hold colors and normals.
 void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout);
+// Adds --simd widest|avx512|avx2|none: the ray caster's packet loop (CastOptions::simd).
+void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd);
 
 }  // namespace svo::tools
