@@ -71,13 +71,14 @@ void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout) {
 }
 
 void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd) {
-  addNamedOption(cmd, "--simd", simd,
-                 {{"widest", PacketSimd::Widest},
-                  {"avx512", PacketSimd::Avx512},
-                  {"avx2", PacketSimd::Avx2},
-                  {"none", PacketSimd::None}},
-                 "the ray caster's packet loop: widest (what this CPU has), avx512 (16 rays), avx2 (8 rays), "
-                 "none (one ray at a time); a loop the CPU lacks falls back to the next narrower one");
+  addNamedOption(
+      cmd, "--simd", simd,
+      {{"widest", PacketSimd::Widest},
+       {"avx512", PacketSimd::Avx512},
+       {"avx2", PacketSimd::Avx2},
+       {"none", PacketSimd::None}},
+      "the CPU ray caster's packet loop: widest (what this CPU has), avx512 (16 rays), avx2 (8 rays), "
+      "none (one ray at a time); a loop the CPU lacks falls back to the next narrower one");
 }
 
 int resolvedFetchThreads(int flag, const std::string& locator) {

@@ -1,5 +1,6 @@
 #include "view_flags.hpp"
 
+#include "pager_flags.hpp"
 #include "usage.hpp"
 
 namespace svo::tools {
@@ -74,6 +75,7 @@ void addRenderFlags(CLI::App& cmd, RenderOptions& options, bool& noContours) {
                "post-process filter (sec. 6.3): blur the blocks of voxels wider than a pixel");
   cmd.add_option("--threads", options.threads, "render threads (0 = all cores)")
       ->check(CLI::NonNegativeNumber);
+  addPacketSimdFlag(cmd, options.cast.simd);
 }
 
 void applyDeviceBeamDefault(const CLI::App& cmd, const std::string& device, RenderOptions& options) {
