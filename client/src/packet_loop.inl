@@ -17,7 +17,7 @@ inline Floats absOf(Floats a) {
   return a < Floats{} ? -a : a;
 }
 // The lanes of a mask as the bits of an integer, lane l as bit l: loops over them visit only the set lanes,
-// one branch a lane instead of an unpredictable one for each lane.
+// one branch a set lane instead of an unpredictable one for every lane.
 inline unsigned lanesOf(Ints mask) {
 #ifdef SVO_PACKET_AVX512
   return unsigned(_mm512_movepi32_mask(__m512i(mask)));

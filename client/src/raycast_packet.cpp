@@ -46,6 +46,20 @@ static_assert(avx512::kLanes == kPacketLanes);
 
 }  // namespace
 
+const char* nameOf(PacketSimd simd) {
+  switch (simd) {
+    case PacketSimd::Widest:
+      return "widest";
+    case PacketSimd::Avx512:
+      return "avx512";
+    case PacketSimd::Avx2:
+      return "avx2";
+    case PacketSimd::None:
+      return "none";
+  }
+  return "?";
+}
+
 bool cpuHas(PacketSimd simd) {
   static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
   static const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") &&

@@ -38,7 +38,7 @@ void keepFreedMemoryForReuse() {
   mallopt(M_TRIM_THRESHOLD, kKeptFreeBytes);
   // Every thread allocates from the main heap, which keeps kKeptFreeBytes free. A thread's own arena
   // returns each of its heaps to the OS once it is empty, whatever the trim threshold, so a pager worker
-  // page-faulted its next load's arrays in again: up to a quarter of its CPU on the bunny (svo bench stream).
+  // would page-fault its next load's arrays in again.
   // The workers allocate a few large arrays per load, so they seldom wait for one another's lock.
   mallopt(M_ARENA_MAX, 1);
 #endif

@@ -161,18 +161,8 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     const VoxelRecord& r = tree.voxels[parent.voxel];
     const InheritanceRule::ParentNormal parentNormal =
         normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
-    Entry& e = out.entries[qi];
-    e = Entry{.contourFirst = std::uint32_t(contourCount),
-              .colorFirst = std::uint32_t(colorCount),
-              .normalFirst = std::uint32_t(normalCount),
-              .firstChildEntry = std::uint32_t(queued),
-              .firstChild = r.firstChild,
-              .childMask = r.childMask,
-              .contourMask = 0,  // the masks are set once the children are read
-              .colorMask = 0,
-              .normalMask = 0,
-              .leafMask = 0,
-              .stubMask = 0};
+    const std::size_t contourFirst = contourCount, colorFirst = colorCount, normalFirst = normalCount,
+                      firstChildEntry = queued;
     // Set bits only, and only voxels with children queued. No branch on a child's values: each output is
     // written at its cursor, and the cursor moves where the child has one.
     std::uint32_t contourMask = 0, colorMask = 0, normalMask = 0, leafMask = 0, stubMask = 0;
@@ -195,11 +185,17 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       stubMask |= stub ? bit : 0u;  // all-zero stub descriptor and lookup entries (format.hpp)
       leafMask |= !hasChildren && !stub ? bit : 0u;
     }
-    e.contourMask = std::uint8_t(contourMask);
-    e.colorMask = std::uint8_t(colorMask);
-    e.normalMask = std::uint8_t(normalMask);
-    e.leafMask = std::uint8_t(leafMask);
-    e.stubMask = std::uint8_t(stubMask);
+    out.entries[qi] = Entry{.contourFirst = std::uint32_t(contourFirst),
+                            .colorFirst = std::uint32_t(colorFirst),
+                            .normalFirst = std::uint32_t(normalFirst),
+                            .firstChildEntry = std::uint32_t(firstChildEntry),
+                            .firstChild = r.firstChild,
+                            .childMask = r.childMask,
+                            .contourMask = std::uint8_t(contourMask),
+                            .colorMask = std::uint8_t(colorMask),
+                            .normalMask = std::uint8_t(normalMask),
+                            .leafMask = std::uint8_t(leafMask),
+                            .stubMask = std::uint8_t(stubMask)};
     const int children = std::popcount(r.childMask);
     if (colors) inheritedColors += std::uint64_t(children - std::popcount(colorMask));
     if (normals) inheritedNormals += std::uint64_t(children - std::popcount(normalMask));

@@ -61,7 +61,7 @@ std::size_t expectSameAsCastRay(const svo::BlockView& block, const std::vector<s
                                 svo::CastOptions options, int lanes = svo::kPacketLanes) {
   std::size_t hits = 0;
   for (const svo::PacketSimd simd : packetLoops()) {
-    SCOPED_TRACE(fmt::format("loop {}", int(simd)));
+    SCOPED_TRACE(fmt::format("loop {}", svo::nameOf(simd)));
     options.simd = simd;
     EXPECT_EQ(svo::packetSimdUsed(simd), simd);
     hits = 0;
@@ -72,10 +72,11 @@ std::size_t expectSameAsCastRay(const svo::BlockView& block, const std::vector<s
       for (int l = 0; l < count; ++l) {
         const svo::CastHit single = svo::castRay(block, rays[first + std::size_t(l)], options);
         const std::string why = difference(single, packet[l]);
-        if (!why.empty())
+        if (!why.empty()) {
           ADD_FAILURE() << why << " for ray " << first + std::size_t(l) << ": "
                         << describe(rays[first + std::size_t(l)]);
-        if (!why.empty()) return hits;
+          return hits;
+        }
         hits += single.hit;
       }
     }

@@ -73,10 +73,10 @@ void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout) {
 void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd) {
   addNamedOption(
       cmd, "--simd", simd,
-      {{"widest", PacketSimd::Widest},
-       {"avx512", PacketSimd::Avx512},
-       {"avx2", PacketSimd::Avx2},
-       {"none", PacketSimd::None}},
+      {{nameOf(PacketSimd::Widest), PacketSimd::Widest},
+       {nameOf(PacketSimd::Avx512), PacketSimd::Avx512},
+       {nameOf(PacketSimd::Avx2), PacketSimd::Avx2},
+       {nameOf(PacketSimd::None), PacketSimd::None}},
       "the CPU ray caster's packet loop: widest (what this CPU has), avx512 (16 rays), avx2 (8 rays), "
       "none (one ray at a time); a loop the CPU lacks falls back to the next narrower one");
 }

@@ -33,6 +33,7 @@ enum class PacketSimd : std::uint8_t {
   Avx2,    // 8 lanes: a packet of 16 rays cast as two halves
   None,    // castRay, ray by ray
 };
+const char* nameOf(PacketSimd simd);  // "widest", "avx512", "avx2", "none"
 bool cpuHas(PacketSimd simd);
 // The loop castPacket runs on this CPU for `requested`.
 PacketSimd packetSimdUsed(PacketSimd requested);
