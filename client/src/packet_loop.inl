@@ -103,14 +103,13 @@ struct Lanes {
 [[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
                                                   Floats tx_center, Floats ty_center, Floats tz_center,
                                                   Floats& tv_max) {
-  static constexpr std::uint32_t kNoContour = 0;
-  const std::uint32_t* address[N];
-  for (int l = 0; l < N; ++l)
-    address[l] = clip[l] ? reinterpret_cast<const std::uint32_t*>(s.parent[l]) +
-                               (std::uint32_t(contourWord[l]) >> 8) +
-                               childRank(std::uint8_t(contourWord[l]), slot[l])
-                         : &kNoContour;
-  const Ints bits = gather(address, [](const std::uint32_t* word) { return *word; });
+  Ints bits{};
+  for (unsigned lanes = lanesOf(clip); lanes != 0; lanes &= lanes - 1) {
+    const int l = __builtin_ctz(lanes);
+    bits[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(
+        s.parent[l])[(std::uint32_t(contourWord[l]) >> 8) +
+                     childRank(std::uint8_t(contourWord[l]), slot[l])]);
+  }
   const Floats nx = __builtin_convertvector(bits >> 26, Floats) / kContourNormalScale;
   const Floats ny = __builtin_convertvector((bits << 6) >> 26, Floats) / kContourNormalScale;
   const Floats nz = __builtin_convertvector((bits << 12) >> 26, Floats) / kContourNormalScale;
