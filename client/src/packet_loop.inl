@@ -13,6 +13,12 @@ inline Floats minOf(Floats a, Floats b) {
 inline Floats maxOf(Floats a, Floats b) {
   return a < b ? b : a;
 }
+[[gnu::always_inline]] inline Ints bitsOf(Floats a) {
+  return (Ints)a;
+}
+[[gnu::always_inline]] inline Floats floatsOf(Ints a) {
+  return (Floats)a;
+}
 inline Floats absOf(Floats a) {
   return a < Floats{} ? -a : a;
 }
@@ -157,27 +163,30 @@ struct Lanes {
   s.t_max = pushed ? tv_max : s.t_max;
 }
 
-// POP for the `pop` lanes, which left their parent: the new scale from the highest differing bit.
+// POP for the `pop` lanes, which left their parent: the new scale from the highest differing bit. Only the
+// stack is read lane by lane. Positions are positive, so no sign bit differs and the signed conversion is
+// castRay's unsigned one.
 [[gnu::always_inline]] inline void pop(Lanes& s, Ints pop, Ints step_mask) {
+  const Ints none{};
+  const Ints differing_bits = ((step_mask & 1) != 0 ? bitsOf(s.px) ^ bitsOf(s.px + s.scale_exp2) : none) |
+                              ((step_mask & 2) != 0 ? bitsOf(s.py) ^ bitsOf(s.py + s.scale_exp2) : none) |
+                              ((step_mask & 4) != 0 ? bitsOf(s.pz) ^ bitsOf(s.pz + s.scale_exp2) : none);
+  const Ints scale = (bitsOf(__builtin_convertvector(differing_bits, Floats)) >> 23) - 127;
+  s.active &= ~(pop & (scale >= kScaleMax));  // left the octree
+  pop &= scale < kScaleMax;
+  if (!any(pop)) return;
+  const Ints shift = pop ? scale : none;  // in range on every lane
+  const Ints shx = bitsOf(s.px) >> shift, shy = bitsOf(s.py) >> shift, shz = bitsOf(s.pz) >> shift;
+  s.scale = pop ? scale : s.scale;
+  s.scale_exp2 = pop ? floatsOf((scale - kScaleMax + 127) << 23) : s.scale_exp2;
+  s.px = pop ? floatsOf(shx << shift) : s.px;
+  s.py = pop ? floatsOf(shy << shift) : s.py;
+  s.pz = pop ? floatsOf(shz << shift) : s.pz;
+  s.idx = pop ? (shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2) : s.idx;
   for (unsigned lanes = lanesOf(pop); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
-    std::uint32_t differing_bits = 0;
-    if (step_mask[l] & 1) differing_bits |= asBits(s.px[l]) ^ asBits(s.px[l] + s.scale_exp2[l]);
-    if (step_mask[l] & 2) differing_bits |= asBits(s.py[l]) ^ asBits(s.py[l] + s.scale_exp2[l]);
-    if (step_mask[l] & 4) differing_bits |= asBits(s.pz[l]) ^ asBits(s.pz[l] + s.scale_exp2[l]);
-    const int scale = int(asBits(float(differing_bits)) >> 23) - 127;
-    if (scale >= kScaleMax) {  // left the octree
-      s.active[l] = 0;
-      continue;
-    }
-    s.scale[l] = scale;
-    s.scale_exp2[l] = asFloat(std::uint32_t(scale - kScaleMax + 127) << 23);
-    s.parent[l] = s.stack[l][scale].parent;
-    s.t_max[l] = s.stack[l][scale].t_max;
-    const std::uint32_t shx = asBits(s.px[l]) >> scale, shy = asBits(s.py[l]) >> scale,
-                        shz = asBits(s.pz[l]) >> scale;
-    s.px[l] = asFloat(shx << scale), s.py[l] = asFloat(shy << scale), s.pz[l] = asFloat(shz << scale);
-    s.idx[l] = int((shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2));
+    s.parent[l] = s.stack[l][scale[l]].parent;
+    s.t_max[l] = s.stack[l][scale[l]].t_max;
   }
 }
 
