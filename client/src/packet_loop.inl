@@ -126,11 +126,26 @@ struct Lanes {
 
 // The child each `meets` lane enters: a leaf (or a stub) is the lane's hit, else PUSH. Returns the lanes
 // that pushed.
-[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints nonLeaf, Ints slot, CastHit* hits) {
+[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints topology, Ints slot, CastHit* hits) {
+  // BlockView::child's arithmetic for every lane at once: the run's near pointer and the child's rank among
+  // the non-leaf children (an 8-bit population count).
+  const Ints nonLeafMask = (topology >> 8) & ~topology & 0xFF;
+  const Ints nonLeaf = -((nonLeafMask >> slot) & 1);
+  Ints rank = nonLeafMask & (((Ints{} + 1) << slot) - 1);
+  rank = rank - ((rank >> 1) & 0x55);
+  rank = (rank & 0x33) + ((rank >> 2) & 0x33);
+  rank = (rank + (rank >> 4)) & 0x0F;
+  const Ints runOffset = ((topology >> 17) & 0x7FFF) + rank;
   Ints pushed{};
   for (unsigned lanes = lanesOf(meets); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
-    const ChildDescriptor* child = nonLeaf[l] ? BlockView::child(s.parent[l], slot[l]) : nullptr;
+    const ChildDescriptor* child = nullptr;
+    if (nonLeaf[l]) {
+      child = s.parent[l] + runOffset[l];
+      if (topology[l] & (1 << 16))  // far: the run is where the far slot says
+        child += *reinterpret_cast<const std::int32_t*>(child - rank[l]);
+      child = followLink(child);
+    }
     if (!child || child->isStub()) {
       s.found[l] = -1;
       s.active[l] = 0;
@@ -255,7 +270,7 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
     const Ints topology = gather(s.parent, [](const ChildDescriptor* d) { return d->topology; });
     const Ints contourWord = gather(s.parent, [](const ChildDescriptor* d) { return d->contour; });
     const Ints slot = s.idx ^ s.octantMask ^ 7;
-    const Ints valid = -((topology >> 8 >> slot) & 1), leaf = -((topology >> slot) & 1);
+    const Ints valid = -((topology >> 8 >> slot) & 1);
     const Ints contoured = options.contours ? -((contourWord >> slot) & 1) : Ints{};
     const Floats tx_corner = s.px * s.tx_coef - s.tx_bias;
     const Floats ty_corner = s.py * s.ty_coef - s.ty_bias;
@@ -278,7 +293,7 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
     const Ints clip = intersect & contoured;
     if (any(clip)) clipToContours(s, clip, contourWord, slot, tx_center, ty_center, tz_center, tv_max);
 
-    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), valid & ~leaf, slot, hits);
+    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), topology, slot, hits);
     if (any(pushed)) enterChildren(s, pushed, half, tx_center, ty_center, tz_center, tv_max);
 
     // ADVANCE the others: step to the next cube of the same scale along the ray.

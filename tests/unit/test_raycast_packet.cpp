@@ -1,7 +1,7 @@
 // castPacket (client/raycast.hpp) against castRay, ray by ray: the same hit, t, voxel, position, path and
 // iteration count, bit for bit, over coherent pixel packets, incoherent random packets, stiff rays, partial
-// packets, iteration caps and a block pool's linked regions. castRay itself is checked against the
-// brute-force reference in test_raycast.cpp.
+// packets, iteration caps, far child pointers and a block pool's linked regions. castRay itself is checked
+// against the brute-force reference in test_raycast.cpp.
 #include <gtest/gtest.h>
 
 #include <cstring>
@@ -128,6 +128,20 @@ TEST(CastPacket, PixelPacketsEqualCastRay) {
             expectSameAsCastRay(octree.block.view(), pixelPackets(octree.transform, camera, lod), options),
             0u);
       }
+}
+
+// Far child pointers (sec. 5.1): the scene laid out again with near pointers of 16 slots at most (the least a
+// layout allows), so most runs are reached through a far slot.
+TEST(CastPacket, FarPointersEqualCastRay) {
+  svo::LayoutOptions layout;
+  layout.maxNearPointer = 16;
+  svo::LayoutStats stats;
+  const svo::Block block = svo::layoutBlock(svo::readBlock(scene().block.view()), layout, &stats);
+  ASSERT_GT(stats.farSlots, 100u);
+  const svo::SceneTransform& transform = scene().transform;
+  for (const svo::Camera& camera :
+       {svo::Camera::framing(transform, svo::kDefaultViewDirection, 96, 64), closeUp(transform)})
+    EXPECT_GT(expectSameAsCastRay(block.view(), pixelPackets(transform, camera, 1.0f), {}), 0u);
 }
 
 // Incoherent packets: every lane its own origin and direction, so lanes push, advance and pop apart.

@@ -31,6 +31,7 @@ struct ChildDescriptor {
   std::uint32_t topology = 0;
   std::uint32_t contour = 0;
 
+  static constexpr std::uint32_t kValidAndFarBits = 0x1FF00u;  // [16] far, [15:8] valid mask
   constexpr std::uint32_t childPointer() const { return topology >> 17; }
   constexpr bool far() const { return (topology >> 16) & 1u; }
   constexpr std::uint8_t validMask() const { return std::uint8_t(topology >> 8); }
@@ -44,8 +45,9 @@ struct ChildDescriptor {
   // resident, and it renders as a leaf. With the far bit it is a *link*: the voxel's descriptor lives in
   // another block, `contour` slots away (signed), which keeps contour and attribute lookups inside that
   // block.
-  constexpr bool isStub() const { return validMask() == 0 && !far(); }
-  constexpr bool isLink() const { return validMask() == 0 && far(); }
+  // Tested on the whole word (valid mask and far bit at once): a ray caster's hot path.
+  constexpr bool isStub() const { return (topology & kValidAndFarBits) == 0; }
+  constexpr bool isLink() const { return (topology & kValidAndFarBits) == 1u << 16; }
   constexpr std::int32_t linkOffset() const { return std::int32_t(contour); }
   static constexpr ChildDescriptor link(std::int32_t slots) { return {1u << 16, std::uint32_t(slots)}; }
 
