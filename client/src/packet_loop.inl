@@ -87,6 +87,14 @@ struct Lanes {
   }
 }
 
+// childRank for every lane: the set bits of the 8-bit `mask` below `slot` (a population count in lanes).
+[[gnu::always_inline]] inline Ints childRanks(Ints mask, Ints slot) {
+  Ints rank = mask & (((Ints{} + 1) << slot) - 1);
+  rank = rank - ((rank >> 1) & 0x55);
+  rank = (rank & 0x33) + ((rank >> 2) & 0x33);
+  return (rank + (rank >> 4)) & 0x0F;
+}
+
 // clipToContour for the `clip` lanes, given each lane's decoded contour: raises t_min, lowers tv_max.
 [[gnu::always_inline]] inline void clipLanes(const Lanes& s, Ints clip, Floats nx, Floats ny, Floats nz,
                                              Floats position, Floats thickness, Floats tx_center,
@@ -109,12 +117,12 @@ struct Lanes {
 [[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
                                                   Floats tx_center, Floats ty_center, Floats tz_center,
                                                   Floats& tv_max) {
+  // Words from the parent: the contour pointer, then the rank among the children with a contour.
+  const Ints offset = ((contourWord >> 8) & 0xFFFFFF) + childRanks(contourWord & 0xFF, slot);
   Ints bits{};
   for (unsigned lanes = lanesOf(clip); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
-    bits[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(
-        s.parent[l])[(std::uint32_t(contourWord[l]) >> 8) +
-                     childRank(std::uint8_t(contourWord[l]), slot[l])]);
+    bits[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(s.parent[l])[offset[l]]);
   }
   const Floats nx = __builtin_convertvector(bits >> 26, Floats) / kContourNormalScale;
   const Floats ny = __builtin_convertvector((bits << 6) >> 26, Floats) / kContourNormalScale;
@@ -128,13 +136,10 @@ struct Lanes {
 // that pushed.
 [[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints topology, Ints slot, CastHit* hits) {
   // BlockView::child's arithmetic for every lane at once: the run's near pointer and the child's rank among
-  // the non-leaf children (an 8-bit population count).
+  // the non-leaf children.
   const Ints nonLeafMask = (topology >> 8) & ~topology & 0xFF;
   const Ints nonLeaf = -((nonLeafMask >> slot) & 1);
-  Ints rank = nonLeafMask & (((Ints{} + 1) << slot) - 1);
-  rank = rank - ((rank >> 1) & 0x55);
-  rank = (rank & 0x33) + ((rank >> 2) & 0x33);
-  rank = (rank + (rank >> 4)) & 0x0F;
+  const Ints rank = childRanks(nonLeafMask, slot);
   const Ints runOffset = ((topology >> 17) & 0x7FFF) + rank;
   Ints pushed{};
   for (unsigned lanes = lanesOf(meets); lanes != 0; lanes &= lanes - 1) {
