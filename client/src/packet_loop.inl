@@ -35,16 +35,6 @@ inline bool any(Ints mask) {
   return lanesOf(mask) != 0;
 }
 
-// {f(p[0]), ..., f(p[N - 1])} as 32-bit lanes.
-template <class T, class F, std::size_t... L>
-inline Ints gatherLanes(const T* const* p, F f, std::index_sequence<L...>) {
-  return Ints{std::int32_t(f(p[L]))...};
-}
-template <class T, class F>
-inline Ints gather(const T* const (&p)[N], F f) {
-  return gatherLanes(p, f, std::make_index_sequence<N>());
-}
-
 // castRay's state, one lane per ray (names as in castRay). No member initializers: start() sets every one
 // (GCC 12 fails to compile the implicit constructor of 256-bit members at -O0).
 struct Lanes {
@@ -55,6 +45,7 @@ struct Lanes {
   Floats t_min, t_max, scale_exp2, px, py, pz;
   Ints idx, scale, iterations, active, found;
   const ChildDescriptor* parent[N];
+  Ints topology, contourWord;  // each lane's parent descriptor's words, reloaded where it changes
   struct StackEntry {
     const ChildDescriptor* parent;
     float t_max;
@@ -68,6 +59,8 @@ struct Lanes {
   s.tx_coef = s.ty_coef = s.tz_coef = s.tx_bias = s.ty_bias = s.tz_bias = zero;
   s.dx = s.dy = s.dz = s.slope = s.origin = s.t_min = s.t_max = s.scale_exp2 = s.px = s.py = s.pz = zero;
   s.octantMask = s.idx = s.scale = s.iterations = s.active = s.found = Ints{};
+  s.topology = Ints{} + std::int32_t(block.root()->topology);
+  s.contourWord = Ints{} + std::int32_t(block.root()->contour);
   for (int l = 0; l < N; ++l) {
     s.parent[l] = block.root();
     if (l < count) new (&hits[l]) CastHit;  // as castRay's: the path arrays are written by each PUSH
@@ -113,7 +106,7 @@ struct Lanes {
   tv_max = outside ? Floats{} - 1.0f : tv_max;  // parallel and outside: the voxel's shape is not on this ray
 }
 
-// clipToContour for the `clip` lanes: their contour words gathered and decoded as decodeContour decodes one.
+// clipToContour for the `clip` lanes: their contour words loaded and decoded as decodeContour decodes one.
 [[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
                                                   Floats tx_center, Floats ty_center, Floats tz_center,
                                                   Floats& tv_max) {
@@ -158,6 +151,8 @@ struct Lanes {
       continue;
     }
     prefetchBelow(child);
+    s.topology[l] = std::int32_t(child->topology);
+    s.contourWord[l] = std::int32_t(child->contour);
     const int scale = s.scale[l];
     s.stack[l][scale] = {s.parent[l], s.t_max[l]};
     hits[l].pathParent[scale] = s.parent[l];
@@ -207,6 +202,8 @@ struct Lanes {
     const int l = __builtin_ctz(lanes);
     s.parent[l] = s.stack[l][scale[l]].parent;
     s.t_max[l] = s.stack[l][scale[l]].t_max;
+    s.topology[l] = std::int32_t(s.parent[l]->topology);
+    s.contourWord[l] = std::int32_t(s.parent[l]->contour);
   }
 }
 
@@ -255,6 +252,8 @@ struct Lanes {
       hits[l].pathSlot[scale] = std::uint8_t(slot);
       s.parent[l] = child;
     }
+    s.topology = together ? Ints{} + std::int32_t(child->topology) : s.topology;
+    s.contourWord = together ? Ints{} + std::int32_t(child->contour) : s.contourWord;
     s.iterations -= together;
     s.t_min = together ? t_min : s.t_min;
     enterChildren(s, together, half, tx_center, ty_center, tz_center, tv_max);
@@ -267,13 +266,11 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
   start(s, block, rays, count, hits);
   descendTogether(s, options, hits);
   while (any(s.active)) {
-    // The iteration cap, then each lane's voxel: valid, with or without a contour, a non-leaf or not. Every
-    // lane loads (a finished one its last parent, still a descriptor), so the vectors are built without
-    // branches.
+    // The iteration cap, then each lane's voxel: valid, with or without a contour, a non-leaf or not, from its
+    // parent's descriptor words (kept in the lanes since the lane's last PUSH or POP).
     s.iterations -= s.active;
     s.active &= s.iterations <= options.maxIterations;
-    const Ints topology = gather(s.parent, [](const ChildDescriptor* d) { return d->topology; });
-    const Ints contourWord = gather(s.parent, [](const ChildDescriptor* d) { return d->contour; });
+    const Ints topology = s.topology, contourWord = s.contourWord;
     const Ints slot = s.idx ^ s.octantMask ^ 7;
     const Ints valid = -((topology >> 8 >> slot) & 1);
     const Ints contoured = options.contours ? -((contourWord >> slot) & 1) : Ints{};
