@@ -1,26 +1,27 @@
 // castPacket's loop for one instruction set: raycast_packet.cpp includes this file once per target, inside a
 // namespace of its own that defines kLanes, under that target's pragma. Work done once per iteration (the
 // loop's control, a shared descent's descriptor and contour) is shared by every lane, so 16 lanes cast more
-// rays per instruction than 8 where neighbouring pixels stay together. No includes here.
+// rays per instruction than 8, and 32 (two 16-lane halves, packet_halves.inl) more than 16, where
+// neighbouring pixels stay together. Lane-wise choices go through select(), which both vector kinds define.
+// No includes here other than that one.
 constexpr int N = kLanes;
+#ifdef SVO_PACKET_HALVES
+#include "packet_halves.inl"
+#else  // one register's lanes
 using Floats = float __attribute__((vector_size(sizeof(float) * N)));
 using Ints = std::int32_t __attribute__((vector_size(sizeof(std::int32_t) * N)));
-
-// std::min(a, b) and std::max(a, b) lane by lane, NaN handling included ((b < a) ? b : a; (a < b) ? b : a).
-inline Floats minOf(Floats a, Floats b) {
-  return b < a ? b : a;
+template <class V>
+[[gnu::always_inline]] inline V select(Ints mask, V a, V b) {
+  return mask ? a : b;
 }
-inline Floats maxOf(Floats a, Floats b) {
-  return a < b ? b : a;
+[[gnu::always_inline]] inline Floats toFloats(Ints a) {
+  return __builtin_convertvector(a, Floats);
 }
 [[gnu::always_inline]] inline Ints bitsOf(Floats a) {
   return (Ints)a;
 }
 [[gnu::always_inline]] inline Floats floatsOf(Ints a) {
   return (Floats)a;
-}
-inline Floats absOf(Floats a) {
-  return a < Floats{} ? -a : a;
 }
 // The lanes of a mask as the bits of an integer, lane l as bit l: loops over them visit only the set lanes,
 // one branch a set lane instead of an unpredictable one for every lane.
@@ -30,6 +31,18 @@ inline unsigned lanesOf(Ints mask) {
 #else
   return unsigned(_mm256_movemask_ps(__m256(mask)));
 #endif
+}
+#endif
+
+// std::min(a, b) and std::max(a, b) lane by lane, NaN handling included ((b < a) ? b : a; (a < b) ? b : a).
+inline Floats minOf(Floats a, Floats b) {
+  return select(b < a, b, a);
+}
+inline Floats maxOf(Floats a, Floats b) {
+  return select(a < b, b, a);
+}
+inline Floats absOf(Floats a) {
+  return select(a < Floats{}, -a, a);
 }
 inline bool any(Ints mask) {
   return lanesOf(mask) != 0;
@@ -98,12 +111,13 @@ struct Lanes {
       nx * s.dx * tx_center + ny * s.dy * ty_center + nz * s.dz * tz_center + s.scale_exp2 * position;
   const Floats halfWidth = 0.5f * s.scale_exp2 * thickness;
   const Ints crossing = clip & (absOf(den) > kParallelContour);
-  const Floats inv = 1.0f / (crossing ? den : Floats{} + 1.0f);
+  const Floats inv = 1.0f / select(crossing, den, Floats{} + 1.0f);
   const Floats tmid = num * inv, tdiff = absOf(halfWidth * inv);
-  t_min = crossing ? maxOf(t_min, tmid - tdiff) : t_min;
-  tv_max = crossing ? minOf(tv_max, tmid + tdiff) : tv_max;
+  t_min = select(crossing, maxOf(t_min, tmid - tdiff), t_min);
+  tv_max = select(crossing, minOf(tv_max, tmid + tdiff), tv_max);
   const Ints outside = clip & ~crossing & (absOf(num) > halfWidth);
-  tv_max = outside ? Floats{} - 1.0f : tv_max;  // parallel and outside: the voxel's shape is not on this ray
+  tv_max =
+      select(outside, Floats{} - 1.0f, tv_max);  // parallel and outside: the voxel's shape is not on this ray
 }
 
 // clipToContour for the `clip` lanes: their contour words loaded and decoded as decodeContour decodes one.
@@ -117,11 +131,11 @@ struct Lanes {
     const int l = __builtin_ctz(lanes);
     bits[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(s.parent[l])[offset[l]]);
   }
-  const Floats nx = __builtin_convertvector(bits >> 26, Floats) / kContourNormalScale;
-  const Floats ny = __builtin_convertvector((bits << 6) >> 26, Floats) / kContourNormalScale;
-  const Floats nz = __builtin_convertvector((bits << 12) >> 26, Floats) / kContourNormalScale;
-  const Floats position = __builtin_convertvector((bits << 18) >> 25, Floats) * kContourPositionStep;
-  const Floats thickness = __builtin_convertvector(bits & 127, Floats) * kContourThicknessStep;
+  const Floats nx = toFloats(bits >> 26) / kContourNormalScale;
+  const Floats ny = toFloats((bits << 6) >> 26) / kContourNormalScale;
+  const Floats nz = toFloats((bits << 12) >> 26) / kContourNormalScale;
+  const Floats position = toFloats((bits << 18) >> 25) * kContourPositionStep;
+  const Floats thickness = toFloats(bits & 127) * kContourThicknessStep;
   clipLanes(s, clip, nx, ny, nz, position, thickness, tx_center, ty_center, tz_center, s.t_min, tv_max);
 }
 
@@ -168,14 +182,14 @@ struct Lanes {
 [[gnu::always_inline]] inline void enterChildren(Lanes& s, Ints pushed, Floats half, Floats tx_center,
                                                  Floats ty_center, Floats tz_center, Floats tv_max) {
   s.scale -= pushed & 1;
-  s.scale_exp2 = pushed ? half : s.scale_exp2;
+  s.scale_exp2 = select(pushed, half, s.scale_exp2);
   const Ints upX = pushed & (tx_center > s.t_min), upY = pushed & (ty_center > s.t_min),
              upZ = pushed & (tz_center > s.t_min);
-  s.idx = pushed ? ((upX & 1) | (upY & 2) | (upZ & 4)) : s.idx;
-  s.px = upX ? s.px + s.scale_exp2 : s.px;
-  s.py = upY ? s.py + s.scale_exp2 : s.py;
-  s.pz = upZ ? s.pz + s.scale_exp2 : s.pz;
-  s.t_max = pushed ? tv_max : s.t_max;
+  s.idx = select(pushed, ((upX & 1) | (upY & 2) | (upZ & 4)), s.idx);
+  s.px = select(upX, s.px + s.scale_exp2, s.px);
+  s.py = select(upY, s.py + s.scale_exp2, s.py);
+  s.pz = select(upZ, s.pz + s.scale_exp2, s.pz);
+  s.t_max = select(pushed, tv_max, s.t_max);
 }
 
 // POP for the `pop` lanes, which left their parent: the new scale from the highest differing bit. Only the
@@ -183,21 +197,21 @@ struct Lanes {
 // castRay's unsigned one.
 [[gnu::always_inline]] inline void pop(Lanes& s, Ints pop, Ints step_mask) {
   const Ints none{};
-  const Ints differing_bits = ((step_mask & 1) != 0 ? bitsOf(s.px) ^ bitsOf(s.px + s.scale_exp2) : none) |
-                              ((step_mask & 2) != 0 ? bitsOf(s.py) ^ bitsOf(s.py + s.scale_exp2) : none) |
-                              ((step_mask & 4) != 0 ? bitsOf(s.pz) ^ bitsOf(s.pz + s.scale_exp2) : none);
-  const Ints scale = (bitsOf(__builtin_convertvector(differing_bits, Floats)) >> 23) - 127;
+  const Ints differing_bits = select((step_mask & 1) != 0, bitsOf(s.px) ^ bitsOf(s.px + s.scale_exp2), none) |
+                              select((step_mask & 2) != 0, bitsOf(s.py) ^ bitsOf(s.py + s.scale_exp2), none) |
+                              select((step_mask & 4) != 0, bitsOf(s.pz) ^ bitsOf(s.pz + s.scale_exp2), none);
+  const Ints scale = (bitsOf(toFloats(differing_bits)) >> 23) - 127;
   s.active &= ~(pop & (scale >= kScaleMax));  // left the octree
   pop &= scale < kScaleMax;
   if (!any(pop)) return;
-  const Ints shift = pop ? scale : none;  // in range on every lane
+  const Ints shift = select(pop, scale, none);  // in range on every lane
   const Ints shx = bitsOf(s.px) >> shift, shy = bitsOf(s.py) >> shift, shz = bitsOf(s.pz) >> shift;
-  s.scale = pop ? scale : s.scale;
-  s.scale_exp2 = pop ? floatsOf((scale - kScaleMax + 127) << 23) : s.scale_exp2;
-  s.px = pop ? floatsOf(shx << shift) : s.px;
-  s.py = pop ? floatsOf(shy << shift) : s.py;
-  s.pz = pop ? floatsOf(shz << shift) : s.pz;
-  s.idx = pop ? (shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2) : s.idx;
+  s.scale = select(pop, scale, s.scale);
+  s.scale_exp2 = select(pop, floatsOf((scale - kScaleMax + 127) << 23), s.scale_exp2);
+  s.px = select(pop, floatsOf(shx << shift), s.px);
+  s.py = select(pop, floatsOf(shy << shift), s.py);
+  s.pz = select(pop, floatsOf(shz << shift), s.pz);
+  s.idx = select(pop, (shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2), s.idx);
   for (unsigned lanes = lanesOf(pop); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
     s.parent[l] = s.stack[l][scale[l]].parent;
@@ -252,10 +266,10 @@ struct Lanes {
       hits[l].pathSlot[scale] = std::uint8_t(slot);
       s.parent[l] = child;
     }
-    s.topology = together ? Ints{} + std::int32_t(child->topology) : s.topology;
-    s.contourWord = together ? Ints{} + std::int32_t(child->contour) : s.contourWord;
+    s.topology = select(together, Ints{} + std::int32_t(child->topology), s.topology);
+    s.contourWord = select(together, Ints{} + std::int32_t(child->contour), s.contourWord);
     s.iterations -= together;
-    s.t_min = together ? t_min : s.t_min;
+    s.t_min = select(together, t_min, s.t_min);
     enterChildren(s, together, half, tx_center, ty_center, tz_center, tv_max);
   }
 }
@@ -266,8 +280,8 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
   start(s, block, rays, count, hits);
   descendTogether(s, options, hits);
   while (any(s.active)) {
-    // The iteration cap, then each lane's voxel: valid, with or without a contour, a non-leaf or not, from its
-    // parent's descriptor words (kept in the lanes since the lane's last PUSH or POP).
+    // The iteration cap, then each lane's voxel: valid, with or without a contour, a non-leaf or not, from
+    // its parent's descriptor words (kept in the lanes since the lane's last PUSH or POP).
     s.iterations -= s.active;
     s.active &= s.iterations <= options.maxIterations;
     const Ints topology = s.topology, contourWord = s.contourWord;
@@ -303,10 +317,10 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
     if (!any(advance)) continue;
     const Ints stepX = advance & (tx_corner <= tc_max), stepY = advance & (ty_corner <= tc_max),
                stepZ = advance & (tz_corner <= tc_max);
-    s.px = stepX ? s.px - s.scale_exp2 : s.px;
-    s.py = stepY ? s.py - s.scale_exp2 : s.py;
-    s.pz = stepZ ? s.pz - s.scale_exp2 : s.pz;
-    s.t_min = advance ? tc_max : s.t_min;
+    s.px = select(stepX, s.px - s.scale_exp2, s.px);
+    s.py = select(stepY, s.py - s.scale_exp2, s.py);
+    s.pz = select(stepZ, s.pz - s.scale_exp2, s.pz);
+    s.t_min = select(advance, tc_max, s.t_min);
     const Ints step_mask = (stepX & 1) | (stepY & 2) | (stepZ & 4);
     s.idx ^= step_mask;
     // POP when a bit flipped against the ray direction: the ray left the parent.

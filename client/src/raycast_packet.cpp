@@ -4,7 +4,8 @@
 // operations in castRay's order (no fused multiply-add) and takes castRay's decisions, so each hit is the
 // same bit for bit; the integer work of the decisions (child pointers, the stack) runs lane by lane. The loop
 // (packet_loop.inl) is compiled once per instruction set and chosen at run time, so one binary runs
-// everywhere: 16 lanes in AVX-512 registers, 8 in AVX2 ones, else castRay one ray at a time.
+// everywhere: 32 lanes in pairs of AVX-512 registers (16 in one for a packet of at most 16 rays), 8 in AVX2
+// ones, else castRay one ray at a time.
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
@@ -41,7 +42,22 @@ constexpr int kLanes = 16;
 #undef SVO_PACKET_AVX512
 #pragma GCC pop_options
 }  // namespace avx512
-static_assert(avx512::kLanes == kPacketLanes);
+
+// 32 lanes as two 16-lane halves (packet_halves.inl): the loop's control, its branches and each shared step
+// serve twice the rays, and twice the lanes' loads are in flight at once.
+namespace avx512x2 {
+#pragma GCC push_options
+#pragma GCC target("avx2,popcnt,avx512f,avx512vl,avx512dq,avx512bw")
+#pragma GCC optimize("fp-contract=off")
+constexpr int kLanes = 32;
+#define SVO_PACKET_AVX512 1
+#define SVO_PACKET_HALVES 1
+#include "packet_loop.inl"
+#undef SVO_PACKET_HALVES
+#undef SVO_PACKET_AVX512
+#pragma GCC pop_options
+}  // namespace avx512x2
+static_assert(avx512x2::kLanes == kPacketLanes);
 
 }  // namespace
 
@@ -89,7 +105,10 @@ void castPacket(const BlockView& block, const OctreeRay* rays, int count, const 
                 CastHit* hits) {
   switch (packetSimdUsed(options.simd)) {
     case PacketSimd::Avx512:
-      avx512::castLanes(block, rays, count, options, hits);
+      if (count > avx512::kLanes)
+        avx512x2::castLanes(block, rays, count, options, hits);
+      else  // a packet at a tile's edge: one register's lanes do
+        avx512::castLanes(block, rays, count, options, hits);
       return;
     case PacketSimd::Avx2:
       for (int first = 0; first < count; first += avx2::kLanes)

@@ -97,14 +97,15 @@ const svo::Octree& scene() {
   return octree;
 }
 
-// Every pixel of a camera, in the 4x4 blocks castTile casts together.
+// Every pixel of a camera in castTile's order: 4x4 blocks left to right, so that with a width a multiple of 8
+// each packet of 32 rays is the 8x4 block castTile casts together.
 std::vector<svo::OctreeRay> pixelPackets(const svo::SceneTransform& transform, const svo::Camera& camera,
                                          float lodPixels) {
   const svo::PixelRays rays(transform, camera, lodPixels);
   std::vector<svo::OctreeRay> out;
   for (int y = 0; y < camera.height; y += 4)
     for (int x = 0; x < camera.width; x += 4)
-      for (int i = 0; i < svo::kPacketLanes; ++i) out.push_back(rays(x + i % 4, y + i / 4));
+      for (int i = 0; i < 16; ++i) out.push_back(rays(x + i % 4, y + i / 4));
   return out;
 }
 

@@ -141,7 +141,7 @@ void printScenes(const std::vector<SceneResult>& scenes) {
 std::string packetLoopName(PacketSimd used) {
   switch (used) {
     case PacketSimd::Avx512:
-      return "16-ray AVX-512 packets";
+      return "32-ray AVX-512 packets";
     case PacketSimd::Avx2:
       return "8-ray AVX2 packets";
     default:

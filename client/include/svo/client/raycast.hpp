@@ -29,8 +29,8 @@ struct OctreeRay {
 // next narrower one.
 enum class PacketSimd : std::uint8_t {
   Widest,
-  Avx512,  // 16 lanes (castTile's 4x4 pixel block)
-  Avx2,    // 8 lanes: a packet of 16 rays cast as two halves
+  Avx512,  // 32 lanes in two halves of 16 (castTile's 8x4 pixel block), or 16 for up to 16 rays
+  Avx2,    // 8 lanes: a packet of 32 rays cast as four quarters
   None,    // castRay, ray by ray
 };
 const char* nameOf(PacketSimd simd);  // "widest", "avx512", "avx2", "none"
@@ -66,8 +66,9 @@ struct CastHit {
 // Casts one ray through the block. Never returns NaN; never loops forever.
 CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options = {});
 
-// Rays castPacket casts together: the lanes of an AVX-512 register (castTile: a 4x4 block of pixels).
-inline constexpr int kPacketLanes = 16;
+// Rays castPacket casts together: the lanes of two AVX-512 registers (castTile: two 4x4 blocks of pixels side
+// by side, one in each).
+inline constexpr int kPacketLanes = 32;
 // castRay for `count` <= kPacketLanes rays at once, in SIMD lanes (options.simd), else one by one; coherent
 // rays (neighbouring pixels) keep the lanes busy together. hits[i] is castRay(block, rays[i], options) bit
 // for bit.
