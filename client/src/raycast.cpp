@@ -185,6 +185,16 @@ glm::vec3 SiblingAttribute::inheritedFromUnits(const CastHit& hit, Decode decode
   return *inheritedUnit_;
 }
 
+void SiblingAttribute::prefetch(const CastHit& hit) const {
+  if (!hit.hit) return;
+  if (unitsEntry_) {
+    if (const auto unit = BlockView::unit(hit.parent, units_)) __builtin_prefetch(unit->words);
+  } else if (rawEntry_) {
+    const BlockView::Attributes own = BlockView::attributes(hit.parent, raw_);
+    if (own.mask >> hit.childSlot & 1u) __builtin_prefetch(own.values + childRank(own.mask, hit.childSlot));
+  }
+}
+
 std::uint32_t SiblingAttribute::value(const CastHit& hit) {
   if (!rawEntry_ || !hit.hit) return 0;
   select(hit.parent);

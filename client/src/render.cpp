@@ -216,7 +216,16 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
                       keepIterations(x, y, hit);
                       if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
                     },
-                    keepIterations);
+                    keepIterations,
+                    [&](const CastHit* hits, int count) {
+                      if (!options.prefetchAttributes) return;
+                      for (int i = 0; i < count; ++i) {
+                        // A hit on the previous one's parent shares its look-up (SiblingAttribute).
+                        if (i > 0 && hits[i].parent == hits[i - 1].parent) continue;
+                        if (shading.hasColor) attributes.colors.prefetch(hits[i]);
+                        if (shading.hasNormal) attributes.normals.prefetch(hits[i]);
+                      }
+                    });
                 iterations.fetch_add(tileIterations, std::memory_order_relaxed);
               });
   if (options.filter) applyFilter(frame, options);

@@ -373,6 +373,62 @@ INSTANTIATE_TEST_SUITE_P(Attributes, RenderLayouts,
                          ::testing::Values(AttributeLayout::Raw, AttributeLayout::Compressed),
                          [](const auto& info) { return std::string(nameOf(info.param)); });
 
+// Three levels of random children with random colors and normals (some equal to their parent's, so that they
+// inherit), in either attribute layout.
+Octree randomTree(AttributeLayout attributes) {
+  std::mt19937 rng(11);
+  VoxelTree tree;
+  tree.hasColors = tree.hasNormals = true;
+  tree.voxels.resize(1);
+  std::uniform_real_distribution<float> unit(-1.0f, 1.0f);
+  const auto randomize = [&](VoxelRecord& v, const VoxelRecord& parent) {
+    const bool inherit = rng() % 3 == 0;
+    v.color = inherit ? parent.color : std::uint32_t(rng()) | 0xff000000u;
+    v.normal = inherit ? parent.normal : encodeNormal(glm::normalize(glm::vec3(unit(rng), unit(rng), 1.0f)));
+  };
+  randomize(tree.voxels[0], tree.voxels[0]);
+  std::vector<std::uint32_t> level{0};
+  for (int depth = 0; depth < 3; ++depth) {
+    std::vector<std::uint32_t> next;
+    for (const std::uint32_t p : level) {
+      const auto mask = std::uint8_t(rng() | 1u);
+      tree.voxels[p].firstChild = std::uint32_t(tree.voxels.size());
+      tree.voxels[p].childMask = mask;
+      for (int slot = 0; slot < 8; ++slot)
+        if (mask >> slot & 1u) {
+          next.push_back(std::uint32_t(tree.voxels.size()));
+          VoxelRecord child;
+          randomize(child, tree.voxels[p]);
+          tree.voxels.push_back(child);
+        }
+    }
+    level = std::move(next);
+  }
+  Octree octree;
+  octree.transform = {{0.0, 0.0, 0.0}, 2.0};
+  LayoutOptions layout;
+  layout.attributes = attributes;
+  octree.block = layoutBlock(tree, layout);
+  return octree;
+}
+
+TEST_P(RenderLayouts, PrefetchingAttributesChangesNoPixel) {
+  const Octree octree = randomTree(GetParam());
+  const Camera camera = Camera::framing(octree.transform, {0.3, -0.2, -1.0}, 64, 48);
+  RenderOptions options;
+  options.lodPixels = 0.0f;
+  const Frame plain = render(octree, camera, options);
+  options.prefetchAttributes = true;
+  const Frame prefetched = render(octree, camera, options);
+  int hits = 0;
+  for (std::size_t i = 0; i < plain.color.size(); ++i) {
+    hits += plain.color[i].a == 1.0f;
+    ASSERT_EQ(plain.color[i], prefetched.color[i]) << i;
+    ASSERT_EQ(plain.depth[i], prefetched.depth[i]) << i;
+  }
+  EXPECT_GT(hits, 64 * 48 / 10);
+}
+
 TEST(Render, NormalsFacingAwayAreFlippedAndThreadCountDoesNotMatter) {
   const SceneTransform scene{{0.0, 0.0, 0.0}, 1.0};
   const Camera camera = Camera::framing(scene, {0.3, -0.2, -1.0}, 40, 30);

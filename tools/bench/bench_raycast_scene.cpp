@@ -206,7 +206,9 @@ void measureRow(const WholeScene& scene, const PeerTrace& peer, const MeshShadin
   row.rays = double(camera.width) * camera.height;
   Frame frame;
   const auto esvoDepth = [&] { row.esvoDepth.last = traceEsvo(scene, camera, options); };
-  const auto esvoShaded = [&] { frame = render(scene.root(), scene.transform(), camera, options); };
+  RenderOptions shadedOptions = options;
+  shadedOptions.prefetchAttributes = attributePrefetchPays(scene.bytes());
+  const auto esvoShaded = [&] { frame = render(scene.root(), scene.transform(), camera, shadedOptions); };
   if (peer) {
     row.embreeDepth.emplace(), row.embreeShaded.emplace();
     const auto seconds = timeInterleaved(

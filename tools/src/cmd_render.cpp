@@ -164,6 +164,7 @@ void renderStreaming(const RenderArgs& args, std::shared_ptr<const SliceSource> 
   keepFreedMemoryForReuse();
   RenderOptions options = args.options;
   options.cast.contours = !args.noContours;
+  options.prefetchAttributes = attributePrefetchPays(budget);
   if (args.pathFile.empty()) {
     renderConverged(args, std::move(source), options, budget, how);
   } else {
@@ -176,6 +177,7 @@ void renderWhole(const RenderArgs& args, const Octree& octree, const StoreIndex&
   const Camera camera = cameraOf(args, octree.block.view(), octree.transform, index);
   RenderOptions options = args.options;
   options.cast.contours = !args.noContours && octree.parameters.contours;
+  options.prefetchAttributes = attributePrefetchPays(octree.block.bytes().size());
   const Frame frame =
       args.gpu ? gpu::renderBlock(args.gpu->caster(), octree.block.view(), octree.transform, camera, options)
                : render(octree, camera, options);

@@ -259,6 +259,7 @@ void Viewer::renderFrame(Clock::time_point now, bool moving) {
   options.lodPixels = settings_.lodPixels;
   options.cast.contours = settings_.contours && pager_->index().header().parameters.contours;
   options.filter = settings_.filter;
+  options.prefetchAttributes = attributePrefetchPays(pager_->residentBytes());
   options.diagnostics =
       settings_.falseColor == FalseColor::Iterations || settings_.falseColor == FalseColor::Detail;
 

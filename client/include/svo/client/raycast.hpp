@@ -88,6 +88,8 @@ class SiblingAttribute {
   // instance made for Color serves color, one made for Normal serves normal.
   glm::vec3 color(const CastHit& hit);   // linear RGB in [0, 1]
   glm::vec3 normal(const CastHit& hit);  // unit length
+  // Reads the hit parent's look-up and requests the hit's value (or unit), for prefetching renderers.
+  void prefetch(const CastHit& hit) const;
 
  private:
   void select(const ChildDescriptor* parent);
