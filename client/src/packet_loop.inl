@@ -116,15 +116,16 @@ struct Lanes {
   t_min = select(crossing, maxOf(t_min, tmid - tdiff), t_min);
   tv_max = select(crossing, minOf(tv_max, tmid + tdiff), tv_max);
   const Ints outside = clip & ~crossing & (absOf(num) > halfWidth);
-  tv_max =
-      select(outside, Floats{} - 1.0f, tv_max);  // parallel and outside: the voxel's shape is not on this ray
+  // Parallel and outside: the voxel's shape is not on this ray.
+  tv_max = select(outside, Floats{} - 1.0f, tv_max);
 }
 
 // clipToContour for the `clip` lanes: their contour words loaded and decoded as decodeContour decodes one.
 [[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
                                                   Floats tx_center, Floats ty_center, Floats tz_center,
                                                   Floats& tv_max) {
-  // Words from the parent: the contour pointer, then the rank among the children with a contour.
+  // Words from the parent: the contour pointer ([31:8]), then the rank among the children with a contour (the
+  // mask, [7:0]).
   const Ints offset = ((contourWord >> 8) & 0xFFFFFF) + childRanks(contourWord & 0xFF, slot);
   Ints bits{};
   for (unsigned lanes = lanesOf(clip); lanes != 0; lanes &= lanes - 1) {
@@ -142,8 +143,9 @@ struct Lanes {
 // The child each `meets` lane enters: a leaf (or a stub) is the lane's hit, else PUSH. Returns the lanes
 // that pushed.
 [[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints topology, Ints slot, CastHit* hits) {
-  // BlockView::child's arithmetic for every lane at once: the run's near pointer and the child's rank among
-  // the non-leaf children.
+  // BlockView::child's arithmetic for every lane at once (ChildDescriptor's fields: [31:17] child pointer,
+  // [16] far, [15:8] valid mask, [7:0] leaf mask): the run's near pointer and the child's rank among the
+  // non-leaf children.
   const Ints nonLeafMask = (topology >> 8) & ~topology & 0xFF;
   const Ints nonLeaf = -((nonLeafMask >> slot) & 1);
   const Ints rank = childRanks(nonLeafMask, slot);
