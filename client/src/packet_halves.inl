@@ -12,6 +12,7 @@ struct [[gnu::may_alias]] Halves {
 using Floats = Halves<float, HalfFloats>;
 using Ints = Halves<std::int32_t, HalfInts>;
 
+// clang-format off
 #define SVO_HALVES_ARITHMETIC(op)                                                               \
   template <class T, class H>                                                                   \
   [[gnu::always_inline]] inline Halves<T, H> operator op(Halves<T, H> a, Halves<T, H> b) {      \
@@ -27,7 +28,7 @@ using Ints = Halves<std::int32_t, HalfInts>;
   }                                                                                             \
   template <class T, class H>                                                                   \
   [[gnu::always_inline]] inline Halves<T, H>& operator op##=(Halves<T, H>& a, Halves<T, H> b) { \
-    a.lo op## = b.lo, a.hi op## = b.hi;                                                         \
+    a.lo op##= b.lo, a.hi op##= b.hi;                                                         \
     return a;                                                                                   \
   }
 SVO_HALVES_ARITHMETIC(+)
@@ -40,6 +41,7 @@ SVO_HALVES_ARITHMETIC(^)
 SVO_HALVES_ARITHMETIC(<<)
 SVO_HALVES_ARITHMETIC(>>)
 #undef SVO_HALVES_ARITHMETIC
+// clang-format on
 
 #define SVO_HALVES_COMPARISON(op)                                                  \
   template <class T, class H>                                                      \

@@ -156,7 +156,7 @@ struct Lanes {
     const ChildDescriptor* child = nullptr;
     if (nonLeaf[l]) {
       child = s.parent[l] + runOffset[l];
-      if (topology[l] & (1 << 16))  // far: the run is where the far slot says
+      if (topology[l] & std::int32_t(ChildDescriptor::kFarBit))  // the run is where the far slot says
         child += *reinterpret_cast<const std::int32_t*>(child - rank[l]);
       child = followLink(child);
     }

@@ -82,6 +82,15 @@ struct TileAttributes {
   SiblingAttribute colors, normals;
   explicit TileAttributes(const BlockView& block)
       : colors(block, AttachmentType::Color), normals(block, AttachmentType::Normal) {}
+  // RenderOptions::prefetchAttributes for a packet's hits. A hit on the previous one's parent shares its
+  // look-up, which SiblingAttribute keeps.
+  void prefetch(const CastHit* hits, int count, const Shading& s) const {
+    for (int i = 0; i < count; ++i) {
+      if (i > 0 && hits[i].parent == hits[i - 1].parent) continue;
+      if (s.hasColor) colors.prefetch(hits[i]);
+      if (s.hasNormal) normals.prefetch(hits[i]);
+    }
+  }
 };
 
 glm::vec3 shade(const CastHit& hit, glm::vec3 viewDirection, const Shading& s, TileAttributes& attributes) {
@@ -218,13 +227,7 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
                     },
                     keepIterations,
                     [&](const CastHit* hits, int count) {
-                      if (!options.prefetchAttributes) return;
-                      for (int i = 0; i < count; ++i) {
-                        // A hit on the previous one's parent shares its look-up (SiblingAttribute).
-                        if (i > 0 && hits[i].parent == hits[i - 1].parent) continue;
-                        if (shading.hasColor) attributes.colors.prefetch(hits[i]);
-                        if (shading.hasNormal) attributes.normals.prefetch(hits[i]);
-                      }
+                      if (options.prefetchAttributes) attributes.prefetch(hits, count, shading);
                     });
                 iterations.fetch_add(tileIterations, std::memory_order_relaxed);
               });

@@ -31,9 +31,10 @@ struct ChildDescriptor {
   std::uint32_t topology = 0;
   std::uint32_t contour = 0;
 
+  static constexpr std::uint32_t kFarBit = 1u << 16;
   static constexpr std::uint32_t kValidAndFarBits = 0x1FF00u;  // [16] far, [15:8] valid mask
   constexpr std::uint32_t childPointer() const { return topology >> 17; }
-  constexpr bool far() const { return (topology >> 16) & 1u; }
+  constexpr bool far() const { return (topology & kFarBit) != 0; }
   constexpr std::uint8_t validMask() const { return std::uint8_t(topology >> 8); }
   constexpr std::uint8_t leafMask() const { return std::uint8_t(topology); }
   constexpr std::uint8_t nonLeafMask() const { return validMask() & ~leafMask(); }
@@ -47,9 +48,9 @@ struct ChildDescriptor {
   // block.
   // Tested on the whole word (valid mask and far bit at once): a ray caster's hot path.
   constexpr bool isStub() const { return (topology & kValidAndFarBits) == 0; }
-  constexpr bool isLink() const { return (topology & kValidAndFarBits) == 1u << 16; }
+  constexpr bool isLink() const { return (topology & kValidAndFarBits) == kFarBit; }
   constexpr std::int32_t linkOffset() const { return std::int32_t(contour); }
-  static constexpr ChildDescriptor link(std::int32_t slots) { return {1u << 16, std::uint32_t(slots)}; }
+  static constexpr ChildDescriptor link(std::int32_t slots) { return {kFarBit, std::uint32_t(slots)}; }
 
   static constexpr ChildDescriptor make(std::uint32_t childPointer, bool far, std::uint8_t valid,
                                         std::uint8_t leaf, std::uint32_t contourPointer,
