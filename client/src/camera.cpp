@@ -49,10 +49,8 @@ Camera::Basis Camera::basis() const {
 }
 
 void Camera::pixelRay(const Camera& camera, const Basis& b, double x, double y, glm::dvec3& direction) {
-  // Image rows grow downwards, so row 0 is the top of the view (+up).
-  const double sx = (2.0 * (x + 0.5) / double(camera.width) - 1.0) * b.tanHalf * b.aspect;
-  const double sy = (1.0 - 2.0 * (y + 0.5) / double(camera.height)) * b.tanHalf;
-  direction = glm::normalize(b.forward + sx * b.right + sy * b.up);
+  direction =
+      glm::normalize(b.forward + b.across(x, camera.width) * b.right + b.down(y, camera.height) * b.up);
 }
 
 void Camera::pixelRay(double x, double y, glm::dvec3& origin, glm::dvec3& direction) const {

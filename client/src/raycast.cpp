@@ -13,10 +13,6 @@ namespace svo {
 
 using namespace ray_setup;
 
-float CastHit::voxelSize() const {
-  return std::ldexp(1.0f, scale - kScaleMax);
-}
-
 CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options) {
   CastHit hit;
   MirroredRay m;

@@ -130,15 +130,6 @@ glm::dvec3 PixelRays::direction(double px, double py) const {
   return direction;
 }
 
-OctreeRay PixelRays::operator()(double px, double py) const {
-  OctreeRay ray;
-  ray.origin = origin_;
-  // Scaling the direction by 1 / size keeps t in world units: octree point at t = toOctree(world point at t).
-  ray.direction = glm::vec3(direction(px, py) / scene_.size);
-  ray.footprintSlope = footprintSlope_;
-  return ray;
-}
-
 OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px, double py,
                     float lodPixels) {
   return PixelRays(scene, camera, lodPixels)(px, py);

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <array>
+#include <bit>
 #include <cstdint>
 #include <optional>
 
@@ -59,7 +60,8 @@ struct CastHit {
   const ChildDescriptor* pathParent[kMaxLevels];  // left uninitialized: written by each PUSH
   std::uint8_t pathSlot[kMaxLevels];
 
-  float voxelSize() const;  // octree units
+  // Octree units: 2^(scale - 23) built from its exponent bits (a normal float at every scale).
+  float voxelSize() const { return std::bit_cast<float>(std::uint32_t(scale - kMaxLevels + 127) << 23); }
   glm::vec3 cubeMin{0.0f};  // hit voxel's cube, octree units
 };
 

@@ -1,6 +1,7 @@
 // Pinhole camera, Phong shading with one directional light, multi-threaded rendering, image output.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
@@ -10,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include <glm/geometric.hpp>
 #include <glm/vec3.hpp>
 #include <glm/vec4.hpp>
 
@@ -33,6 +35,12 @@ struct Camera {
   struct Basis {
     glm::dvec3 forward, right, up;
     double tanHalf = 0.0, aspect = 1.0;
+    // Image-plane coordinates of column x's and row y's pixel centres (along right and up, at distance 1
+    // along forward); image rows grow downwards, so row 0 is the top of the view (+up).
+    double across(double x, int width) const {
+      return (2.0 * (x + 0.5) / double(width) - 1.0) * tanHalf * aspect;
+    }
+    double down(double y, int height) const { return (1.0 - 2.0 * (y + 0.5) / double(height)) * tanHalf; }
   };
   Basis basis() const;
   static void pixelRay(const Camera& camera, const Basis& basis, double x, double y, glm::dvec3& direction);
@@ -157,7 +165,21 @@ OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px
 class PixelRays {
  public:
   PixelRays(const SceneTransform& scene, const Camera& camera, float lodPixels);
-  OctreeRay operator()(double px, double py) const;
+  OctreeRay operator()(double px, double py) const { return at(across(px), down(py)); }
+  // The same in two steps, so that a block of pixels computes each column's and row's image-plane
+  // coordinate once: across(px) and down(py) (Camera::pixelRay's), then the ray through them.
+  double across(double px) const { return basis_.across(px, camera_.width); }
+  double down(double py) const { return basis_.down(py, camera_.height); }
+  OctreeRay at(double across, double down) const {
+    const glm::dvec3 v = basis_.forward + across * basis_.right + down * basis_.up;
+    OctreeRay ray;
+    ray.origin = origin_;
+    // The unit direction scaled by 1 / size keeps t in world units: octree point at t = toOctree(world
+    // point at t). One division for both.
+    ray.direction = glm::vec3(v * (1.0 / (std::sqrt(glm::dot(v, v)) * scene_.size)));
+    ray.footprintSlope = footprintSlope_;
+    return ray;
+  }
 
   // Unit world (= octree, up to scale) direction of the ray through (px + 0.5, py + 0.5).
   glm::dvec3 direction(double px, double py) const;
@@ -206,13 +228,16 @@ std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const Pixe
   static_assert(kPacketLanes == 32);
   for (int y = tile.y0; y < tile.y1; y += 4) {
     for (int x = tile.x0; x < tile.x1; x += 8) {
+      double across[8], down[4];
+      for (int i = 0; i < 8; ++i) across[i] = rays.across(x + i);
+      for (int i = 0; i < 4; ++i) down[i] = rays.down(y + i);
       OctreeRay block8x4[kPacketLanes];
       int qx[kPacketLanes], qy[kPacketLanes], count = 0;
       for (int x0 = x; x0 < x + 8 && x0 < tile.x1; x0 += 4)
         for (int dy = 0; dy < 4 && y + dy < tile.y1; ++dy)
           for (int dx = 0; dx < 4 && x0 + dx < tile.x1; ++dx) {
             qx[count] = x0 + dx, qy[count] = y + dy;
-            block8x4[count] = rays(x0 + dx, y + dy);
+            block8x4[count] = rays.at(across[x0 + dx - x], down[dy]);
             block8x4[count++].tMin = tStart;
           }
       CastHit hits[kPacketLanes];
