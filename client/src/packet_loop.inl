@@ -120,6 +120,41 @@ struct Lanes {
   tv_max = select(outside, Floats{} - 1.0f, tv_max);
 }
 
+#ifdef SVO_PACKET_AVX512
+// Word offset[l] after parents[l] for the 16 `mask` lanes of one register, 0 elsewhere: hardware gathers of 8
+// lanes each over the 64-bit addresses (a lane-by-lane loop would store each word and reload the vector).
+using Ints16 = std::int32_t __attribute__((vector_size(64)));
+[[gnu::always_inline]] inline Ints16 wordsAt16(const ChildDescriptor* const* parents, Ints16 offset,
+                                               Ints16 mask) {
+  const __mmask16 lanes = _mm512_movepi32_mask(__m512i(mask));
+  __m256i words[2];
+  for (int h = 0; h < 2; ++h) {
+    const __m256i eight = _mm512_extracti64x4_epi64(__m512i(offset), h);
+    const __m512i base = _mm512_loadu_si512(parents + 8 * h);
+    const __m512i address = _mm512_add_epi64(base, _mm512_slli_epi64(_mm512_cvtepi32_epi64(eight), 2));
+    words[h] =
+        _mm512_mask_i64gather_epi32(_mm256_setzero_si256(), __mmask8(lanes >> (8 * h)), address, nullptr, 1);
+  }
+  return Ints16(_mm512_inserti64x4(_mm512_castsi256_si512(words[0]), words[1], 1));
+}
+#endif
+
+// Word offset[l] after the lane's parent descriptor for the `mask` lanes, 0 elsewhere.
+[[gnu::always_inline]] inline Ints wordsAt(const ChildDescriptor* const* parents, Ints offset, Ints mask) {
+#if defined(SVO_PACKET_HALVES)
+  return {wordsAt16(parents, offset.lo, mask.lo), wordsAt16(parents + 16, offset.hi, mask.hi)};
+#elif defined(SVO_PACKET_AVX512)
+  return wordsAt16(parents, offset, mask);
+#else
+  Ints words{};
+  for (unsigned lanes = lanesOf(mask); lanes != 0; lanes &= lanes - 1) {
+    const int l = __builtin_ctz(lanes);
+    words[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(parents[l])[offset[l]]);
+  }
+  return words;
+#endif
+}
+
 // clipToContour for the `clip` lanes: their contour words loaded and decoded as decodeContour decodes one.
 [[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
                                                   Floats tx_center, Floats ty_center, Floats tz_center,
@@ -127,11 +162,7 @@ struct Lanes {
   // Words from the parent: the contour pointer ([31:8]), then the rank among the children with a contour (the
   // mask, [7:0]).
   const Ints offset = ((contourWord >> 8) & 0xFFFFFF) + childRanks(contourWord & 0xFF, slot);
-  Ints bits{};
-  for (unsigned lanes = lanesOf(clip); lanes != 0; lanes &= lanes - 1) {
-    const int l = __builtin_ctz(lanes);
-    bits[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(s.parent[l])[offset[l]]);
-  }
+  const Ints bits = wordsAt(s.parent, offset, clip);
   const Floats nx = toFloats(bits >> 26) / kContourNormalScale;
   const Floats ny = toFloats((bits << 6) >> 26) / kContourNormalScale;
   const Floats nz = toFloats((bits << 12) >> 26) / kContourNormalScale;
