@@ -124,18 +124,23 @@ struct Lanes {
 // Word offset[l] after parents[l] for the 16 `mask` lanes of one register, 0 elsewhere: hardware gathers of 8
 // lanes each over the 64-bit addresses (a lane-by-lane loop would store each word and reload the vector).
 using Ints16 = std::int32_t __attribute__((vector_size(64)));
+using Ints8 = std::int32_t __attribute__((vector_size(32)));
+using Addresses8 = std::int64_t __attribute__((vector_size(64)));
+// Vector extensions and zero-masked intrinsics: those that leave lanes undefined make GCC 12 warn.
 [[gnu::always_inline]] inline Ints16 wordsAt16(const ChildDescriptor* const* parents, Ints16 offset,
                                                Ints16 mask) {
   const __mmask16 lanes = _mm512_movepi32_mask(__m512i(mask));
-  __m256i words[2];
+  const Ints8 offsets[2] = {__builtin_shufflevector(offset, offset, 0, 1, 2, 3, 4, 5, 6, 7),
+                            __builtin_shufflevector(offset, offset, 8, 9, 10, 11, 12, 13, 14, 15)};
+  Ints8 words[2];
   for (int h = 0; h < 2; ++h) {
-    const __m256i eight = _mm512_extracti64x4_epi64(__m512i(offset), h);
-    const __m512i base = _mm512_loadu_si512(parents + 8 * h);
-    const __m512i address = _mm512_add_epi64(base, _mm512_slli_epi64(_mm512_cvtepi32_epi64(eight), 2));
-    words[h] =
-        _mm512_mask_i64gather_epi32(_mm256_setzero_si256(), __mmask8(lanes >> (8 * h)), address, nullptr, 1);
+    Addresses8 address;
+    std::memcpy(&address, parents + 8 * h, sizeof address);
+    address += Addresses8(_mm512_maskz_cvtepi32_epi64(0xFF, __m256i(offsets[h]))) << 2;
+    words[h] = Ints8(_mm512_mask_i64gather_epi32(__m256i(Ints8{}), __mmask8(lanes >> (8 * h)),
+                                                 __m512i(address), nullptr, 1));
   }
-  return Ints16(_mm512_inserti64x4(_mm512_castsi256_si512(words[0]), words[1], 1));
+  return __builtin_shufflevector(words[0], words[1], 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
 }
 #endif
 
