@@ -164,6 +164,13 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
 
 Frame render(const BlockView& block, const SceneTransform& scene, const Camera& camera,
              const RenderOptions& options) {
+  Frame frame;
+  render(block, scene, camera, options, frame);
+  return frame;
+}
+
+void render(const BlockView& block, const SceneTransform& scene, const Camera& camera,
+            const RenderOptions& options, Frame& frame) {
   camera.validate();
   if (!std::isfinite(options.lodPixels) || options.lodPixels < 0.0f)
     throw std::runtime_error("render: lodPixels must be a finite number >= 0 (got " +
@@ -181,17 +188,15 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
   const double pixelAngle = camera.pixelAngle();
   const PixelRays rays(scene, camera, options.lodPixels);
 
-  Frame frame;
   frame.width = camera.width;
   frame.height = camera.height;
   const std::size_t pixels = std::size_t(camera.width) * std::size_t(camera.height);
   frame.color.assign(pixels, glm::vec4(options.background, 0.0f));
   frame.depth.assign(pixels, std::numeric_limits<float>::infinity());
   frame.voxelPixels.assign(pixels, 0.0f);
-  if (options.diagnostics) {
-    frame.iterations.assign(pixels, 0);
-    frame.lodStopped.assign(pixels, 0);
-  }
+  frame.iterations.assign(options.diagnostics ? pixels : 0, 0);
+  frame.lodStopped.assign(options.diagnostics ? pixels : 0, 0);
+  frame.filterSeconds = frame.deviceSeconds = 0.0;
   const auto keepIterations = [&](int x, int y, const CastHit& hit) {
     if (frame.iterations.empty()) return;
     const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
@@ -225,7 +230,6 @@ Frame render(const BlockView& block, const SceneTransform& scene, const Camera& 
   if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations.load()) / double(pixels);
-  return frame;
 }
 
 void applyFilter(Frame& frame, const RenderOptions& options) {

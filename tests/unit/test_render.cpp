@@ -429,6 +429,36 @@ TEST_P(RenderLayouts, PrefetchingAttributesChangesNoPixel) {
   EXPECT_GT(hits, 64 * 48 / 10);
 }
 
+// A frame rendered into again, at another size and without diagnostics, holds what a fresh frame holds: no
+// pixel, diagnostic or timing of the previous one is left over.
+TEST_P(RenderLayouts, RenderingIntoAUsedFrameEqualsAFreshOne) {
+  const Octree octree = randomTree(GetParam());
+  const BlockView block = octree.block.view();
+  RenderOptions first;
+  first.diagnostics = true;
+  first.filter = true;
+  Frame reused;
+  render(block, octree.transform, Camera::framing(octree.transform, {-0.5, 0.4, -1.0}, 80, 60), first,
+         reused);
+  ASSERT_FALSE(reused.iterations.empty());
+  const Camera camera = Camera::framing(octree.transform, {0.3, -0.2, -1.0}, 64, 48);
+  RenderOptions options;
+  options.lodPixels = 0.0f;
+  render(block, octree.transform, camera, options, reused);
+  const Frame fresh = render(block, octree.transform, camera, options);
+  EXPECT_EQ(reused.width, fresh.width);
+  EXPECT_EQ(reused.height, fresh.height);
+  EXPECT_EQ(reused.color, fresh.color);
+  EXPECT_EQ(reused.depth, fresh.depth);
+  EXPECT_EQ(reused.voxelPixels, fresh.voxelPixels);
+  EXPECT_TRUE(reused.iterations.empty());
+  EXPECT_TRUE(reused.lodStopped.empty());
+  EXPECT_EQ(reused.filterSeconds, 0.0);
+  EXPECT_EQ(reused.meanIterations, fresh.meanIterations);
+  EXPECT_GT(std::count_if(fresh.color.begin(), fresh.color.end(), [](glm::vec4 c) { return c.a == 1.0f; }),
+            64 * 48 / 10);
+}
+
 TEST(Render, NormalsFacingAwayAreFlippedAndThreadCountDoesNotMatter) {
   const SceneTransform scene{{0.0, 0.0, 0.0}, 1.0};
   const Camera camera = Camera::framing(scene, {0.3, -0.2, -1.0}, 40, 30);

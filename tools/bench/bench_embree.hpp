@@ -98,9 +98,14 @@ class EmbreePeer {
   // `shading`, each hit is also shaded as svo::render shades a voxel (the like-for-like peer of a frame).
   TraceResult trace(const Camera& camera, int threads, const MeshShading* shading = nullptr) const {
     TraceResult result;
+    trace(camera, threads, shading, result);
+    return result;
+  }
+  // The same into `result`, its storage reused where the size is unchanged (as svo::render's frame).
+  void trace(const Camera& camera, int threads, const MeshShading* shading, TraceResult& result) const {
     result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
     result.primitive.assign(result.depth.size(), kNoPrimitive);
-    if (shading) result.color.assign(result.depth.size(), shading->background());
+    result.color.assign(shading ? result.depth.size() : 0, shading ? shading->background() : glm::vec3());
     // Per-frame constants computed once, as svo::render does: the look-at basis and the eye relative to the
     // scene centre.
     const Camera::Basis basis = camera.basis();
@@ -146,7 +151,6 @@ class EmbreePeer {
     });
     check("tracing");
     result.hits = countHits(result.depth);
-    return result;
   }
 
  private:

@@ -38,9 +38,10 @@ constexpr int kCloseUpProbe = 64;
 constexpr int kCloseUpHalvings = 24;
 
 // ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles with the beam pass, depth
-// written as the Embree peer writes it, on options.threads threads.
-TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options) {
-  TraceResult result;
+// written as the Embree peer writes it, on options.threads threads, into `result` (its storage reused, as
+// the peer's and the shaded frame's are).
+void traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
+               TraceResult& result) {
   result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
   const BlockView block = scene.root();
   const PixelRays rays(scene.transform(), camera, options.lodPixels);
@@ -55,7 +56,6 @@ TraceResult traceEsvo(const WholeScene& scene, const Camera& camera, const Rende
               });
   result.hits = countHits(result.depth);
   result.meanIterations = double(iterations.load()) / double(result.depth.size());
-  return result;
 }
 
 // Whether every probe ray of `camera` (the same view at kCloseUpProbe pixels across) hits the octree.
@@ -195,7 +195,7 @@ Timed timeGpu(const WholeScene& scene, const Camera& camera, const RenderOptions
 
 // Embree's frame of a row's camera on the row's threads, shaded by the MeshShading when given one; empty in a
 // binary without the peers.
-using PeerTrace = std::function<TraceResult(const MeshShading*)>;
+using PeerTrace = std::function<void(const MeshShading*, TraceResult&)>;
 
 // ESVO's depth-only and shaded frames of `camera` and Embree's (when `peer`), timed in turn over the same
 // runs into `row`, with the shaded frame's errors against Embree's; images named `imageStem` (when not empty)
@@ -205,15 +205,15 @@ void measureRow(const WholeScene& scene, const PeerTrace& peer, const MeshShadin
                 double finestVoxel, CameraRow& row, const std::string& imageStem) {
   row.rays = double(camera.width) * camera.height;
   Frame frame;
-  const auto esvoDepth = [&] { row.esvoDepth.last = traceEsvo(scene, camera, options); };
+  const auto esvoDepth = [&] { traceEsvo(scene, camera, options, row.esvoDepth.last); };
   RenderOptions shadedOptions = options;
   shadedOptions.prefetchAttributes = attributePrefetchPays(scene.bytes());
-  const auto esvoShaded = [&] { frame = render(scene.root(), scene.transform(), camera, shadedOptions); };
+  const auto esvoShaded = [&] { render(scene.root(), scene.transform(), camera, shadedOptions, frame); };
   if (peer) {
     row.embreeDepth.emplace(), row.embreeShaded.emplace();
     const auto seconds = timeInterleaved(
-        args.runs, esvoDepth, esvoShaded, [&] { row.embreeDepth->last = peer(nullptr); },
-        [&] { row.embreeShaded->last = peer(&shading); });
+        args.runs, esvoDepth, esvoShaded, [&] { peer(nullptr, row.embreeDepth->last); },
+        [&] { peer(&shading, row.embreeShaded->last); });
     row.esvoDepth.seconds = seconds[0], row.esvoShaded.seconds = seconds[1];
     row.embreeDepth->seconds = seconds[2], row.embreeShaded->seconds = seconds[3];
   } else {
@@ -314,7 +314,9 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
         RenderOptions probe = options;
         probe.lodPixels = args.lodPixels.front();
         probe.threads = threads.back();
-        close = closeUpCamera(*scene, whole, traceEsvo(*scene, whole, probe).depth, probe);
+        TraceResult wholeTrace;
+        traceEsvo(*scene, whole, probe, wholeTrace);
+        close = closeUpCamera(*scene, whole, wholeTrace.depth, probe);
       }
       if (!close) {
         spdlog::warn("{}: no close-up where every pixel hits; the close-up camera is left out", name);
@@ -327,8 +329,8 @@ SceneResult benchScene(const Mesh& mesh, const std::string& name, const RaycastA
                    cameraName, threads[k], args.runs);
       PeerTrace peer;
 #ifdef SVO_BENCH_PEERS
-      peer = [&, threadCount = threads[k]](const MeshShading* shaded) {
-        return embree.trace(camera, threadCount, shaded);
+      peer = [&, threadCount = threads[k]](const MeshShading* shaded, TraceResult& result) {
+        embree.trace(camera, threadCount, shaded, result);
       };
 #endif
       for (float lod : args.lodPixels) {

@@ -144,6 +144,10 @@ Frame render(const Octree& octree, const Camera& camera, const RenderOptions& op
 // The same over any block (a block pool's trunk: the octree as far as it is resident).
 Frame render(const BlockView& block, const SceneTransform& scene, const Camera& camera,
              const RenderOptions& options = {});
+// The same into `frame`, whose buffers keep their storage where the size is unchanged: a viewer or a
+// benchmark rendering frame after frame allocates (and page-faults) them once.
+void render(const BlockView& block, const SceneTransform& scene, const Camera& camera,
+            const RenderOptions& options, Frame& frame);
 
 // The post-process filter as `options` asks (filterRadius, threads), timed into frame.filterSeconds (what
 // render does with RenderOptions::filter; other casters call it on their frames).
