@@ -31,13 +31,6 @@ namespace {
 constexpr int kTileSize = 8;
 // Largest beam tile: past this the beam is wider than the detail it could skip to.
 constexpr int kMaxBeamTile = 64;
-// Phong terms (one white directional light).
-constexpr float kAmbient = 0.15f;
-constexpr float kDiffuse = 0.75f;
-constexpr float kSpecular = 0.25f;
-// Specular exponent 2^kShininessLog2 = 32, raised by five squarings instead of a std::pow call per shaded
-// hit.
-constexpr int kShininessLog2 = 5;
 
 bool finite(glm::vec3 v) {
   return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
@@ -100,16 +93,6 @@ glm::vec3 shade(const CastHit& hit, glm::vec3 viewDirection, const Shading& s, T
 }
 
 }  // namespace
-
-glm::vec3 shadePhong(glm::vec3 albedo, glm::vec3 n, glm::vec3 viewDirection, glm::vec3 lightDirection) {
-  // Thin surfaces are voxelized from both sides: light the side the viewer sees.
-  if (glm::dot(n, viewDirection) > 0.0f) n = -n;
-  const float diffuse = std::max(0.0f, glm::dot(n, -lightDirection));
-  const glm::vec3 reflected = glm::reflect(lightDirection, n);
-  float specular = std::max(0.0f, glm::dot(reflected, -viewDirection));
-  for (int i = 0; i < kShininessLog2; ++i) specular *= specular;
-  return albedo * (kAmbient + kDiffuse * diffuse) + glm::vec3(kSpecular * specular);
-}
 
 std::optional<int> hitLevel(const Frame& frame, std::size_t pixel, double pixelAngle, double sceneSize) {
   const double depth = frame.depth[pixel];

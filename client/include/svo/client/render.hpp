@@ -1,6 +1,7 @@
 // Pinhole camera, Phong shading with one directional light, multi-threaded rendering, image output.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -159,8 +160,21 @@ std::optional<int> hitLevel(const Frame& frame, std::size_t pixel, double pixelA
 
 // The renderer's Phong model (one white directional light, `lightDirection` unit and pointing into the scene,
 // `viewDirection` unit from the eye); the normal is flipped to face the viewer. Shared with reference
-// renders.
-glm::vec3 shadePhong(glm::vec3 albedo, glm::vec3 normal, glm::vec3 viewDirection, glm::vec3 lightDirection);
+// renders. Inline: out of line, its vector arguments went through memory once per shaded hit.
+inline glm::vec3 shadePhong(glm::vec3 albedo, glm::vec3 normal, glm::vec3 viewDirection,
+                            glm::vec3 lightDirection) {
+  // Phong terms.
+  constexpr float kAmbient = 0.15f, kDiffuse = 0.75f, kSpecular = 0.25f;
+  // Specular exponent 2^kShininessLog2 = 32, raised by five squarings instead of a std::pow call per hit.
+  constexpr int kShininessLog2 = 5;
+  // Thin surfaces are voxelized from both sides: light the side the viewer sees.
+  if (glm::dot(normal, viewDirection) > 0.0f) normal = -normal;
+  const float diffuse = std::max(0.0f, glm::dot(normal, -lightDirection));
+  const glm::vec3 reflected = glm::reflect(lightDirection, normal);
+  float specular = std::max(0.0f, glm::dot(reflected, -viewDirection));
+  for (int i = 0; i < kShininessLog2; ++i) specular *= specular;
+  return albedo * (kAmbient + kDiffuse * diffuse) + glm::vec3(kSpecular * specular);
+}
 
 // The world-space ray of a pixel mapped into octree space with its level-of-detail footprint.
 OctreeRay octreeRay(const SceneTransform& scene, const Camera& camera, double px, double py, float lodPixels);
