@@ -202,7 +202,7 @@ std::uint32_t SiblingAttribute::value(const CastHit& hit) {
   return *inherited_;
 }
 
-glm::vec3 SiblingAttribute::color(const CastHit& hit) {
+glm::vec3 SiblingAttribute::lookUpColor(const CastHit& hit) {
   select(hit.parent);
   return keptOr(hit.childSlot, [&] {
     const auto decode = [](const BlockView::UnitHalf& unit, int slot) {
@@ -214,7 +214,7 @@ glm::vec3 SiblingAttribute::color(const CastHit& hit) {
   });
 }
 
-glm::vec3 SiblingAttribute::normal(const CastHit& hit) {
+glm::vec3 SiblingAttribute::lookUpNormal(const CastHit& hit) {
   select(hit.parent);
   return keptOr(hit.childSlot, [&] {
     const auto decode = [](const BlockView::UnitHalf& unit, int slot) { return unit.normal(slot); };

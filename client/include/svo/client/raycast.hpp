@@ -88,12 +88,18 @@ class SiblingAttribute {
   std::uint32_t value(const CastHit& hit);  // the raw layout's value (0 without the attachment)
   // Decoded, and kept per child of the current parent (neighbouring pixels often hit the same voxel): an
   // instance made for Color serves color, one made for Normal serves normal.
-  glm::vec3 color(const CastHit& hit);   // linear RGB in [0, 1]
-  glm::vec3 normal(const CastHit& hit);  // unit length
+  glm::vec3 color(const CastHit& hit) { return kept(hit) ? decoded_[hit.childSlot] : lookUpColor(hit); }
+  glm::vec3 normal(const CastHit& hit) { return kept(hit) ? decoded_[hit.childSlot] : lookUpNormal(hit); }
   // Reads the hit parent's look-up and requests the hit's value (or unit), for prefetching renderers.
   void prefetch(const CastHit& hit) const;
 
  private:
+  // Whether the hit's value is kept (inline: neighbouring pixels mostly hit a voxel decoded already).
+  bool kept(const CastHit& hit) const {
+    return hit.parent == parent_ && (decodedMask_ >> hit.childSlot & 1u);
+  }
+  glm::vec3 lookUpColor(const CastHit& hit);   // linear RGB in [0, 1], kept
+  glm::vec3 lookUpNormal(const CastHit& hit);  // unit length, kept
   void select(const ChildDescriptor* parent);
   // The child's decoded value: kept, or `decode()` kept.
   template <class Decode>
