@@ -1,9 +1,9 @@
 // castPacket's loop for one instruction set: raycast_packet.cpp includes this file once per target, inside a
-// namespace of its own that defines kLanes, under that target's pragma. Work done once per iteration (the
-// loop's control, a shared descent's descriptor and contour) is shared by every lane, so 16 lanes cast more
-// rays per instruction than 8, and 32 (two 16-lane halves, packet_halves.inl) more than 16, where
-// neighbouring pixels stay together. Lane-wise choices go through select(), which both vector kinds define.
-// No includes here other than that one.
+// namespace of its own that defines kLanes and kAloneLanes, under that target's pragma. Work done once per
+// iteration (the loop's control, a shared descent's descriptor and contour) is shared by every lane, so 16
+// lanes cast more rays per instruction than 8, and 32 (two 16-lane halves, packet_halves.inl) more than 16,
+// where neighbouring pixels stay together. Lane-wise choices go through select(), which both vector kinds
+// define. No includes here other than that one.
 constexpr int N = kLanes;
 #ifdef SVO_PACKET_HALVES
 #include "packet_halves.inl"
@@ -59,10 +59,7 @@ struct Lanes {
   Ints idx, scale, iterations, active, found;
   const ChildDescriptor* parent[N];
   Ints topology, contourWord;  // each lane's parent descriptor's words, reloaded where it changes
-  struct StackEntry {
-    const ChildDescriptor* parent;
-    float t_max;
-  } stack[N][kScaleMax + 1];
+  RayStackEntry stack[N][kScaleMax + 1];
 };
 
 // castRay's set-up for each ray; lanes past `count` and rays that cannot hit start inactive.
@@ -312,12 +309,42 @@ using Addresses8 = std::int64_t __attribute__((vector_size(64)));
   }
 }
 
+// castRay's loop for each `lanes` lane from where the lane is, one lane after another.
+[[gnu::noinline]] void finishAlone(Lanes& s, unsigned lanes, const CastOptions& options, CastHit* hits) {
+  for (; lanes != 0; lanes &= lanes - 1) {
+    const int l = __builtin_ctz(lanes);
+    MirroredRay m;
+    m.d = glm::vec3(s.dx[l], s.dy[l], s.dz[l]);
+    m.tx_coef = s.tx_coef[l], m.ty_coef = s.ty_coef[l], m.tz_coef = s.tz_coef[l];
+    m.tx_bias = s.tx_bias[l], m.ty_bias = s.ty_bias[l], m.tz_bias = s.tz_bias[l];
+    m.octant_mask = s.octantMask[l];
+    RayState r{.parent = s.parent[l],
+               .pos = glm::vec3(s.px[l], s.py[l], s.pz[l]),
+               .scale_exp2 = s.scale_exp2[l],
+               .t_min = s.t_min[l],
+               .t_max = s.t_max[l],
+               .idx = s.idx[l],
+               .scale = s.scale[l],
+               .iterations = s.iterations[l]};
+    s.found[l] = continueRay(m, s.slope[l], s.origin[l], options, r, s.stack[l], hits[l]) ? -1 : 0;
+    s.active[l] = 0;
+    s.parent[l] = r.parent;
+    s.px[l] = r.pos.x, s.py[l] = r.pos.y, s.pz[l] = r.pos.z;
+    s.scale_exp2[l] = r.scale_exp2, s.t_min[l] = r.t_min, s.t_max[l] = r.t_max;
+    s.idx[l] = r.idx, s.scale[l] = r.scale, s.iterations[l] = r.iterations;
+  }
+}
+
 void castLanes(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
                CastHit* hits) {
   Lanes s;
   start(s, block, rays, count, hits);
   descendTogether(s, options, hits);
   while (any(s.active)) {
+    if (const unsigned lanes = lanesOf(s.active); std::popcount(lanes) <= kAloneLanes) {
+      finishAlone(s, lanes, options, hits);
+      break;
+    }
     // The iteration cap, then each lane's voxel: valid, with or without a contour, a non-leaf or not, from
     // its parent's descriptor words (kept in the lanes since the lane's last PUSH or POP).
     s.iterations -= s.active;

@@ -1,7 +1,8 @@
-// The parts of ESVO ray casting (paper sec. 6, Fig. 15) that the single-ray loop (raycast.cpp) and the packet
-// loop (raycast_packet.cpp) share, so that both compute every float the same way: the ray mirrored so that
-// every direction component is negative, the contour slab intersection, and the hit completed from the
-// loop's final state.
+// The parts of ESVO ray casting (paper sec. 6, Fig. 15) that castRay (raycast.cpp) and the packet loop
+// (raycast_packet.cpp) share, so that both compute every float the same way: the ray mirrored so that every
+// direction component is negative, the contour slab intersection, the single-ray loop itself (castRay runs
+// it from the root, the packet loop for its last few lanes from where they are), and the hit completed from
+// the loop's final state.
 #pragma once
 
 #include <algorithm>
@@ -138,6 +139,128 @@ inline void completeHit(const OctreeRay& ray, int octant_mask, glm::vec3 pos, fl
   for (int i = 0; i < 3; ++i)
     hit.position[i] = std::min(std::max(ray.origin[i] + t_min * ray.direction[i], pos[i] + inset),
                                pos[i] + scale_exp2 - inset);
+}
+
+// castRay's loop state part way along a ray (names as in castRay); the stack of (parent, t_max) is indexed by
+// scale.
+struct RayStackEntry {
+  const ChildDescriptor* parent;
+  float t_max;
+};
+struct RayState {
+  const ChildDescriptor* parent;
+  glm::vec3 pos;
+  float scale_exp2, t_min, t_max;
+  int idx, scale, iterations;
+};
+
+// Fig. 15's loop from `s` on, for the mirrored ray `m` with its footprint: true where the ray hits (hit.leaf
+// set at a leaf or a stub), false where it leaves the octree or reaches the iteration cap. PUSH writes the
+// stack and the hit's path. castRay runs it from the root; the packet loop finishes its last few lanes with
+// it.
+[[gnu::always_inline]] inline bool continueRay(const MirroredRay& m, float footprintSlope,
+                                               float footprintOrigin, const CastOptions& options, RayState& s,
+                                               RayStackEntry* stack, CastHit& hit) {
+  const glm::vec3 d = m.d;
+  const float tx_coef = m.tx_coef, ty_coef = m.ty_coef, tz_coef = m.tz_coef;
+  const float tx_bias = m.tx_bias, ty_bias = m.ty_bias, tz_bias = m.tz_bias;
+  const int octant_mask = m.octant_mask;
+  const ChildDescriptor* parent = s.parent;
+  glm::vec3 pos = s.pos;
+  float scale_exp2 = s.scale_exp2, t_min = s.t_min, t_max = s.t_max;
+  int idx = s.idx, scale = s.scale, iterations = s.iterations;
+  ChildDescriptor descriptor{};
+  bool cached = false;
+  std::uint8_t validMask = 0, nonLeafMask = 0;
+  bool found = false;
+  while (scale < kScaleMax) {
+    if (++iterations > options.maxIterations) break;
+    if (!cached) {
+      descriptor = *parent;
+      validMask = descriptor.validMask();
+      nonLeafMask = descriptor.nonLeafMask();
+      cached = true;
+    }
+    // The t-value where the ray leaves the current cube: its lower corner in the mirrored system.
+    const float tx_corner = pos.x * tx_coef - tx_bias;
+    const float ty_corner = pos.y * ty_coef - ty_bias;
+    const float tz_corner = pos.z * tz_coef - tz_bias;
+    const float tc_max = std::min({tx_corner, ty_corner, tz_corner});
+
+    const int slot = idx ^ octant_mask ^ 7;  // the child slot in unmirrored space
+    if ((validMask >> slot & 1) && t_min <= t_max) {
+      // Level of detail: the voxel is no larger than the ray's footprint where the ray leaves it.
+      if (tc_max * footprintSlope + footprintOrigin >= scale_exp2) {
+        found = true;
+        break;
+      }
+      // INTERSECT: the cube, then the voxel's contour slab.
+      float tv_max = std::min(t_max, tc_max);
+      const float half = scale_exp2 * 0.5f;
+      const float tx_center = half * tx_coef + tx_corner;
+      const float ty_center = half * ty_coef + ty_corner;
+      const float tz_center = half * tz_coef + tz_corner;
+      if (options.contours && (descriptor.contourMask() >> slot & 1))
+        clipToContour(contourOf(parent, descriptor, slot), d, tx_center, ty_center, tz_center, scale_exp2,
+                      t_min, tv_max);
+      if (t_min <= tv_max) {
+        const ChildDescriptor* child = (nonLeafMask >> slot & 1) ? BlockView::child(parent, slot) : nullptr;
+        // A leaf, or (in a block pool) a voxel whose children are not resident: this is the hit.
+        if (!child || child->isStub()) {
+          found = true;
+          hit.leaf = true;
+          break;
+        }
+        // PUSH
+        prefetchBelow(child);
+        // Fig. 15 stores the parent only when the child ends before it (tc_max < h). At the deepest scales
+        // the two exits can round to the same float while the position bits still say the ray left the
+        // child first, and POP would then read a stale or unwritten entry: store on every PUSH.
+        stack[scale] = {parent, t_max};
+        hit.pathParent[scale] = parent;
+        hit.pathSlot[scale] = std::uint8_t(slot);
+        parent = child;
+        idx = 0;
+        --scale;
+        scale_exp2 = half;
+        if (tx_center > t_min) idx ^= 1, pos.x += scale_exp2;
+        if (ty_center > t_min) idx ^= 2, pos.y += scale_exp2;
+        if (tz_center > t_min) idx ^= 4, pos.z += scale_exp2;
+        t_max = tv_max;
+        cached = false;
+        continue;
+      }
+    }
+
+    // ADVANCE: step to the next cube of the same scale along the ray.
+    int step_mask = 0;
+    if (tx_corner <= tc_max) step_mask ^= 1, pos.x -= scale_exp2;
+    if (ty_corner <= tc_max) step_mask ^= 2, pos.y -= scale_exp2;
+    if (tz_corner <= tc_max) step_mask ^= 4, pos.z -= scale_exp2;
+    t_min = tc_max;
+    idx ^= step_mask;
+
+    // POP when a bit flipped against the ray direction: the ray left the parent.
+    if ((idx & step_mask) != 0) {
+      std::uint32_t differing_bits = 0;
+      if (step_mask & 1) differing_bits |= asBits(pos.x) ^ asBits(pos.x + scale_exp2);
+      if (step_mask & 2) differing_bits |= asBits(pos.y) ^ asBits(pos.y + scale_exp2);
+      if (step_mask & 4) differing_bits |= asBits(pos.z) ^ asBits(pos.z + scale_exp2);
+      scale = int(asBits(float(differing_bits)) >> 23) - 127;  // position of the highest differing bit
+      if (scale >= kScaleMax) break;                           // left the octree
+      scale_exp2 = asFloat(std::uint32_t(scale - kScaleMax + 127) << 23);
+      parent = stack[scale].parent;
+      t_max = stack[scale].t_max;
+      // Round the position down to the new scale and read the child index from its bits.
+      const std::uint32_t shx = asBits(pos.x) >> scale, shy = asBits(pos.y) >> scale,
+                          shz = asBits(pos.z) >> scale;
+      pos = glm::vec3(asFloat(shx << scale), asFloat(shy << scale), asFloat(shz << scale));
+      idx = int((shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2));
+      cached = false;
+    }
+  }
+  s = {parent, pos, scale_exp2, t_min, t_max, idx, scale, iterations};
+  return found;
 }
 
 }  // namespace svo::ray_setup

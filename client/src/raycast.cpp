@@ -1,7 +1,8 @@
 // ESVO ray casting (paper sec. 6, Fig. 15). The octree occupies [1,2]^3 so that the float mantissa bits of
 // a position are its path through the tree; the coordinate system is mirrored so that every direction
 // component is negative; the stack of (parent, t_max) is indexed by scale; POP finds the new scale from
-// the highest differing bit of the old and new position. Variable names follow the paper.
+// the highest differing bit of the old and new position. Variable names follow the paper. The loop is
+// continueRay (ray_setup.hpp), which the packet loop shares.
 #include "svo/client/raycast.hpp"
 
 #include <algorithm>
@@ -17,118 +18,20 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   CastHit hit;
   MirroredRay m;
   if (!mirrorRay(ray, m)) return hit;
-  const glm::vec3 d = m.d;
-  const float tx_coef = m.tx_coef, ty_coef = m.ty_coef, tz_coef = m.tz_coef;
-  const float tx_bias = m.tx_bias, ty_bias = m.ty_bias, tz_bias = m.tz_bias;
-  const int octant_mask = m.octant_mask;
-  float t_min = m.t_min, t_max = m.t_max;
-
-  struct StackEntry {
-    const ChildDescriptor* parent;
-    float t_max;
-  } stack[kScaleMax + 1];
-
-  const ChildDescriptor* parent = block.root();
-  ChildDescriptor descriptor{};
-  bool cached = false;
-  std::uint8_t validMask = 0, nonLeafMask = 0;
-  int idx = m.idx;
-  glm::vec3 pos = m.pos;
-  int scale = kScaleMax - 1;
-  float scale_exp2 = 0.5f;
-
-  int iterations = 0;
-  bool found = false;
-  while (scale < kScaleMax) {
-    if (++iterations > options.maxIterations) break;
-    if (!cached) {
-      descriptor = *parent;
-      validMask = descriptor.validMask();
-      nonLeafMask = descriptor.nonLeafMask();
-      cached = true;
-    }
-    // The t-value where the ray leaves the current cube: its lower corner in the mirrored system.
-    const float tx_corner = pos.x * tx_coef - tx_bias;
-    const float ty_corner = pos.y * ty_coef - ty_bias;
-    const float tz_corner = pos.z * tz_coef - tz_bias;
-    const float tc_max = std::min({tx_corner, ty_corner, tz_corner});
-
-    const int slot = idx ^ octant_mask ^ 7;  // the child slot in unmirrored space
-    if ((validMask >> slot & 1) && t_min <= t_max) {
-      // Level of detail: the voxel is no larger than the ray's footprint where the ray leaves it.
-      if (tc_max * ray.footprintSlope + ray.footprintOrigin >= scale_exp2) {
-        found = true;
-        break;
-      }
-      // INTERSECT: the cube, then the voxel's contour slab.
-      float tv_max = std::min(t_max, tc_max);
-      const float half = scale_exp2 * 0.5f;
-      const float tx_center = half * tx_coef + tx_corner;
-      const float ty_center = half * ty_coef + ty_corner;
-      const float tz_center = half * tz_coef + tz_corner;
-      if (options.contours && (descriptor.contourMask() >> slot & 1))
-        clipToContour(contourOf(parent, descriptor, slot), d, tx_center, ty_center, tz_center, scale_exp2,
-                      t_min, tv_max);
-      if (t_min <= tv_max) {
-        const ChildDescriptor* child = (nonLeafMask >> slot & 1) ? BlockView::child(parent, slot) : nullptr;
-        // A leaf, or (in a block pool) a voxel whose children are not resident: this is the hit.
-        if (!child || child->isStub()) {
-          found = true;
-          hit.leaf = true;
-          break;
-        }
-        // PUSH
-        prefetchBelow(child);
-        // Fig. 15 stores the parent only when the child ends before it (tc_max < h). At the deepest scales
-        // the two exits can round to the same float while the position bits still say the ray left the
-        // child first, and POP would then read a stale or unwritten entry: store on every PUSH.
-        stack[scale] = {parent, t_max};
-        hit.pathParent[scale] = parent;
-        hit.pathSlot[scale] = std::uint8_t(slot);
-        parent = child;
-        idx = 0;
-        --scale;
-        scale_exp2 = half;
-        if (tx_center > t_min) idx ^= 1, pos.x += scale_exp2;
-        if (ty_center > t_min) idx ^= 2, pos.y += scale_exp2;
-        if (tz_center > t_min) idx ^= 4, pos.z += scale_exp2;
-        t_max = tv_max;
-        cached = false;
-        continue;
-      }
-    }
-
-    // ADVANCE: step to the next cube of the same scale along the ray.
-    int step_mask = 0;
-    if (tx_corner <= tc_max) step_mask ^= 1, pos.x -= scale_exp2;
-    if (ty_corner <= tc_max) step_mask ^= 2, pos.y -= scale_exp2;
-    if (tz_corner <= tc_max) step_mask ^= 4, pos.z -= scale_exp2;
-    t_min = tc_max;
-    idx ^= step_mask;
-
-    // POP when a bit flipped against the ray direction: the ray left the parent.
-    if ((idx & step_mask) != 0) {
-      std::uint32_t differing_bits = 0;
-      if (step_mask & 1) differing_bits |= asBits(pos.x) ^ asBits(pos.x + scale_exp2);
-      if (step_mask & 2) differing_bits |= asBits(pos.y) ^ asBits(pos.y + scale_exp2);
-      if (step_mask & 4) differing_bits |= asBits(pos.z) ^ asBits(pos.z + scale_exp2);
-      scale = int(asBits(float(differing_bits)) >> 23) - 127;  // position of the highest differing bit
-      if (scale >= kScaleMax) break;                           // left the octree
-      scale_exp2 = asFloat(std::uint32_t(scale - kScaleMax + 127) << 23);
-      parent = stack[scale].parent;
-      t_max = stack[scale].t_max;
-      // Round the position down to the new scale and read the child index from its bits.
-      const std::uint32_t shx = asBits(pos.x) >> scale, shy = asBits(pos.y) >> scale,
-                          shz = asBits(pos.z) >> scale;
-      pos = glm::vec3(asFloat(shx << scale), asFloat(shy << scale), asFloat(shz << scale));
-      idx = int((shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2));
-      cached = false;
-    }
-  }
-  hit.iterations = iterations;
+  RayStackEntry stack[kScaleMax + 1];
+  RayState s{.parent = block.root(),
+             .pos = m.pos,
+             .scale_exp2 = 0.5f,
+             .t_min = m.t_min,
+             .t_max = m.t_max,
+             .idx = m.idx,
+             .scale = kScaleMax - 1,
+             .iterations = 0};
+  const bool found = continueRay(m, ray.footprintSlope, ray.footprintOrigin, options, s, stack, hit);
+  hit.iterations = s.iterations;
   if (!found) return hit;
 
-  completeHit(ray, octant_mask, pos, scale_exp2, scale, t_min, parent, idx, hit);
+  completeHit(ray, m.octant_mask, s.pos, s.scale_exp2, s.scale, s.t_min, s.parent, s.idx, hit);
   return hit;
 }
 
