@@ -6,6 +6,7 @@
 #include "svo/client/raycast.hpp"
 
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 
 #include "ray_setup.hpp"
@@ -84,13 +85,76 @@ glm::vec3 SiblingAttribute::inheritedFromUnits(const CastHit& hit, Decode decode
   return *inheritedUnit_;
 }
 
-void SiblingAttribute::prefetch(const CastHit& hit) const {
-  if (!hit.hit) return;
-  if (unitsEntry_) {
-    if (const auto unit = BlockView::unit(hit.parent, units_)) __builtin_prefetch(unit->words);
-  } else if (rawEntry_) {
-    const BlockView::Attributes own = BlockView::attributes(hit.parent, raw_);
-    if (own.mask >> hit.childSlot & 1u) __builtin_prefetch(own.values + childRank(own.mask, hit.childSlot));
+namespace {
+
+bool isUnits(AttachmentType type) {
+  return type == AttachmentType::ColorUnits || type == AttachmentType::NormalUnits;
+}
+
+void prefetchPageHeader(const ChildDescriptor* descriptor) {
+  __builtin_prefetch(reinterpret_cast<const void*>(reinterpret_cast<std::uintptr_t>(descriptor) &
+                                                   ~std::uintptr_t(kPageBytes - 1)));
+}
+
+}  // namespace
+
+AttributePrefetcher::AttributePrefetcher(std::initializer_list<AttachmentType> types) {
+  assert(types.size() <= kMaxTypes);
+  for (const AttachmentType type : types) types_[typeCount_++] = type;
+}
+
+bool AttributePrefetcher::LookUp::step() {
+  if (!entry) {  // the page header is in
+    const BlockInfo& info = BlockView::infoOf(descriptor);
+    const std::uint32_t* attachment = BlockView::attachmentOf(info, type);
+    if (!attachment) return false;
+    const std::ptrdiff_t index = BlockView::slotIndexOf(descriptor, info);
+    entry = isUnits(type) ? attachment + 2 * (index / 2 / kUnitGroup) : attachment + index;
+    __builtin_prefetch(entry);
+    return true;
+  }
+  bool inherits;  // the children asked for show an ancestor's value
+  if (isUnits(type)) {
+    const auto unit = BlockView::unit(descriptor, type);
+    if (unit) __builtin_prefetch(unit->words);
+    inherits = !unit;
+  } else {
+    const BlockView::Attributes own = BlockView::attributes(descriptor, type);
+    if (own.mask & slots) __builtin_prefetch(own.values);
+    inherits = (slots & ~own.mask) != 0;
+  }
+  if (!inherits || ++scale >= kScaleMax) return false;
+  descriptor = hit->pathParent[scale];
+  slots = std::uint8_t(1u << hit->pathSlot[scale]);
+  entry = nullptr;
+  prefetchPageHeader(descriptor);
+  return true;
+}
+
+void AttributePrefetcher::packet(const CastHit* hits, int count) {
+  if (typeCount_ == 0) return;
+  // The ring's oldest packet is shaded next: its slot takes the new one.
+  newest_ = (newest_ + 1) % kLag;
+  Packet& added = packets_[newest_];
+  added.count = 0;
+  for (int i = 0; i < count; ++i) {
+    const CastHit& h = hits[i];
+    if (!h.hit) continue;
+    const auto slot = std::uint8_t(1u << h.childSlot);
+    if (added.count > 0 && added.lookUps[added.count - 1].hit->parent == h.parent) {
+      for (int t = 1; t <= typeCount_; ++t) added.lookUps[added.count - t].slots |= slot;
+      continue;
+    }
+    prefetchPageHeader(h.parent);
+    for (int t = 0; t < typeCount_; ++t)
+      added.lookUps[added.count++] = LookUp{&h, types_[t], h.parent, slot, std::int8_t(h.scale)};
+  }
+  for (int k = 1; k < kLag; ++k) {
+    Packet& older = packets_[(newest_ + kLag - k) % kLag];
+    int active = 0;
+    for (int c = 0; c < older.count; ++c)
+      if (older.lookUps[c].step()) older.lookUps[active++] = older.lookUps[c];
+    older.count = active;
   }
 }
 

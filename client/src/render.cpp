@@ -75,16 +75,18 @@ struct TileAttributes {
   SiblingAttribute colors, normals;
   explicit TileAttributes(const BlockView& block)
       : colors(block, AttachmentType::Color), normals(block, AttachmentType::Normal) {}
-  // RenderOptions::prefetchAttributes for a packet's hits. A hit on the previous one's parent shares its
-  // look-up, which SiblingAttribute keeps.
-  void prefetch(const CastHit* hits, int count, const Shading& s) const {
-    for (int i = 0; i < count; ++i) {
-      if (i > 0 && hits[i].parent == hits[i - 1].parent) continue;
-      if (s.hasColor) colors.prefetch(hits[i]);
-      if (s.hasNormal) normals.prefetch(hits[i]);
-    }
-  }
 };
+
+// RenderOptions::prefetchAttributes: the attachments the frame's shading reads.
+AttributePrefetcher attributePrefetcher(const BlockView& block) {
+  const bool units = block.attributeLayout() == AttributeLayout::Compressed;
+  const AttachmentType color = units ? AttachmentType::ColorUnits : AttachmentType::Color;
+  const AttachmentType normal = units ? AttachmentType::NormalUnits : AttachmentType::Normal;
+  if (block.hasColors() && block.hasNormals()) return AttributePrefetcher({color, normal});
+  if (block.hasColors()) return AttributePrefetcher({color});
+  if (block.hasNormals()) return AttributePrefetcher({normal});
+  return AttributePrefetcher({});
+}
 
 glm::vec3 shade(const CastHit& hit, glm::vec3 viewDirection, const Shading& s, TileAttributes& attributes) {
   const glm::vec3 albedo = s.hasColor ? attributes.colors.color(hit) : glm::vec3(kNeutralGreyAlbedo);
@@ -188,28 +190,31 @@ void render(const BlockView& block, const SceneTransform& scene, const Camera& c
 
   std::atomic<std::uint64_t> iterations{0};
   const auto start = std::chrono::steady_clock::now();
-  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads,
-              [&](const PixelTile& tile) {
-                TileAttributes attributes(block);
-                const std::uint64_t tileIterations = castTile(
-                    block, rays, tile, options.beamTile > 0, options.cast,
-                    [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
-                      const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
-                      // The octree direction is the unit world direction / size: renormalized, the world one.
-                      const glm::vec3 viewDirection = glm::normalize(ray.direction);
-                      frame.color[i] = glm::vec4(shade(hit, viewDirection, shading, attributes), 1.0f);
-                      frame.depth[i] = hit.t;
-                      frame.voxelPixels[i] =
-                          float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
-                      keepIterations(x, y, hit);
-                      if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
-                    },
-                    keepIterations,
-                    [&](const CastHit* hits, int count) {
-                      if (options.prefetchAttributes) attributes.prefetch(hits, count, shading);
-                    });
-                iterations.fetch_add(tileIterations, std::memory_order_relaxed);
-              });
+  forEachTile(
+      camera.width, camera.height, renderTileSize(options), options.threads, [&](const PixelTile& tile) {
+        TileAttributes attributes(block);
+        const auto onHit = [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
+          const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+          // The octree direction is the unit world direction / size: renormalized, the world one.
+          const glm::vec3 viewDirection = glm::normalize(ray.direction);
+          frame.color[i] = glm::vec4(shade(hit, viewDirection, shading, attributes), 1.0f);
+          frame.depth[i] = hit.t;
+          frame.voxelPixels[i] = float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
+          keepIterations(x, y, hit);
+          if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
+        };
+        const bool beam = options.beamTile > 0;
+        std::uint64_t tileIterations;
+        if (options.prefetchAttributes) {
+          AttributePrefetcher prefetcher = attributePrefetcher(block);
+          tileIterations = castTile<AttributePrefetcher::kLag>(
+              block, rays, tile, beam, options.cast, onHit, keepIterations,
+              [&](const CastHit* hits, int count) { prefetcher.packet(hits, count); });
+        } else {
+          tileIterations = castTile(block, rays, tile, beam, options.cast, onHit, keepIterations);
+        }
+        iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+      });
   if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations.load()) / double(pixels);

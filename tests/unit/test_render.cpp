@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -427,6 +428,60 @@ TEST_P(RenderLayouts, PrefetchingAttributesChangesNoPixel) {
     ASSERT_EQ(plain.depth[i], prefetched.depth[i]) << i;
   }
   EXPECT_GT(hits, 64 * 48 / 10);
+}
+
+// castTile with a lag hands out every ray of a tile once, kLag packets after onPacket saw it (the last
+// packets after one onPacket(nullptr, 0) each), with the hit castTile without a lag gives: on a tile of many
+// packets and on one smaller than the lag.
+TEST_P(RenderLayouts, LaggedTilesHandOutEveryRayOnceAfterItsPacket) {
+  const Octree octree = randomTree(GetParam());
+  const BlockView block = octree.block.view();
+  const Camera camera = Camera::framing(octree.transform, {0.3, -0.2, -1.0}, 64, 48);
+  const PixelRays rays(octree.transform, camera, 0.0f);
+  constexpr int kLag = 3;
+  for (const PixelTile tile : {PixelTile{16, 16, 48, 40}, PixelTile{40, 20, 48, 24}}) {
+    std::map<std::pair<int, int>, CastHit> expected;
+    const std::uint64_t expectedIterations = castTile(
+        block, rays, tile, false, CastOptions{},
+        [&](int x, int y, const OctreeRay&, const CastHit& hit) {
+          expected[{x, y}] = hit;
+        },
+        [&](int x, int y, const CastHit& miss) {
+          expected[{x, y}] = miss;
+        });
+    ASSERT_EQ(expected.size(), std::size_t(tile.x1 - tile.x0) * std::size_t(tile.y1 - tile.y0));
+
+    std::vector<int> calls;                             // ray count of each onPacket call
+    std::map<std::pair<int, int>, int> handedOutAfter;  // pixel -> onPacket calls made by then
+    const auto record = [&](int x, int y, const CastHit& hit) {
+      const std::pair<int, int> pixel{x, y};
+      ASSERT_FALSE(handedOutAfter.contains(pixel)) << x << "," << y;
+      handedOutAfter[pixel] = int(calls.size());
+      const CastHit& want = expected.at(pixel);
+      EXPECT_EQ(hit.hit, want.hit);
+      EXPECT_EQ(hit.t, want.t);
+      EXPECT_EQ(hit.parent, want.parent);
+      EXPECT_EQ(hit.childSlot, want.childSlot);
+    };
+    const std::uint64_t iterations = castTile<kLag>(
+        block, rays, tile, false, CastOptions{},
+        [&](int x, int y, const OctreeRay&, const CastHit& hit) { record(x, y, hit); },
+        [&](int x, int y, const CastHit& miss) { record(x, y, miss); },
+        [&](const CastHit*, int count) { calls.push_back(count); });
+    EXPECT_EQ(iterations, expectedIterations);
+    ASSERT_EQ(handedOutAfter.size(), expected.size());
+    // Packets are the tile's 8x4 blocks, row by row; the calls are theirs, then one without rays per packet
+    // still held (kLag, or all of them when the tile has fewer).
+    const int packetsAcross = (tile.x1 - tile.x0 + 7) / 8;
+    const int packets = packetsAcross * ((tile.y1 - tile.y0 + 3) / 4);
+    const int held = std::min(packets, kLag);
+    ASSERT_EQ(int(calls.size()), packets + held);
+    for (int c = 0; c < packets + held; ++c) EXPECT_EQ(calls[std::size_t(c)] == 0, c >= packets) << c;
+    for (const auto& [pixel, callsMade] : handedOutAfter) {
+      const int packet = (pixel.second - tile.y0) / 4 * packetsAcross + (pixel.first - tile.x0) / 8;
+      EXPECT_EQ(callsMade, packet + held + 1) << pixel.first << "," << pixel.second;
+    }
+  }
 }
 
 // A frame rendered into again, at another size and without diagnostics, holds what a fresh frame holds: no

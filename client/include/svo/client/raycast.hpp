@@ -4,6 +4,7 @@
 #include <array>
 #include <bit>
 #include <cstdint>
+#include <initializer_list>
 #include <optional>
 
 #include <glm/vec3.hpp>
@@ -90,8 +91,6 @@ class SiblingAttribute {
   // instance made for Color serves color, one made for Normal serves normal.
   glm::vec3 color(const CastHit& hit) { return kept(hit) ? decoded_[hit.childSlot] : lookUpColor(hit); }
   glm::vec3 normal(const CastHit& hit) { return kept(hit) ? decoded_[hit.childSlot] : lookUpNormal(hit); }
-  // Reads the hit parent's look-up and requests the hit's value (or unit), for prefetching renderers.
-  void prefetch(const CastHit& hit) const;
 
  private:
   // Whether the hit's value is kept (inline: neighbouring pixels mostly hit a voxel decoded already).
@@ -118,6 +117,42 @@ class SiblingAttribute {
   std::optional<glm::vec3> inheritedUnit_;  // the same for a pair without a unit, decoded
   std::array<glm::vec3, 8> decoded_;        // by child slot, where decodedMask_ has its bit
   std::uint8_t decodedMask_ = 0;
+};
+
+// Requests the Fig. 8 look-ups of hits' attributes a few packets before they are shaded (castTile with
+// kLag), one dependent load per packet: each packet's call requests the page headers of its hits' parents,
+// and advances every look-up of the kLag - 1 packets before it by one load (a lookup entry or unit
+// directory word, then the values or unit, or up the path to the ancestor a value is inherited from). A
+// load so has a packet's ray casting to arrive before the next one needs it, and the loads of different
+// hits overlap, where a look-up done when its hit is shaded waits for each load in turn.
+class AttributePrefetcher {
+ public:
+  // Packets between a packet's hits and their shading: a header, an entry and the values.
+  static constexpr int kLag = 3;
+  // The attachments to look up (at most two: colors and normals, raw or units); none: does nothing.
+  explicit AttributePrefetcher(std::initializer_list<AttachmentType> types);
+  // The next packet's hits (count 0: no new packet; castTile's last ones).
+  void packet(const CastHit* hits, int count);
+
+ private:
+  struct LookUp {
+    const CastHit* hit;  // a hit on the parent the look-up starts at (hits on siblings share the path)
+    AttachmentType type;
+    const ChildDescriptor* descriptor;     // the parent, then ancestors while the children inherit
+    std::uint8_t slots;                    // the descriptor's children whose values are wanted
+    std::int8_t scale;                     // descriptor is hit->parent at hit->scale, else pathParent[scale]
+    const std::uint32_t* entry = nullptr;  // the lookup entry or directory words, once requested
+    bool step();                           // one more load; false when done
+  };
+  static constexpr int kMaxTypes = 2;
+  struct Packet {
+    LookUp lookUps[kPacketLanes * kMaxTypes];
+    int count = 0;
+  };
+  AttachmentType types_[kMaxTypes];
+  int typeCount_ = 0;
+  Packet packets_[kLag];  // the last kLag packets' look-ups, a ring
+  int newest_ = 0;
 };
 
 // Resolves an attribute of the hit voxel, walking up the path while a voxel inherits (sec. 5.4): the raw

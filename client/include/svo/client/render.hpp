@@ -107,16 +107,15 @@ struct RenderOptions {
   // than a pixel, each pixel within filterRadius voxel widths.
   bool filter = false;
   float filterRadius = kPostFilterRadiusPerVoxel;
-  // Before a packet's hits are shaded, read each one's look-up entries and request its color and normal, so
-  // that the packet's cache misses overlap instead of following one another; pays only in an octree larger
-  // than the caches (attributePrefetchPays).
+  // Request each hit's color and normal look-up a few packets before the hit is shaded (AttributePrefetcher),
+  // so that the cache misses of many hits overlap instead of following one another; pays only in an octree
+  // larger than the caches (attributePrefetchPays).
   bool prefetchAttributes = false;
 };
 
-// Octrees above this many bytes shade faster with RenderOptions::prefetchAttributes: `svo bench raycast`'s
-// shaded whole views, 1 thread, interleaved with and without: the 1 M hairball (390 MB) and city (240 MB)
-// 4-7% faster, the bunny (20 MB) and a 200 k-triangle terrain (25 MB) 1-3% slower, on a 32 MB last-level
-// cache.
+// Octrees above this many bytes shade faster with RenderOptions::prefetchAttributes: the bench's shaded whole
+// views, 1 thread, interleaved with and without: the 1 M hairball (397 MB) and city (238 MB) faster, the
+// bunny (20 MB), whose octree the caches hold, 5% slower.
 inline constexpr std::size_t kPrefetchAttributesAboveBytes = std::size_t(64) << 20;
 inline bool attributePrefetchPays(std::size_t octreeBytes) {
   return octreeBytes > kPrefetchAttributesAboveBytes;
@@ -229,18 +228,37 @@ struct IgnorePacket {
 };
 // Casts the rays of one tile, starting each at the tile's beam bound when `beam` (tiles whose beam meets
 // nothing cast no ray), and calls onHit(x, y, ray, hit) for each hit and onMiss(x, y, hit) for each ray cast
-// that missed, after onPacket(hits, count) for each packet's hits and misses at once. Returns the ray-loop
-// iterations.
-template <class OnHit, class OnMiss = IgnoreMiss, class OnPacket = IgnorePacket>
+// that missed. onPacket(hits, count) sees each packet's hits and misses at once, kLag packets before they
+// are handed out (for prefetching; after the last packet, one onPacket(nullptr, 0) before each of the last
+// kLag is). Returns the ray-loop iterations.
+template <int kLag = 0, class OnHit, class OnMiss = IgnoreMiss, class OnPacket = IgnorePacket>
 std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const PixelTile& tile, bool beam,
                        const CastOptions& options, OnHit&& onHit, OnMiss&& onMiss = OnMiss{},
                        OnPacket&& onPacket = OnPacket{}) {
+  static_assert(kLag >= 0);
   float tStart = 0.0f;
   if (beam) {
     tStart = castBeam(block, rays, tile).tStart;
     if (!(tStart < std::numeric_limits<float>::infinity())) return 0;
   }
-  std::uint64_t iterations = 0;
+  struct Packet {
+    OctreeRay rays[kPacketLanes];
+    CastHit hits[kPacketLanes];
+    int x[kPacketLanes], y[kPacketLanes];
+    int count = 0;
+  };
+  Packet packets[kLag + 1];  // a ring: the newest and the kLag before it, not yet handed out
+  std::uint64_t cast = 0, iterations = 0;
+  const auto handOut = [&](const Packet& p) {
+    for (int i = 0; i < p.count; ++i) {
+      iterations += std::uint64_t(p.hits[i].iterations);
+      if (p.hits[i].hit) {
+        onHit(p.x[i], p.y[i], p.rays[i], p.hits[i]);
+      } else {
+        onMiss(p.x[i], p.y[i], p.hits[i]);
+      }
+    }
+  };
   // 8x4 pixel blocks cast together (castPacket): two 4x4 blocks side by side, each in the order of one
   // register's lanes, so that a packet's halves and quarters are squares and rows of neighbours.
   static_assert(kPacketLanes == 32);
@@ -249,27 +267,23 @@ std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const Pixe
       double across[8], down[4];
       for (int i = 0; i < 8; ++i) across[i] = rays.across(x + i);
       for (int i = 0; i < 4; ++i) down[i] = rays.down(y + i);
-      OctreeRay block8x4[kPacketLanes];
-      int qx[kPacketLanes], qy[kPacketLanes], count = 0;
+      Packet& p = packets[cast % (kLag + 1)];
+      p.count = 0;
       for (int x0 = x; x0 < x + 8 && x0 < tile.x1; x0 += 4)
         for (int dy = 0; dy < 4 && y + dy < tile.y1; ++dy)
           for (int dx = 0; dx < 4 && x0 + dx < tile.x1; ++dx) {
-            qx[count] = x0 + dx, qy[count] = y + dy;
-            block8x4[count] = rays.at(across[x0 + dx - x], down[dy]);
-            block8x4[count++].tMin = tStart;
+            p.x[p.count] = x0 + dx, p.y[p.count] = y + dy;
+            p.rays[p.count] = rays.at(across[x0 + dx - x], down[dy]);
+            p.rays[p.count++].tMin = tStart;
           }
-      CastHit hits[kPacketLanes];
-      castPacket(block, block8x4, count, options, hits);
-      onPacket(hits, count);
-      for (int i = 0; i < count; ++i) {
-        iterations += std::uint64_t(hits[i].iterations);
-        if (hits[i].hit) {
-          onHit(qx[i], qy[i], block8x4[i], hits[i]);
-        } else {
-          onMiss(qx[i], qy[i], hits[i]);
-        }
-      }
+      castPacket(block, p.rays, p.count, options, p.hits);
+      onPacket(p.hits, p.count);
+      if (++cast > std::uint64_t(kLag)) handOut(packets[(cast - 1 - kLag) % (kLag + 1)]);
     }
+  }
+  for (std::uint64_t k = cast > std::uint64_t(kLag) ? cast - kLag : 0; k < cast; ++k) {
+    onPacket(nullptr, 0);
+    handOut(packets[k % (kLag + 1)]);
   }
   return iterations;
 }
