@@ -374,32 +374,35 @@ INSTANTIATE_TEST_SUITE_P(Attributes, RenderLayouts,
                          ::testing::Values(AttributeLayout::Raw, AttributeLayout::Compressed),
                          [](const auto& info) { return std::string(nameOf(info.param)); });
 
-// Three levels of random children with random colors and normals (some equal to their parent's, so that they
-// inherit), in either attribute layout.
-Octree randomTree(AttributeLayout attributes) {
+// `levels` levels of random children with random colors and normals (one in `inheritOneIn` equal to its
+// parent's, so that it inherits, and where `familyInheritsOneIn` > 0, all children of one parent in that
+// many), in either attribute layout.
+Octree randomTree(AttributeLayout attributes, int levels = 3, unsigned inheritOneIn = 3,
+                  unsigned familyInheritsOneIn = 0) {
   std::mt19937 rng(11);
   VoxelTree tree;
   tree.hasColors = tree.hasNormals = true;
   tree.voxels.resize(1);
   std::uniform_real_distribution<float> unit(-1.0f, 1.0f);
-  const auto randomize = [&](VoxelRecord& v, const VoxelRecord& parent) {
-    const bool inherit = rng() % 3 == 0;
+  const auto randomize = [&](VoxelRecord& v, const VoxelRecord& parent, bool family = false) {
+    const bool inherit = family || rng() % inheritOneIn == 0;
     v.color = inherit ? parent.color : std::uint32_t(rng()) | 0xff000000u;
     v.normal = inherit ? parent.normal : encodeNormal(glm::normalize(glm::vec3(unit(rng), unit(rng), 1.0f)));
   };
   randomize(tree.voxels[0], tree.voxels[0]);
   std::vector<std::uint32_t> level{0};
-  for (int depth = 0; depth < 3; ++depth) {
+  for (int depth = 0; depth < levels; ++depth) {
     std::vector<std::uint32_t> next;
     for (const std::uint32_t p : level) {
       const auto mask = std::uint8_t(rng() | 1u);
       tree.voxels[p].firstChild = std::uint32_t(tree.voxels.size());
       tree.voxels[p].childMask = mask;
+      const bool family = familyInheritsOneIn > 0 && rng() % familyInheritsOneIn == 0;
       for (int slot = 0; slot < 8; ++slot)
         if (mask >> slot & 1u) {
           next.push_back(std::uint32_t(tree.voxels.size()));
           VoxelRecord child;
-          randomize(child, tree.voxels[p]);
+          randomize(child, tree.voxels[p], family);
           tree.voxels.push_back(child);
         }
     }
@@ -428,6 +431,30 @@ TEST_P(RenderLayouts, PrefetchingAttributesChangesNoPixel) {
     ASSERT_EQ(plain.depth[i], prefetched.depth[i]) << i;
   }
   EXPECT_GT(hits, 64 * 48 / 10);
+}
+
+// The renderer's attribute readers keep a parent's look-up and the values decoded for its children; over a
+// frame's hits in castTile's order, each hit still gets the value a fresh look-up gives it, on a tree where many
+// values are inherited from one or more levels up.
+TEST_P(RenderLayouts, KeptLookUpsChangeNoHitsValue) {
+  const Octree octree = randomTree(GetParam(), 5, 4, 2);
+  const BlockView block = octree.block.view();
+  const Camera camera = Camera::framing(octree.transform, {0.3, -0.2, -1.0}, 256, 192);
+  const PixelRays rays(octree.transform, camera, 0.0f);
+  SiblingAttribute colors(block, AttachmentType::Color), normals(block, AttachmentType::Normal);
+  const bool units = GetParam() == AttributeLayout::Compressed;
+  int hits = 0, inheritedFromAbove = 0;  // hits whose parent's own entry or unit does not hold their value
+  castTile(block, rays, PixelTile{0, 0, 256, 192}, false, CastOptions{},
+           [&](int x, int y, const OctreeRay&, const CastHit& hit) {
+             ++hits;
+             inheritedFromAbove +=
+                 units ? !BlockView::unit(hit.parent, AttachmentType::ColorUnits)
+                       : !BlockView::attribute(hit.parent, hit.childSlot, AttachmentType::Color);
+             ASSERT_EQ(colors.color(hit), hitColor(block, hit)) << x << "," << y;
+             ASSERT_EQ(normals.normal(hit), hitNormal(block, hit)) << x << "," << y;
+           });
+  EXPECT_GT(hits, 256 * 192 / 20);
+  EXPECT_GT(inheritedFromAbove, hits / 40);
 }
 
 // castTile with a lag hands out every ray of a tile once, kLag packets after onPacket saw it (the last
