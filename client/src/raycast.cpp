@@ -6,7 +6,6 @@
 #include "svo/client/raycast.hpp"
 
 #include <algorithm>
-#include <cassert>
 #include <cmath>
 
 #include "ray_setup.hpp"
@@ -36,9 +35,18 @@ CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions&
   return hit;
 }
 
+namespace {
+
+// The compressed layout's attachment for raw attachment Color or Normal.
+AttachmentType unitsOf(AttachmentType raw) {
+  return raw == AttachmentType::Color ? AttachmentType::ColorUnits : AttachmentType::NormalUnits;
+}
+
+}  // namespace
+
 SiblingAttribute::SiblingAttribute(const BlockView& block, AttachmentType raw)
     : raw_(raw),
-      units_(raw == AttachmentType::Color ? AttachmentType::ColorUnits : AttachmentType::NormalUnits),
+      units_(unitsOf(raw)),
       rawEntry_(block.attachment(raw)),
       // Every block of a scene (a pool's regions too) lays its attributes out alike: the root block's
       // directory says whether a parent holds units, without a look-up through its page.
@@ -98,9 +106,14 @@ void prefetchPageHeader(const ChildDescriptor* descriptor) {
 
 }  // namespace
 
-AttributePrefetcher::AttributePrefetcher(std::initializer_list<AttachmentType> types) {
-  assert(types.size() <= kMaxTypes);
-  for (const AttachmentType type : types) types_[typeCount_++] = type;
+AttributePrefetcher::AttributePrefetcher(const BlockView& block) {
+  for (const AttachmentType raw : {AttachmentType::Color, AttachmentType::Normal}) {
+    if (block.attachment(unitsOf(raw))) {
+      types_[typeCount_++] = unitsOf(raw);
+    } else if (block.attachment(raw)) {
+      types_[typeCount_++] = raw;
+    }
+  }
 }
 
 bool AttributePrefetcher::LookUp::step() {

@@ -77,17 +77,6 @@ struct TileAttributes {
       : colors(block, AttachmentType::Color), normals(block, AttachmentType::Normal) {}
 };
 
-// RenderOptions::prefetchAttributes: the attachments the frame's shading reads.
-AttributePrefetcher attributePrefetcher(const BlockView& block) {
-  const bool units = block.attributeLayout() == AttributeLayout::Compressed;
-  const AttachmentType color = units ? AttachmentType::ColorUnits : AttachmentType::Color;
-  const AttachmentType normal = units ? AttachmentType::NormalUnits : AttachmentType::Normal;
-  if (block.hasColors() && block.hasNormals()) return AttributePrefetcher({color, normal});
-  if (block.hasColors()) return AttributePrefetcher({color});
-  if (block.hasNormals()) return AttributePrefetcher({normal});
-  return AttributePrefetcher({});
-}
-
 glm::vec3 shade(const CastHit& hit, glm::vec3 viewDirection, const Shading& s, TileAttributes& attributes) {
   const glm::vec3 albedo = s.hasColor ? attributes.colors.color(hit) : glm::vec3(kNeutralGreyAlbedo);
   const glm::vec3 n = s.hasNormal ? attributes.normals.normal(hit) : estimateNormal(hit, s.contours);
@@ -206,7 +195,7 @@ void render(const BlockView& block, const SceneTransform& scene, const Camera& c
         const bool beam = options.beamTile > 0;
         std::uint64_t tileIterations;
         if (options.prefetchAttributes) {
-          AttributePrefetcher prefetcher = attributePrefetcher(block);
+          AttributePrefetcher prefetcher(block);
           tileIterations = castTile<AttributePrefetcher::kLag>(
               block, rays, tile, beam, options.cast, onHit, keepIterations,
               [&](const CastHit* hits, int count) { prefetcher.packet(hits, count); });

@@ -4,7 +4,6 @@
 #include <array>
 #include <bit>
 #include <cstdint>
-#include <initializer_list>
 #include <optional>
 
 #include <glm/vec3.hpp>
@@ -129,8 +128,9 @@ class AttributePrefetcher {
  public:
   // Packets between a packet's hits and their shading: a header, an entry and the values.
   static constexpr int kLag = 3;
-  // The attachments to look up (at most two: colors and normals, raw or units); none: does nothing.
-  explicit AttributePrefetcher(std::initializer_list<AttachmentType> types);
+  // Looks up what SiblingAttribute reads in `block`'s scene: colors and normals, as units where the block
+  // has them, else raw; nothing for a scene without either.
+  explicit AttributePrefetcher(const BlockView& block);
   // The next packet's hits (count 0: no new packet; castTile's last ones).
   void packet(const CastHit* hits, int count);
 
