@@ -46,7 +46,7 @@ struct AttachmentEntry {
 };
 inline constexpr std::uint32_t kBlockInfoMagic = 0x4f464e49;  // "INFO"
 
-// Owned, 8 KB-aligned bytes.
+// Owned, 8 KB-aligned bytes; from 2 MB on, aligned to and backed by huge pages where the OS grants them.
 class AlignedBytes {
  public:
   AlignedBytes() = default;
