@@ -134,6 +134,10 @@ bool AttributePrefetcher::LookUp::step() {
   } else {
     const BlockView::Attributes own = BlockView::attributes(descriptor, type);
     if (own.mask & slots) __builtin_prefetch(own.values);
+    if (own.shownByAll) {  // the entry says what the children show
+      __builtin_prefetch(own.shownByAll);
+      return false;
+    }
     inherits = (slots & ~own.mask) != 0;
   }
   if (!inherits || ++scale >= kScaleMax) return false;
@@ -174,10 +178,10 @@ void AttributePrefetcher::packet(const CastHit* hits, int count) {
 std::uint32_t SiblingAttribute::value(const CastHit& hit) {
   if (!rawEntry_ || !hit.hit) return 0;
   select(hit.parent);
-  if (const auto own = own_.at(hit.childSlot)) return *own;
+  if (const auto shown = own_.shown(hit.childSlot)) return *shown;
   if (!inherited_)
     inherited_ = firstUpThePath(hit, [&](const ChildDescriptor* d, int slot) {
-                   return BlockView::attribute(d, slot, raw_);
+                   return BlockView::attributes(d, raw_).shown(slot);
                  }).value_or(rawEntry_->rootValue);
   return *inherited_;
 }

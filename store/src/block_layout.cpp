@@ -111,7 +111,9 @@ struct Segment {
 // one read the voxels with children in queue order and never the leaves (three in four voxels).
 struct Queued {
   std::uint32_t voxel, color, normal;  // the voxel and its effective values
+  std::uint32_t colorAt, normalAt;     // raw layout: where those are kept (kAtBlockRoot: the root's value)
 };
+constexpr std::uint32_t kAtBlockRoot = ~0u;
 struct Entry {
   std::uint32_t contourFirst, colorFirst, normalFirst;
   std::uint32_t firstChildEntry;  // queue entry of its first child with children (the others follow)
@@ -147,15 +149,16 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   std::size_t queued = 1, contourCount = 0, colorCount = 0, normalCount = 0;
   std::uint64_t inheritedColors = 0, inheritedNormals = 0, stubs = 0;
   // A child's value is written at its cursor, which moves where the child keeps a value of its own (raw
-  // layout); returns the value the child's children inherit.
-  const auto keep = [raw](bool own, std::uint32_t value, std::uint32_t inherited, std::uint32_t bit,
-                          std::uint32_t* values, std::size_t& count, std::uint32_t& mask) {
+  // layout); `shown` and `shownAt` become the value the child's children inherit and where it is kept.
+  const auto keep = [raw](bool own, std::uint32_t value, std::uint32_t& shown, std::uint32_t& shownAt,
+                          std::uint32_t bit, std::uint32_t* values, std::size_t& count, std::uint32_t& mask) {
     values[count] = value;
+    shown = own ? value : shown;
+    shownAt = own ? std::uint32_t(count) : shownAt;
     count += raw && own;
     mask |= own ? bit : 0u;
-    return own ? value : inherited;
   };
-  queue[0] = {0, tree.voxels[0].color, tree.voxels[0].normal};
+  queue[0] = {0, tree.voxels[0].color, tree.voxels[0].normal, kAtBlockRoot, kAtBlockRoot};
   for (std::size_t qi = 0; qi < queued; ++qi) {
     const Queued parent = queue[qi];
     const VoxelRecord& r = tree.voxels[parent.voxel];
@@ -172,14 +175,14 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       contourOut[contourCount] = child.contour;
       contourCount += child.hasContour;
       contourMask |= child.hasContour ? bit : 0u;
-      std::uint32_t color = parent.color, normal = parent.normal;
+      Queued& q = queue[queued];
+      q = {c, parent.color, parent.normal, parent.colorAt, parent.normalAt};
       if (colors)
-        color = keep(!inherits.color(child.color, color), child.color, color, bit, colorOut, colorCount,
-                     colorMask);
+        keep(!inherits.color(child.color, parent.color), child.color, q.color, q.colorAt, bit, colorOut,
+             colorCount, colorMask);
       if (normals)
-        normal = keep(!inherits.normal(child.normal, parentNormal), child.normal, normal, bit, normalOut,
-                      normalCount, normalMask);
-      queue[queued] = {c, color, normal};
+        keep(!inherits.normal(child.normal, parentNormal), child.normal, q.normal, q.normalAt, bit, normalOut,
+             normalCount, normalMask);
       const bool hasChildren = child.childMask != 0, stub = !hasChildren && child.stub;
       queued += hasChildren;
       stubMask |= stub ? bit : 0u;  // all-zero stub descriptor and lookup entries (format.hpp)
@@ -206,6 +209,18 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   stats.inheritedColors += inheritedColors, stats.inheritedNormals += inheritedNormals;
   stats.descriptorSlots += stubs;
   return out;
+}
+
+// The raw layout's lookup entry of a voxel whose children's values start at `first` (after the `slotCount`
+// entries); where none has its own, it points at the value they show, kept at `shownAt`.
+std::uint32_t lookupEntry(std::uint32_t slotCount, std::uint32_t first, std::uint8_t mask,
+                          std::uint32_t shownAt) {
+  if (mask != 0) return AttributeLookup::make(slotCount + first, mask).bits;
+  if (shownAt == kAtBlockRoot) return AttributeLookup::make(AttributeLookup::kShownByBlockRoot, 0).bits;
+  const std::uint64_t pointer = std::uint64_t(slotCount) + shownAt;
+  // Out of the pointer's reach (or on the root's code): the entry does not say, a look-up walks up.
+  return AttributeLookup::make(pointer < AttributeLookup::kShownByBlockRoot ? std::uint32_t(pointer) : 0, 0)
+      .bits;
 }
 
 // One layout pass for a given set of far voxels. A voxel's far flag is read once, when its parent's run is
@@ -644,9 +659,9 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     }
     slots[slot] = ChildDescriptor::make(pointer, far, e.childMask, e.leafMask, contourPointer, e.contourMask);
     if (!compressed && tree.hasColors)
-      colorWords[slot] = AttributeLookup::make(slotCount + e.colorFirst, e.colorMask).bits;
+      colorWords[slot] = lookupEntry(slotCount, e.colorFirst, e.colorMask, c.queue[qi].colorAt);
     if (!compressed && tree.hasNormals)
-      normalWords[slot] = AttributeLookup::make(slotCount + e.normalFirst, e.normalMask).bits;
+      normalWords[slot] = lookupEntry(slotCount, e.normalFirst, e.normalMask, c.queue[qi].normalAt);
     ++stats.descriptorSlots;
   }
   for (std::size_t v = 0; v < plan.linkOf.size(); ++v)

@@ -15,6 +15,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 
 #include <glm/geometric.hpp>
 
@@ -220,6 +221,18 @@ std::string checkLookups(const svo::BlockView& view, const svo::VoxelTree& tree,
           if ((r.childMask >> s) & 1) leaf |= tree.voxels[r.firstChild + k++].childMask == 0 ? (1u << s) : 0u;
         if (d->validMask() != r.childMask) return why << "valid mask", false;
         if (d->leafMask() != leaf) return why << "leaf mask", false;
+        // An entry none of whose children has a value of its own points at the value they show (the
+        // voxel's own, resolved above), and no other entry does.
+        for (const auto& [type, wanted, eff] :
+             {std::tuple{svo::AttachmentType::Color, tree.hasColors, effColor},
+              std::tuple{svo::AttachmentType::Normal, tree.hasNormals, effNormal}}) {
+          if (!wanted) continue;
+          const svo::BlockView::Attributes a = svo::BlockView::attributes(d, type);
+          if (a.mask != 0 && a.shownByAll)
+            return why << "an entry with values says what all children show", false;
+          if (a.mask == 0 && (!a.shownByAll || *a.shownByAll != eff))
+            return why << "an entry without values does not lead to the value its children show", false;
+        }
         int k = 0;
         for (int s = 0; s < 8; ++s) {
           if (!((r.childMask >> s) & 1)) continue;

@@ -9,7 +9,8 @@
 //   info       BlockInfo followed by attachmentCount AttachmentEntry records.
 //   contours   uint32 contour values; a descriptor's contour pointer counts words from the descriptor.
 //   attachment per type, uncompressed: one AttributeLookup per slot (parallel to the slot array, gaps
-//              included), then the uint32 values; value pointers count words from the attachment start.
+//              included), then the uint32 values; value pointers count words from the attachment start
+//              (an entry whose children all inherit points at the value they show: AttributeLookup).
 //              Compressed: a unit per pair of slots (slot s in pair s / 2, half s % 2) where some child
 //              is off the value its parent shows, no lookups: first a directory of two words per
 //              kUnitGroup pairs (which pairs hold a unit; how many units the groups before hold), then the
@@ -111,11 +112,17 @@ class BlockView {
   // The same lookup done once for all of `parent`'s children: for walks that read every child (each lookup
   // is a chain of dependent loads).
   struct Attributes {
-    std::uint8_t mask = 0;                  // children with a value of their own
-    const std::uint32_t* values = nullptr;  // their values, in slot order
+    std::uint8_t mask = 0;                      // children with a value of their own
+    const std::uint32_t* values = nullptr;      // their values, in slot order
+    const std::uint32_t* shownByAll = nullptr;  // mask 0: the value every child shows, where the entry says
     std::optional<std::uint32_t> at(int slot) const {
       if (!(mask >> slot & 1u)) return std::nullopt;
       return values[childRank(mask, slot)];
+    }
+    // The child's own value, or the one it inherits where the entry says which.
+    std::optional<std::uint32_t> shown(int slot) const {
+      if (shownByAll) return *shownByAll;
+      return at(slot);
     }
   };
   static Attributes attributes(const ChildDescriptor* parent, AttachmentType type);
@@ -136,6 +143,7 @@ class BlockView {
   // Paper Fig. 8 up to the attachment: the first word of attachment `type` in the block with info section
   // `info` (nullptr without one).
   static const std::uint32_t* attachmentOf(const BlockInfo& info, AttachmentType type);
+  static const AttachmentEntry* entryOf(const BlockInfo& info, AttachmentType type);
   AttributeLayout attributeLayout() const;
   bool hasColors() const;
   bool hasNormals() const;
@@ -292,21 +300,30 @@ inline std::ptrdiff_t BlockView::slotIndexOf(const ChildDescriptor* descriptor, 
   return descriptor - reinterpret_cast<const ChildDescriptor*>(words + std::ptrdiff_t(info.slotsPointer));
 }
 
-inline const std::uint32_t* BlockView::attachmentOf(const BlockInfo& info, AttachmentType type) {
+inline const AttachmentEntry* BlockView::entryOf(const BlockInfo& info, AttachmentType type) {
   const auto* entries = reinterpret_cast<const AttachmentEntry*>(&info + 1);
-  const auto* words = reinterpret_cast<const std::uint32_t*>(&info);
   for (std::uint32_t a = 0; a < info.attachmentCount; ++a)
-    if (entries[a].type == type) return words + std::ptrdiff_t(entries[a].pointer);
+    if (entries[a].type == type) return &entries[a];
   return nullptr;
+}
+
+inline const std::uint32_t* BlockView::attachmentOf(const BlockInfo& info, AttachmentType type) {
+  const AttachmentEntry* entry = entryOf(info, type);
+  return entry ? reinterpret_cast<const std::uint32_t*>(&info) + std::ptrdiff_t(entry->pointer) : nullptr;
 }
 
 inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
   // Paper Fig. 8: page header -> info section -> attachment directory -> lookup entry -> values.
   const BlockInfo& info = infoOf(parent);
-  const std::uint32_t* attachment = attachmentOf(info, type);
-  if (!attachment) return {};
+  const AttachmentEntry* entry = entryOf(info, type);
+  if (!entry) return {};
+  const std::uint32_t* attachment =
+      reinterpret_cast<const std::uint32_t*>(&info) + std::ptrdiff_t(entry->pointer);
   const AttributeLookup lookup{attachment[slotIndexOf(parent, info)]};
-  return {lookup.mask(), attachment + lookup.valuePointer()};
+  Attributes a{lookup.mask(), attachment + lookup.valuePointer()};
+  if (lookup.mask() == 0 && lookup.valuePointer() != 0)
+    a.shownByAll = lookup.valuePointer() == AttributeLookup::kShownByBlockRoot ? &entry->rootValue : a.values;
+  return a;
 }
 
 inline std::optional<std::uint32_t> BlockView::attribute(const ChildDescriptor* parent, int slot,

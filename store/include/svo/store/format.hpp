@@ -179,8 +179,12 @@ inline std::uint32_t predictedContourNormalBits(std::uint16_t code) {
 }
 
 // Attribute lookup entry (Fig. 7c): [7:0] attribute mask, [31:8] value pointer in 32-bit words from the start
-// of the attachment's value array. A child whose bit is clear inherits its parent's value.
+// of the attachment's value array. A child whose bit is clear inherits its parent's value. Where no child has
+// a value of its own (mask 0), the pointer leads to the value they all show, so that a look-up ends at the
+// parent instead of walking up the path: kShownByBlockRoot for the block root's (AttachmentEntry::rootValue),
+// 0 where the entry does not say (walk up).
 struct AttributeLookup {
+  static constexpr std::uint32_t kShownByBlockRoot = 0xFFFFFF;
   std::uint32_t bits = 0;
   constexpr std::uint8_t mask() const { return std::uint8_t(bits); }
   constexpr std::uint32_t valuePointer() const { return bits >> 8; }
