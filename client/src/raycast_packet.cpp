@@ -7,6 +7,7 @@
 // everywhere: 32 lanes in pairs of AVX-512 registers (16 in one for a packet of at most 16 rays), 8 in AVX2
 // ones, else castRay one ray at a time.
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cstddef>
 #include <cstdint>
