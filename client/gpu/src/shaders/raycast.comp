@@ -41,6 +41,7 @@ const float kMinDirection = 1.0 / 8388608.0;
 const float kParallelContour = 1e-20;
 const uint kColor = 1u, kNormal = 2u, kColorUnits = 3u, kNormalUnits = 4u;
 const uint kSlotsPerPage = 1024u;
+const uint kShownByBlockRoot = 0xFFFFFFu;  // AttributeLookup::kShownByBlockRoot
 const float kAmbient = 0.15, kDiffuse = 0.75, kSpecular = 0.25;
 const int kShininessLog2 = 5;  // specular exponent 32, raised by squaring as on the CPU
 const float kNeutralGreyAlbedo = 0.8;
@@ -73,8 +74,9 @@ uint infoWord(uint slot) {
   return uint(int(2u * page) + int(words[2u * page]));
 }
 
-// Sec. 5.4 / Fig. 8: the value of child `child` of the descriptor at `slot`, or false when it inherits.
-bool ownAttribute(uint slot, uint child, uint type, out uint value) {
+// Sec. 5.4 / Fig. 8: the value of child `child` of the descriptor at `slot`, or false when it inherits from
+// further up. An entry without values (mask 0) may name the value all its children show (AttributeLookup).
+bool shownAttribute(uint slot, uint child, uint type, out uint value) {
   uint info = infoWord(slot);
   int slotsPointer = int(words[info + 1u]);
   uint attachments = words[info + 5u];
@@ -85,6 +87,11 @@ bool ownAttribute(uint slot, uint child, uint type, out uint value) {
     uint start = uint(int(info) + int(words[entry + 1u]));
     uint lookup = words[start + index];
     uint mask = lookup & 255u;
+    uint pointer = lookup >> 8;
+    if (mask == 0u && pointer != 0u) {
+      value = pointer == kShownByBlockRoot ? words[entry + 2u] : words[start + pointer];
+      return true;
+    }
     if (((mask >> child) & 1u) == 0u) return false;
     value = words[start + (lookup >> 8) + uint(childRank(mask, child))];
     return true;
@@ -356,9 +363,9 @@ vec3 unitNormal(uint start, uint unitSlot) {
 
 uint hitAttribute(Hit hit, uint type) {
   uint value;
-  if (ownAttribute(hit.parent, hit.childSlot, type, value)) return value;
+  if (shownAttribute(hit.parent, hit.childSlot, type, value)) return value;
   for (int s = hit.scale + 1; s < kScaleMax; ++s)
-    if (ownAttribute(pathParent[s], pathSlot[s], type, value)) return value;
+    if (shownAttribute(pathParent[s], pathSlot[s], type, value)) return value;
   return rootValue(P.rootSlot, type);
 }
 
