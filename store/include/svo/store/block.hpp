@@ -97,10 +97,7 @@ class BlockView {
   const ChildDescriptor* root() const { return slots() + info_->rootSlot; }
   const AttachmentEntry* attachment(AttachmentType type) const;
   // An attachment's first word (its lookup array, units or exact values).
-  const std::uint32_t* words(const AttachmentEntry& entry) const {
-    return reinterpret_cast<const std::uint32_t*>(reinterpret_cast<const std::byte*>(info_) +
-                                                  std::ptrdiff_t(entry.pointer) * 4);
-  }
+  const std::uint32_t* words(const AttachmentEntry& entry) const { return startOf(*info_, entry); }
 
   // Descriptor of the non-leaf child `slot` of `parent` (follows the near or far pointer, and a link).
   static const ChildDescriptor* child(const ChildDescriptor* parent, int slot);
@@ -144,6 +141,10 @@ class BlockView {
   // `info` (nullptr without one).
   static const std::uint32_t* attachmentOf(const BlockInfo& info, AttachmentType type);
   static const AttachmentEntry* entryOf(const BlockInfo& info, AttachmentType type);
+  // The first word of the attachment `entry` (one of `info`'s) describes.
+  static const std::uint32_t* startOf(const BlockInfo& info, const AttachmentEntry& entry) {
+    return reinterpret_cast<const std::uint32_t*>(&info) + std::ptrdiff_t(entry.pointer);
+  }
   AttributeLayout attributeLayout() const;
   bool hasColors() const;
   bool hasNormals() const;
@@ -309,7 +310,7 @@ inline const AttachmentEntry* BlockView::entryOf(const BlockInfo& info, Attachme
 
 inline const std::uint32_t* BlockView::attachmentOf(const BlockInfo& info, AttachmentType type) {
   const AttachmentEntry* entry = entryOf(info, type);
-  return entry ? reinterpret_cast<const std::uint32_t*>(&info) + std::ptrdiff_t(entry->pointer) : nullptr;
+  return entry ? startOf(info, *entry) : nullptr;
 }
 
 inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent, AttachmentType type) {
@@ -317,8 +318,7 @@ inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent
   const BlockInfo& info = infoOf(parent);
   const AttachmentEntry* entry = entryOf(info, type);
   if (!entry) return {};
-  const std::uint32_t* attachment =
-      reinterpret_cast<const std::uint32_t*>(&info) + std::ptrdiff_t(entry->pointer);
+  const std::uint32_t* attachment = startOf(info, *entry);
   const AttributeLookup lookup{attachment[slotIndexOf(parent, info)]};
   Attributes a{lookup.mask(), attachment + lookup.valuePointer()};
   if (lookup.mask() == 0 && lookup.valuePointer() != 0)
