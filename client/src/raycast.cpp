@@ -6,6 +6,7 @@
 #include "svo/client/raycast.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 
 #include "ray_setup.hpp"
@@ -81,6 +82,13 @@ auto firstUpThePath(const CastHit& hit, Lookup lookup) -> decltype(lookup(hit.pa
   return std::nullopt;
 }
 
+// The raw value a hit voxel without its own shows: its nearest ancestor's up the path, else `rootValue`.
+std::uint32_t inheritedValue(const CastHit& hit, AttachmentType type, std::uint32_t rootValue) {
+  return firstUpThePath(hit, [&](const ChildDescriptor* d,
+                                 int slot) { return BlockView::attributes(d, type).shown(slot); })
+      .value_or(rootValue);
+}
+
 }  // namespace
 
 template <class Decode>
@@ -116,34 +124,43 @@ AttributePrefetcher::AttributePrefetcher(const BlockView& block) {
   }
 }
 
-bool AttributePrefetcher::LookUp::step() {
-  if (!entry) {  // the page header is in
+bool AttributePrefetcher::LookUp::step(const AttachmentType* typeOf) {
+  if (!requested) {  // the page header is in
     const BlockInfo& info = BlockView::infoOf(descriptor);
-    const std::uint32_t* attachment = BlockView::attachmentOf(info, type);
-    if (!attachment) return false;
     const std::ptrdiff_t index = BlockView::slotIndexOf(descriptor, info);
-    entry = isUnits(type) ? attachment + 2 * (index / 2 / kUnitGroup) : attachment + index;
-    __builtin_prefetch(entry);
-    return true;
-  }
-  bool inherits;  // the children asked for show an ancestor's value
-  if (isUnits(type)) {
-    const auto unit = BlockView::unit(descriptor, type);
-    if (unit) __builtin_prefetch(unit->words);
-    inherits = !unit;
-  } else {
-    const BlockView::Attributes own = BlockView::attributes(descriptor, type);
-    if (own.mask & slots) __builtin_prefetch(own.values);
-    if (own.shownByAll) {  // the entry says what the children show
-      __builtin_prefetch(own.shownByAll);
-      return false;
+    for (unsigned left = types; left != 0; left &= left - 1) {
+      const int t = std::countr_zero(left);
+      const std::uint32_t* attachment = BlockView::attachmentOf(info, typeOf[t]);
+      if (!attachment) {
+        types &= std::uint8_t(~(1u << t));
+        continue;
+      }
+      entries[t] = isUnits(typeOf[t]) ? attachment + 2 * (index / 2 / kUnitGroup) : attachment + index;
+      __builtin_prefetch(entries[t]);
     }
-    inherits = (slots & ~own.mask) != 0;
+    requested = true;
+    return types != 0;
   }
-  if (!inherits || ++scale >= kScaleMax) return false;
+  for (unsigned left = types; left != 0; left &= left - 1) {
+    const int t = std::countr_zero(left);
+    const AttachmentType type = typeOf[t];
+    bool inherits;  // the children asked for show an ancestor's value
+    if (isUnits(type)) {
+      const auto unit = BlockView::unit(descriptor, type);
+      if (unit) __builtin_prefetch(unit->words);
+      inherits = !unit;
+    } else {
+      const BlockView::Attributes own = BlockView::attributes(descriptor, type);
+      if (own.mask & slots) __builtin_prefetch(own.values);
+      if (own.shownByAll) __builtin_prefetch(own.shownByAll);  // the entry says what the children show
+      inherits = !own.shownByAll && (slots & ~own.mask) != 0;
+    }
+    if (!inherits) types &= std::uint8_t(~(1u << t));
+  }
+  if (types == 0 || ++scale >= kScaleMax) return false;
   descriptor = hit->pathParent[scale];
   slots = std::uint8_t(1u << hit->pathSlot[scale]);
-  entry = nullptr;
+  requested = false;
   prefetchPageHeader(descriptor);
   return true;
 }
@@ -154,23 +171,23 @@ void AttributePrefetcher::packet(const CastHit* hits, int count) {
   newest_ = (newest_ + 1) % kLag;
   Packet& added = packets_[newest_];
   added.count = 0;
+  const auto allTypes = std::uint8_t((1u << typeCount_) - 1);
   for (int i = 0; i < count; ++i) {
     const CastHit& h = hits[i];
     if (!h.hit) continue;
     const auto slot = std::uint8_t(1u << h.childSlot);
     if (added.count > 0 && added.lookUps[added.count - 1].hit->parent == h.parent) {
-      for (int t = 1; t <= typeCount_; ++t) added.lookUps[added.count - t].slots |= slot;
+      added.lookUps[added.count - 1].slots |= slot;
       continue;
     }
     prefetchPageHeader(h.parent);
-    for (int t = 0; t < typeCount_; ++t)
-      added.lookUps[added.count++] = LookUp{&h, types_[t], h.parent, slot, std::int8_t(h.scale)};
+    added.lookUps[added.count++] = LookUp{&h, h.parent, slot, allTypes, std::int8_t(h.scale)};
   }
   for (int k = 1; k < kLag; ++k) {
     Packet& older = packets_[(newest_ + kLag - k) % kLag];
     int active = 0;
     for (int c = 0; c < older.count; ++c)
-      if (older.lookUps[c].step()) older.lookUps[active++] = older.lookUps[c];
+      if (older.lookUps[c].step(types_)) older.lookUps[active++] = older.lookUps[c];
     older.count = active;
   }
 }
@@ -179,10 +196,7 @@ std::uint32_t SiblingAttribute::value(const CastHit& hit) {
   if (!rawEntry_ || !hit.hit) return 0;
   select(hit.parent);
   if (const auto shown = own_.shown(hit.childSlot)) return *shown;
-  if (!inherited_)
-    inherited_ = firstUpThePath(hit, [&](const ChildDescriptor* d, int slot) {
-                   return BlockView::attributes(d, raw_).shown(slot);
-                 }).value_or(rawEntry_->rootValue);
+  if (!inherited_) inherited_ = inheritedValue(hit, raw_, rawEntry_->rootValue);
   return *inherited_;
 }
 
@@ -206,6 +220,32 @@ glm::vec3 SiblingAttribute::lookUpNormal(const CastHit& hit) {
     if (unitsEntry_) return inheritedFromUnits(hit, decode, decodeNormal(unitsEntry_->rootValue));
     return decodeNormal(value(hit));
   });
+}
+
+RawAttributePair::RawAttributePair(const BlockView& block)
+    : types_{{AttachmentType::Color, block.attachment(AttachmentType::Color)},
+             {AttachmentType::Normal, block.attachment(AttachmentType::Normal)}} {}
+
+void RawAttributePair::select(const ChildDescriptor* parent) {
+  parent_ = parent;
+  const BlockInfo& info = BlockView::infoOf(parent);
+  if (&info != info_) {
+    info_ = &info;
+    for (Attribute& a : types_) {
+      a.entry = a.sceneEntry ? BlockView::entryOf(info, a.type) : nullptr;
+      a.words = a.entry ? BlockView::startOf(info, *a.entry) : nullptr;
+    }
+  }
+  const std::ptrdiff_t index = BlockView::slotIndexOf(parent, info);
+  for (Attribute& a : types_) {
+    a.own = a.words ? BlockView::attributesOf(*a.entry, a.words, a.words[index]) : BlockView::Attributes{};
+    a.inherited.reset();
+  }
+}
+
+std::uint32_t RawAttributePair::inherited(Attribute& a, const CastHit& hit) {
+  if (!a.inherited) a.inherited = inheritedValue(hit, a.type, a.sceneEntry->rootValue);
+  return *a.inherited;
 }
 
 glm::vec3 hitColor(const BlockView& block, const CastHit& hit) {

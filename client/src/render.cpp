@@ -70,18 +70,109 @@ struct Shading {
   bool hasColor, hasNormal, contours;
 };
 
-// A tile's readers of the hit voxels' colors and normals (hits on siblings share a look-up).
-struct TileAttributes {
-  SiblingAttribute colors, normals;
-  explicit TileAttributes(const BlockView& block)
-      : colors(block, AttachmentType::Color), normals(block, AttachmentType::Normal) {}
+// A tile's hits, shaded a batch at a time: side by side, the attributes' decoding, the Phong model and the
+// per-pixel values run over several hits in each SIMD instruction, with the same floats as one by one.
+class ShadingBatch {
+ public:
+  static constexpr int kSize = kPacketLanes;
+  // rawColors / rawNormals: the hits' colors / normals come as raw layout values, decoded here.
+  ShadingBatch(Frame& frame, const Shading& shading, double sceneSize, double pixelAngle, bool rawColors,
+               bool rawNormals)
+      : frame_(frame),
+        light_(shading.lightDirection),
+        sceneSize_(sceneSize),
+        pixelAngle_(pixelAngle),
+        rawColors_(rawColors),
+        rawNormals_(rawNormals) {}
+  // The next hit; its color and normal are set before the next add.
+  int add(std::size_t pixel, glm::vec3 direction, float t, float voxelSize) {
+    if (count_ == kSize) flush();
+    const int k = count_++;
+    pixel_[k] = pixel;
+    dx_[k] = direction.x, dy_[k] = direction.y, dz_[k] = direction.z;
+    t_[k] = t, voxelSize_[k] = voxelSize;
+    return k;
+  }
+  void setColor(int k, glm::vec3 albedo) { ar_[k] = albedo.r, ag_[k] = albedo.g, ab_[k] = albedo.b; }
+  void setNormal(int k, glm::vec3 normal) { nx_[k] = normal.x, ny_[k] = normal.y, nz_[k] = normal.z; }
+  void setColor(int k, std::uint32_t raw) { colorWord_[k] = raw; }
+  void setNormal(int k, std::uint32_t raw) { normalWord_[k] = raw; }
+
+  void flush() {
+    if (count_ == 0) return;
+    if (rawColors_)
+      for (int k = 0; k < kSize; ++k) setColor(k, glm::vec3(decodeColor(colorWord_[k])));
+    if (rawNormals_)
+      for (int k = 0; k < kSize; ++k) setNormal(k, decodeNormal(normalWord_[k]));
+    glm::vec3 color[kSize];
+    float voxelPixels[kSize];
+    for (int k = 0; k < kSize; ++k) {
+      // The octree direction is the unit world direction / size: renormalized, the world one.
+      const glm::vec3 view = glm::normalize(glm::vec3(dx_[k], dy_[k], dz_[k]));
+      color[k] =
+          shadePhong(glm::vec3(ar_[k], ag_[k], ab_[k]), glm::vec3(nx_[k], ny_[k], nz_[k]), view, light_);
+      voxelPixels[k] = float(double(voxelSize_[k]) * sceneSize_ / (double(t_[k]) * pixelAngle_));
+    }
+    for (int k = 0; k < count_; ++k) {
+      frame_.color[pixel_[k]] = glm::vec4(color[k], 1.0f);
+      frame_.depth[pixel_[k]] = t_[k];
+      frame_.voxelPixels[pixel_[k]] = voxelPixels[k];
+    }
+    count_ = 0;
+  }
+
+ private:
+  Frame& frame_;
+  glm::vec3 light_;
+  double sceneSize_, pixelAngle_;
+  bool rawColors_, rawNormals_;
+  int count_ = 0;
+  // A slot past count_ holds an earlier hit's values (or zeros): the loops run over all kSize slots, which
+  // the compiler vectorizes without a remainder, and only the first count_ are written out.
+  std::size_t pixel_[kSize]{};
+  float dx_[kSize]{}, dy_[kSize]{}, dz_[kSize]{}, t_[kSize]{}, voxelSize_[kSize]{};
+  float ar_[kSize]{}, ag_[kSize]{}, ab_[kSize]{}, nx_[kSize]{}, ny_[kSize]{}, nz_[kSize]{};
+  std::uint32_t colorWord_[kSize]{}, normalWord_[kSize]{};
 };
 
-glm::vec3 shade(const CastHit& hit, glm::vec3 viewDirection, const Shading& s, TileAttributes& attributes) {
-  const glm::vec3 albedo = s.hasColor ? attributes.colors.color(hit) : glm::vec3(kNeutralGreyAlbedo);
-  const glm::vec3 n = s.hasNormal ? attributes.normals.normal(hit) : estimateNormal(hit, s.contours);
-  return shadePhong(albedo, n, viewDirection, s.lightDirection);
-}
+// Shades a tile's hits: raw attributes through one look-up per parent for both, units per attribute, and
+// the voxel's own surface where the scene has no normals.
+class TileShading {
+ public:
+  TileShading(const BlockView& block, Frame& frame, const Shading& shading, double sceneSize,
+              double pixelAngle)
+      : shading_(shading),
+        raw_(block.attributeLayout() == AttributeLayout::Raw),
+        rawAttributes_(block),
+        colorUnits_(block, AttachmentType::Color),
+        normalUnits_(block, AttachmentType::Normal),
+        batch_(frame, shading, sceneSize, pixelAngle, raw_ && shading.hasColor, raw_ && shading.hasNormal) {}
+  void add(std::size_t pixel, const OctreeRay& ray, const CastHit& hit) {
+    const int k = batch_.add(pixel, ray.direction, hit.t, hit.voxelSize());
+    if (!shading_.hasColor) {
+      batch_.setColor(k, glm::vec3(kNeutralGreyAlbedo));
+    } else if (raw_) {
+      batch_.setColor(k, rawAttributes_.color(hit));
+    } else {
+      batch_.setColor(k, colorUnits_.color(hit));
+    }
+    if (!shading_.hasNormal) {
+      batch_.setNormal(k, estimateNormal(hit, shading_.contours));
+    } else if (raw_) {
+      batch_.setNormal(k, rawAttributes_.normal(hit));
+    } else {
+      batch_.setNormal(k, normalUnits_.normal(hit));
+    }
+  }
+  void flush() { batch_.flush(); }
+
+ private:
+  const Shading& shading_;
+  bool raw_;
+  RawAttributePair rawAttributes_;
+  SiblingAttribute colorUnits_, normalUnits_;
+  ShadingBatch batch_;
+};
 
 }  // namespace
 
@@ -179,31 +270,28 @@ void render(const BlockView& block, const SceneTransform& scene, const Camera& c
 
   std::atomic<std::uint64_t> iterations{0};
   const auto start = std::chrono::steady_clock::now();
-  forEachTile(
-      camera.width, camera.height, renderTileSize(options), options.threads, [&](const PixelTile& tile) {
-        TileAttributes attributes(block);
-        const auto onHit = [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
-          const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
-          // The octree direction is the unit world direction / size: renormalized, the world one.
-          const glm::vec3 viewDirection = glm::normalize(ray.direction);
-          frame.color[i] = glm::vec4(shade(hit, viewDirection, shading, attributes), 1.0f);
-          frame.depth[i] = hit.t;
-          frame.voxelPixels[i] = float(double(hit.voxelSize()) * scene.size / (double(hit.t) * pixelAngle));
-          keepIterations(x, y, hit);
-          if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
-        };
-        const bool beam = options.beamTile > 0;
-        std::uint64_t tileIterations;
-        if (options.prefetchAttributes) {
-          AttributePrefetcher prefetcher(block);
-          tileIterations = castTile<AttributePrefetcher::kLag>(
-              block, rays, tile, beam, options.cast, onHit, keepIterations,
-              [&](const CastHit* hits, int count) { prefetcher.packet(hits, count); });
-        } else {
-          tileIterations = castTile(block, rays, tile, beam, options.cast, onHit, keepIterations);
-        }
-        iterations.fetch_add(tileIterations, std::memory_order_relaxed);
-      });
+  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads,
+              [&](const PixelTile& tile) {
+                TileShading shade(block, frame, shading, scene.size, pixelAngle);
+                const auto onHit = [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
+                  const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+                  shade.add(i, ray, hit);
+                  keepIterations(x, y, hit);
+                  if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
+                };
+                const bool beam = options.beamTile > 0;
+                std::uint64_t tileIterations;
+                if (options.prefetchAttributes) {
+                  AttributePrefetcher prefetcher(block);
+                  tileIterations = castTile<AttributePrefetcher::kLag>(
+                      block, rays, tile, beam, options.cast, onHit, keepIterations,
+                      [&](const CastHit* hits, int count) { prefetcher.packet(hits, count); });
+                } else {
+                  tileIterations = castTile(block, rays, tile, beam, options.cast, onHit, keepIterations);
+                }
+                shade.flush();
+                iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+              });
   if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations.load()) / double(pixels);

@@ -36,12 +36,6 @@ std::uint32_t encodeColor(glm::vec4 rgba) {
   return packABGR(q(rgba.r), q(rgba.g), q(rgba.b), q(rgba.a));
 }
 
-glm::vec4 decodeColor(std::uint32_t abgr) {
-  return glm::vec4(float(abgr & 255u), float((abgr >> 8) & 255u), float((abgr >> 16) & 255u),
-                   float(abgr >> 24)) /
-         255.0f;
-}
-
 namespace {
 // The two face coordinates for each axis, in axis order.
 constexpr int kFaceAxes[3][2] = {{1, 2}, {0, 2}, {0, 1}};

@@ -625,9 +625,10 @@ TEST(Raycast, LevelOfDetail) {
   }
 }
 
-// One SiblingAttribute per attribute kept across a frame's hits in pixel order, as render keeps one per tile:
-// each hit's color and normal equal readBlock's resolved values for its voxel, whether the hit shares the
-// previous hit's parent (the parent's look-up reused, inherited values included) or not.
+// One SiblingAttribute per attribute, and one RawAttributePair for both, kept across a frame's hits in pixel
+// order, as render keeps them per tile: each hit's color and normal equal readBlock's resolved values for its
+// voxel, whether the hit shares the previous hit's parent (the parent's look-up reused, inherited values
+// included) or not.
 TEST(Raycast, SiblingAttributesKeptAcrossHitsEqualReadBlock) {
   for (const Scene* s : {&sphereScene(), &randomScene()}) {
     const svo::BlockView view = s->octree.block.view();
@@ -638,6 +639,7 @@ TEST(Raycast, SiblingAttributesKeptAcrossHitsEqualReadBlock) {
       const svo::PixelRays rays(s->octree.transform, camera, lod);
       svo::SiblingAttribute colors(view, svo::AttachmentType::Color),
           normals(view, svo::AttachmentType::Normal);
+      svo::RawAttributePair both(view);
       const svo::ChildDescriptor* previous = nullptr;
       std::size_t hits = 0, shared = 0;
       for (int y = 0; y < camera.height; ++y)
@@ -654,8 +656,12 @@ TEST(Raycast, SiblingAttributesKeptAcrossHitsEqualReadBlock) {
           ASSERT_EQ(normals.value(hit), it->second.second)
               << s->name << " lod " << lod << " pixel " << x << "," << y;
           ASSERT_EQ(normals.normal(hit), svo::decodeNormal(it->second.second));
+          ASSERT_EQ(both.normal(hit), it->second.second)
+              << s->name << " lod " << lod << " pixel " << x << "," << y;
           if (view.attachment(svo::AttachmentType::Color)) {
             ASSERT_EQ(colors.value(hit), it->second.first)
+                << s->name << " lod " << lod << " pixel " << x << "," << y;
+            ASSERT_EQ(both.color(hit), it->second.first)
                 << s->name << " lod " << lod << " pixel " << x << "," << y;
             ASSERT_EQ(colors.color(hit), glm::vec3(svo::decodeColor(it->second.first)));
           }

@@ -118,6 +118,39 @@ class SiblingAttribute {
   std::uint8_t decodedMask_ = 0;
 };
 
+// Both raw-layout attributes of hit voxels, colors and normals, as two SiblingAttribute::value give them,
+// with the page header, info section and slot index read once per parent for both and the attachment
+// directory once per block: neighbouring pixels mostly hit children of different parents, so each hit pays a
+// parent's look-up (render's reader where the scene has no units; it decodes the values in batches).
+class RawAttributePair {
+ public:
+  explicit RawAttributePair(const BlockView& block);
+  // The hit's raw color and normal value; only for an attribute the block has.
+  std::uint32_t color(const CastHit& hit) { return value(types_[kColor], hit); }
+  std::uint32_t normal(const CastHit& hit) { return value(types_[kNormal], hit); }
+
+ private:
+  static constexpr int kColor = 0, kNormal = 1;
+  struct Attribute {
+    AttachmentType type;
+    const AttachmentEntry* sceneEntry;       // the scene root block's: its root value ends a walk up the path
+    const AttachmentEntry* entry = nullptr;  // the current parent's block's, and its words
+    const std::uint32_t* words = nullptr;
+    BlockView::Attributes own;               // the current parent's lookup entry
+    std::optional<std::uint32_t> inherited;  // the value its children without their own show
+  };
+  std::uint32_t value(Attribute& a, const CastHit& hit) {
+    if (hit.parent != parent_) select(hit.parent);
+    if (const std::optional<std::uint32_t> shown = a.own.shown(hit.childSlot)) return *shown;
+    return inherited(a, hit);
+  }
+  void select(const ChildDescriptor* parent);
+  std::uint32_t inherited(Attribute& a, const CastHit& hit);
+  const ChildDescriptor* parent_ = nullptr;
+  const BlockInfo* info_ = nullptr;
+  Attribute types_[2];
+};
+
 // Requests the Fig. 8 look-ups of hits' attributes a few packets before they are shaded (castTile with
 // kLag), one dependent load per packet: each packet's call requests the page headers of its hits' parents,
 // and advances every look-up of the kLag - 1 packets before it by one load (a lookup entry or unit
@@ -135,18 +168,20 @@ class AttributePrefetcher {
   void packet(const CastHit* hits, int count);
 
  private:
+  static constexpr int kMaxTypes = 2;
+  // Both attributes' look-ups of a parent's children, together while they walk the same path.
   struct LookUp {
     const CastHit* hit;  // a hit on the parent the look-up starts at (hits on siblings share the path)
-    AttachmentType type;
-    const ChildDescriptor* descriptor;     // the parent, then ancestors while the children inherit
-    std::uint8_t slots;                    // the descriptor's children whose values are wanted
-    std::int8_t scale;                     // descriptor is hit->parent at hit->scale, else pathParent[scale]
-    const std::uint32_t* entry = nullptr;  // the lookup entry or directory words, once requested
-    bool step();                           // one more load; false when done
+    const ChildDescriptor* descriptor;  // the parent, then ancestors while the children inherit
+    std::uint8_t slots;                 // the descriptor's children whose values are wanted
+    std::uint8_t types;                 // bit t: types_[t] is still looked up
+    std::int8_t scale;                  // descriptor is hit->parent at hit->scale, else pathParent[scale]
+    bool requested = false;             // the lookup entries (or directory words) are requested
+    const std::uint32_t* entries[kMaxTypes];
+    bool step(const AttachmentType* types);  // one more load; false when done
   };
-  static constexpr int kMaxTypes = 2;
   struct Packet {
-    LookUp lookUps[kPacketLanes * kMaxTypes];
+    LookUp lookUps[kPacketLanes];
     int count = 0;
   };
   AttachmentType types_[kMaxTypes];

@@ -123,6 +123,10 @@ class BlockView {
     }
   };
   static Attributes attributes(const ChildDescriptor* parent, AttachmentType type);
+  // The same from a lookup entry already read: `lookupWord` of the raw attachment `entry` of a block whose
+  // words start at `attachment`.
+  static Attributes attributesOf(const AttachmentEntry& entry, const std::uint32_t* attachment,
+                                 std::uint32_t lookupWord);
   static const BlockInfo& infoOf(const ChildDescriptor* descriptor);
   // The descriptor's slot index in the block holding it, given that block's info section.
   static std::ptrdiff_t slotIndexOf(const ChildDescriptor* descriptor, const BlockInfo& info);
@@ -319,10 +323,16 @@ inline BlockView::Attributes BlockView::attributes(const ChildDescriptor* parent
   const AttachmentEntry* entry = entryOf(info, type);
   if (!entry) return {};
   const std::uint32_t* attachment = startOf(info, *entry);
-  const AttributeLookup lookup{attachment[slotIndexOf(parent, info)]};
+  return attributesOf(*entry, attachment, attachment[slotIndexOf(parent, info)]);
+}
+
+inline BlockView::Attributes BlockView::attributesOf(const AttachmentEntry& entry,
+                                                     const std::uint32_t* attachment,
+                                                     std::uint32_t lookupWord) {
+  const AttributeLookup lookup{lookupWord};
   Attributes a{lookup.mask(), attachment + lookup.valuePointer()};
   if (lookup.mask() == 0 && lookup.valuePointer() != 0)
-    a.shownByAll = lookup.valuePointer() == AttributeLookup::kShownByBlockRoot ? &entry->rootValue : a.values;
+    a.shownByAll = lookup.valuePointer() == AttributeLookup::kShownByBlockRoot ? &entry.rootValue : a.values;
   return a;
 }
 

@@ -123,7 +123,12 @@ constexpr std::uint32_t packABGR(std::uint8_t r, std::uint8_t g, std::uint8_t b,
 }
 // Alpha is the voxel's coverage: 255 for a surface, a fog volume's density where it varies (volume import).
 std::uint32_t encodeColor(glm::vec4 rgba);  // components in [0, 1], rounded
-glm::vec4 decodeColor(std::uint32_t abgr);
+// Inline, as the renderer decodes one per shaded hit.
+inline glm::vec4 decodeColor(std::uint32_t abgr) {
+  return glm::vec4(float(abgr & 255u), float((abgr >> 8) & 255u), float((abgr >> 16) & 255u),
+                   float(abgr >> 24)) /
+         255.0f;
+}
 // The albedo a voxel without a color shows. A store that carries a fog volume's density but no colors gives
 // its colors this grey, so the density changes no image.
 inline constexpr float kNeutralGreyAlbedo = 0.8f;
