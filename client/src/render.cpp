@@ -89,6 +89,10 @@ class ShadingBatch {
     if (count_ == kSize) flush();
     const int k = count_++;
     pixel_[k] = pixel;
+    // The frame's lines left the caches since the frame was cleared: request them while the batch fills.
+    __builtin_prefetch(&frame_.color[pixel], 1);
+    __builtin_prefetch(&frame_.depth[pixel], 1);
+    __builtin_prefetch(&frame_.voxelPixels[pixel], 1);
     dx_[k] = direction.x, dy_[k] = direction.y, dz_[k] = direction.z;
     t_[k] = t, voxelSize_[k] = voxelSize;
     return k;
