@@ -135,8 +135,7 @@ bool AttributePrefetcher::LookUp::step(const AttachmentType* typeOf) {
         types &= std::uint8_t(~(1u << t));
         continue;
       }
-      entries[t] = isUnits(typeOf[t]) ? attachment + 2 * (index / 2 / kUnitGroup) : attachment + index;
-      __builtin_prefetch(entries[t]);
+      __builtin_prefetch(isUnits(typeOf[t]) ? attachment + 2 * (index / 2 / kUnitGroup) : attachment + index);
     }
     requested = true;
     return types != 0;

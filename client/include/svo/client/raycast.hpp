@@ -161,8 +161,8 @@ class AttributePrefetcher {
  public:
   // Packets between a packet's hits and their shading: a header, an entry and the values.
   static constexpr int kLag = 3;
-  // Looks up what SiblingAttribute reads in `block`'s scene: colors and normals, as units where the block
-  // has them, else raw; nothing for a scene without either.
+  // Looks up what SiblingAttribute and RawAttributePair read in `block`'s scene: colors and normals, as
+  // units where the block has them, else raw; nothing for a scene without either.
   explicit AttributePrefetcher(const BlockView& block);
   // The next packet's hits (count 0: no new packet; castTile's last ones).
   void packet(const CastHit* hits, int count);
@@ -177,8 +177,8 @@ class AttributePrefetcher {
     std::uint8_t types;                 // bit t: types_[t] is still looked up
     std::int8_t scale;                  // descriptor is hit->parent at hit->scale, else pathParent[scale]
     bool requested = false;             // the lookup entries (or directory words) are requested
-    const std::uint32_t* entries[kMaxTypes];
-    bool step(const AttachmentType* types);  // one more load; false when done
+    // One more load (typeOf: the prefetcher's types_); false when done.
+    bool step(const AttachmentType* typeOf);
   };
   struct Packet {
     LookUp lookUps[kPacketLanes];
