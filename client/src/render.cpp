@@ -4,6 +4,7 @@
 #include <array>
 #include <atomic>
 #include <bit>
+#include <cassert>
 #include <cctype>
 #include <chrono>
 #include <cmath>
@@ -191,6 +192,32 @@ PixelRays::PixelRays(const SceneTransform& scene, const Camera& camera, float lo
     : scene_(scene), camera_(camera), basis_(camera.basis()), origin_(scene.toOctree(camera.eye)) {
   // A pinhole's footprint grows from zero at the eye; lodPixels 0 disables the level-of-detail stop.
   if (lodPixels > 0.0f) footprintSlope_ = float(camera.pixelAngle() * double(lodPixels) / scene.size);
+}
+
+void PixelRays::packet(const double* across, const double* down, int count, float tMin,
+                       OctreeRay* out) const {
+  assert(count <= kPacketLanes);
+  // Every lane is computed (a lane past count repeats the first ray), so the loop has no remainder.
+  double a[kPacketLanes], d[kPacketLanes];
+  for (int k = 0; k < kPacketLanes; ++k) a[k] = across[k < count ? k : 0], d[k] = down[k < count ? k : 0];
+  float x[kPacketLanes], y[kPacketLanes], z[kPacketLanes];
+  const glm::dvec3 f = basis_.forward, r = basis_.right, u = basis_.up;
+  for (int k = 0; k < kPacketLanes; ++k) {
+    // at()'s operations in at()'s order.
+    const double vx = (f.x + a[k] * r.x) + d[k] * u.x;
+    const double vy = (f.y + a[k] * r.y) + d[k] * u.y;
+    const double vz = (f.z + a[k] * r.z) + d[k] * u.z;
+    const double scale = 1.0 / (std::sqrt((vx * vx + vy * vy) + vz * vz) * scene_.size);
+    x[k] = float(vx * scale), y[k] = float(vy * scale), z[k] = float(vz * scale);
+  }
+  for (int k = 0; k < count; ++k) {
+    OctreeRay& ray = out[k];
+    ray = OctreeRay{};
+    ray.origin = origin_;
+    ray.direction = glm::vec3(x[k], y[k], z[k]);
+    ray.footprintSlope = footprintSlope_;
+    ray.tMin = tMin;
+  }
 }
 
 glm::dvec3 PixelRays::direction(double px, double py) const {

@@ -433,9 +433,41 @@ TEST_P(RenderLayouts, PrefetchingAttributesChangesNoPixel) {
   EXPECT_GT(hits, 64 * 48 / 10);
 }
 
+// A packet's rays, computed side by side, are at()'s bit for bit in every lane: full and partial packets, for
+// a plain camera, one far from the scene with a narrow field of view, and one looking almost straight down.
+TEST(PixelRays, PacketsEqualRayByRay) {
+  SceneTransform scene;
+  scene.origin = glm::dvec3(1.0e6, -2.5e5, 3.0e4);
+  scene.size = 37.5;
+  Camera plain, far, down;
+  plain.width = 640, plain.height = 480;
+  far.eye = scene.origin + glm::dvec3(9.0e5, 1.0e4, -3.0e5), far.target = scene.origin, far.fovYDegrees = 0.5;
+  down.eye = glm::dvec3(0.0, 10.0, 0.0), down.target = glm::dvec3(1e-3, 0.0, 0.0), down.up = {0.0, 0.0, 1.0};
+  for (const Camera& camera : {plain, far, down}) {
+    const PixelRays rays(scene, camera, 1.5f);
+    for (const int count : {kPacketLanes, 1, 13}) {
+      double across[kPacketLanes], downs[kPacketLanes];
+      for (int k = 0; k < count; ++k)
+        across[k] = rays.across(3 * k % camera.width), downs[k] = rays.down(7 * k % camera.height);
+      OctreeRay packet[kPacketLanes];
+      rays.packet(across, downs, count, 0.25f, packet);
+      for (int k = 0; k < count; ++k) {
+        OctreeRay one = rays.at(across[k], downs[k]);
+        one.tMin = 0.25f;
+        ASSERT_EQ(packet[k].origin, one.origin) << k;
+        ASSERT_EQ(packet[k].direction, one.direction) << k;
+        ASSERT_EQ(packet[k].tMin, one.tMin);
+        ASSERT_EQ(packet[k].tMax, one.tMax);
+        ASSERT_EQ(packet[k].footprintOrigin, one.footprintOrigin);
+        ASSERT_EQ(packet[k].footprintSlope, one.footprintSlope);
+      }
+    }
+  }
+}
+
 // The renderer's attribute readers keep a parent's look-up and the values decoded for its children; over a
-// frame's hits in castTile's order, each hit still gets the value a fresh look-up gives it, on a tree where many
-// values are inherited from one or more levels up.
+// frame's hits in castTile's order, each hit still gets the value a fresh look-up gives it, on a tree where
+// many values are inherited from one or more levels up.
 TEST_P(RenderLayouts, KeptLookUpsChangeNoHitsValue) {
   const Octree octree = randomTree(GetParam(), 5, 4, 2);
   const BlockView block = octree.block.view();

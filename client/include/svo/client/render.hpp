@@ -198,6 +198,10 @@ class PixelRays {
     return ray;
   }
 
+  // at(across[k], down[k]) for k < count (<= kPacketLanes), each starting at tMin: a packet's rays, computed
+  // side by side in SIMD lanes with the same doubles as one by one.
+  void packet(const double* across, const double* down, int count, float tMin, OctreeRay* out) const;
+
   // Unit world (= octree, up to scale) direction of the ray through (px + 0.5, py + 0.5).
   glm::dvec3 direction(double px, double py) const;
   const glm::vec3& origin() const { return origin_; }  // the eye in octree space, as every ray has it
@@ -269,13 +273,14 @@ std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const Pixe
       for (int i = 0; i < 4; ++i) down[i] = rays.down(y + i);
       Packet& p = packets[cast % (kLag + 1)];
       p.count = 0;
+      double rayAcross[kPacketLanes], rayDown[kPacketLanes];
       for (int x0 = x; x0 < x + 8 && x0 < tile.x1; x0 += 4)
         for (int dy = 0; dy < 4 && y + dy < tile.y1; ++dy)
           for (int dx = 0; dx < 4 && x0 + dx < tile.x1; ++dx) {
             p.x[p.count] = x0 + dx, p.y[p.count] = y + dy;
-            p.rays[p.count] = rays.at(across[x0 + dx - x], down[dy]);
-            p.rays[p.count++].tMin = tStart;
+            rayAcross[p.count] = across[x0 + dx - x], rayDown[p.count++] = down[dy];
           }
+      rays.packet(rayAcross, rayDown, p.count, tStart, p.rays);
       castPacket(block, p.rays, p.count, options, p.hits);
       onPacket(p.hits, p.count);
       if (++cast > std::uint64_t(kLag)) handOut(packets[(cast - 1 - kLag) % (kLag + 1)]);
