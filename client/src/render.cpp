@@ -201,14 +201,9 @@ void PixelRays::packet(const double* across, const double* down, int count, floa
   double a[kPacketLanes], d[kPacketLanes];
   for (int k = 0; k < kPacketLanes; ++k) a[k] = across[k < count ? k : 0], d[k] = down[k < count ? k : 0];
   float x[kPacketLanes], y[kPacketLanes], z[kPacketLanes];
-  const glm::dvec3 f = basis_.forward, r = basis_.right, u = basis_.up;
   for (int k = 0; k < kPacketLanes; ++k) {
-    // at()'s operations in at()'s order.
-    const double vx = (f.x + a[k] * r.x) + d[k] * u.x;
-    const double vy = (f.y + a[k] * r.y) + d[k] * u.y;
-    const double vz = (f.z + a[k] * r.z) + d[k] * u.z;
-    const double scale = 1.0 / (std::sqrt((vx * vx + vy * vy) + vz * vz) * scene_.size);
-    x[k] = float(vx * scale), y[k] = float(vy * scale), z[k] = float(vz * scale);
+    const glm::vec3 direction = directionAt(a[k], d[k]);
+    x[k] = direction.x, y[k] = direction.y, z[k] = direction.z;
   }
   for (int k = 0; k < count; ++k) {
     OctreeRay& ray = out[k];

@@ -188,14 +188,18 @@ class PixelRays {
   double across(double px) const { return basis_.across(px, camera_.width); }
   double down(double py) const { return basis_.down(py, camera_.height); }
   OctreeRay at(double across, double down) const {
-    const glm::dvec3 v = basis_.forward + across * basis_.right + down * basis_.up;
     OctreeRay ray;
     ray.origin = origin_;
-    // The unit direction scaled by 1 / size keeps t in world units: octree point at t = toOctree(world
-    // point at t). One division for both.
-    ray.direction = glm::vec3(v * (1.0 / (std::sqrt(glm::dot(v, v)) * scene_.size)));
+    ray.direction = directionAt(across, down);
     ray.footprintSlope = footprintSlope_;
     return ray;
+  }
+  // The octree direction of the ray through image-plane point (across, down).
+  glm::vec3 directionAt(double across, double down) const {
+    const glm::dvec3 v = basis_.forward + across * basis_.right + down * basis_.up;
+    // The unit direction scaled by 1 / size keeps t in world units: octree point at t = toOctree(world
+    // point at t). One division for both.
+    return glm::vec3(v * (1.0 / (std::sqrt(glm::dot(v, v)) * scene_.size)));
   }
 
   // at(across[k], down[k]) for k < count (<= kPacketLanes), each starting at tMin: a packet's rays, computed
