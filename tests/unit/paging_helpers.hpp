@@ -117,15 +117,4 @@ inline svo::Frame renderFinest(const svo::Pager& pager, const svo::Camera& camer
   return svo::render(pager.trunk(), pager.transform(), camera, options);
 }
 
-// The message of what `open` throws ("" when it does not).
-template <class F>
-std::string errorOf(F&& open) {
-  try {
-    open();
-  } catch (const std::exception& e) {
-    return e.what();
-  }
-  return "";
-}
-
 }  // namespace svotest

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <exception>
 #include <filesystem>
 #include <limits>
 #include <string>
@@ -55,6 +56,17 @@ class TempDir {
  private:
   std::filesystem::path path_;
 };
+
+// The message of what `f` throws ("" when it does not).
+template <class F>
+std::string errorOf(F&& f) {
+  try {
+    f();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
 
 // sRGB to linear, written out from the standard (IEC 61966-2-1) rather than shared with the loader.
 inline double srgbToLinearRef(double c) {

@@ -28,6 +28,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using svotest::errorOf;
 using svotest::srgbToLinearRef;
 using svotest::TempDir;
 
@@ -53,17 +54,6 @@ double surfaceArea(const svo::Mesh& m) {
 
 void expectVec4Near(glm::vec4 got, glm::vec4 want, float tol, const std::string& what) {
   for (int k = 0; k < 4; ++k) EXPECT_NEAR(got[k], want[k], tol) << what << " component " << k;
-}
-
-// The message of the runtime_error that `f` throws, or "" when it throws none.
-template <typename F>
-std::string errorOf(F&& f) {
-  try {
-    f();
-  } catch (const std::runtime_error& e) {
-    return e.what();
-  }
-  return "";
 }
 
 // A 2x2 checker written as an 8-bit sRGB PNG: rows top to bottom are (red, green), (blue, white).

@@ -36,6 +36,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using svotest::errorOf;
 using Key = std::tuple<int, int, int>;
 struct Values {
   std::uint32_t color = 0, normal = 0;
@@ -87,17 +88,6 @@ void writeGrids(const fs::path& path, const openvdb::GridPtrVec& grids) {
   openvdb::io::File file(path.string());
   file.write(grids);
   file.close();
-}
-
-// Runs `f` and returns the message it throws (empty when it does not throw).
-template <class F>
-std::string errorOf(F&& f) {
-  try {
-    f();
-  } catch (const std::exception& e) {
-    return e.what();
-  }
-  return {};
 }
 
 class Volume : public ::testing::Test {
