@@ -206,7 +206,8 @@ using Floats16 = float __attribute__((vector_size(64)));
 
 // The child each `meets` lane enters: a leaf (or a stub) is the lane's hit, else PUSH. Returns the lanes
 // that pushed.
-[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints topology, Ints slot, CastHit* hits) {
+[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints topology, Ints slot, bool recordPath,
+                                        CastHit* hits) {
   // BlockView::child's arithmetic for every lane at once (ChildDescriptor's fields: [31:17] child pointer,
   // [16] far, [15:8] valid mask, [7:0] leaf mask): the run's near pointer and the child's rank among the
   // non-leaf children.
@@ -235,8 +236,10 @@ using Floats16 = float __attribute__((vector_size(64)));
     s.contourWord[l] = std::int32_t(child->contour);
     const int scale = s.scale[l];
     s.stack[l][scale] = {s.parent[l], s.t_max[l]};
-    hits[l].pathParent[scale] = s.parent[l];
-    hits[l].pathSlot[scale] = std::uint8_t(slot[l]);
+    if (recordPath) {
+      hits[l].pathParent[scale] = s.parent[l];
+      hits[l].pathSlot[scale] = std::uint8_t(slot[l]);
+    }
     s.parent[l] = child;
     pushed[l] = -1;
   }
@@ -293,7 +296,8 @@ using Floats16 = float __attribute__((vector_size(64)));
 // child are looked up once for all of them, and no lane's decision branches. A lane in another slot, or whose
 // iteration would do anything else (advance, stop by level of detail, the iteration cap, a contour that
 // misses), leaves the group with its state untouched, and the loop goes on from there.
-[[gnu::always_inline]] inline void descendTogether(Lanes& s, const CastOptions& options, CastHit* hits) {
+[[gnu::always_inline]] inline void descendTogether(Lanes& s, const CastOptions& options, bool recordPath,
+                                                   CastHit* hits) {
   Ints together = s.active;
   while (any(together)) {
     const int leader = __builtin_ctz(lanesOf(together));
@@ -328,8 +332,10 @@ using Floats16 = float __attribute__((vector_size(64)));
     for (unsigned lanes = lanesOf(together); lanes != 0; lanes &= lanes - 1) {
       const int l = __builtin_ctz(lanes);
       s.stack[l][scale] = {parent, s.t_max[l]};
-      hits[l].pathParent[scale] = parent;
-      hits[l].pathSlot[scale] = std::uint8_t(slot);
+      if (recordPath) {
+        hits[l].pathParent[scale] = parent;
+        hits[l].pathSlot[scale] = std::uint8_t(slot);
+      }
       s.parent[l] = child;
     }
     s.topology = select(together, Ints{} + std::int32_t(child->topology), s.topology);
@@ -368,9 +374,10 @@ using Floats16 = float __attribute__((vector_size(64)));
 
 void castLanes(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
                CastHit* hits) {
+  const bool recordPath = options.recordPath;  // read once: the stores into `hits` might alias `options`
   Lanes s;
   start(s, block, rays, count, hits);
-  descendTogether(s, options, hits);
+  descendTogether(s, options, recordPath, hits);
   while (any(s.active)) {
     if (const unsigned lanes = lanesOf(s.active); std::popcount(lanes) <= kAloneLanes) {
       finishAlone(s, lanes, options, hits);
@@ -405,7 +412,7 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
     const Ints clip = intersect & contoured;
     if (any(clip)) clipToContours(s, clip, contourWord, slot, tx_center, ty_center, tz_center, tv_max);
 
-    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), topology, slot, hits);
+    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), topology, slot, recordPath, hits);
     if (any(pushed)) enterChildren(s, pushed, half, tx_center, ty_center, tz_center, tv_max);
 
     // ADVANCE the others: step to the next cube of the same scale along the ray.

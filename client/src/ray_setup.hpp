@@ -161,6 +161,7 @@ struct RayState {
 [[gnu::always_inline]] inline bool continueRay(const MirroredRay& m, float footprintSlope,
                                                float footprintOrigin, const CastOptions& options, RayState& s,
                                                RayStackEntry* stack, CastHit& hit) {
+  const bool recordPath = options.recordPath;  // read once: the stores into `hit` might alias `options`
   const glm::vec3 d = m.d;
   const float tx_coef = m.tx_coef, ty_coef = m.ty_coef, tz_coef = m.tz_coef;
   const float tx_bias = m.tx_bias, ty_bias = m.ty_bias, tz_bias = m.tz_bias;
@@ -217,8 +218,10 @@ struct RayState {
         // the two exits can round to the same float while the position bits still say the ray left the
         // child first, and POP would then read a stale or unwritten entry: store on every PUSH.
         stack[scale] = {parent, t_max};
-        hit.pathParent[scale] = parent;
-        hit.pathSlot[scale] = std::uint8_t(slot);
+        if (recordPath) {
+          hit.pathParent[scale] = parent;
+          hit.pathSlot[scale] = std::uint8_t(slot);
+        }
         parent = child;
         idx = 0;
         --scale;

@@ -273,6 +273,8 @@ void render(const BlockView& block, const SceneTransform& scene, const Camera& c
                              std::to_string(options.beamTile) + ")");
   if (!finite(options.lightDirection) || !(glm::length(options.lightDirection) > 0.0f))
     throw std::runtime_error("render: the light direction must be finite and non-zero");
+  if (!options.cast.recordPath)
+    throw std::runtime_error("render: shading looks attributes up through the hits' paths (cast.recordPath)");
 
   const Shading shading{glm::normalize(options.lightDirection), block.hasColors(), block.hasNormals(),
                         options.cast.contours};

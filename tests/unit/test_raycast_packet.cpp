@@ -25,8 +25,9 @@ bool sameBits(float a, float b) {
   return std::memcmp(&a, &b, sizeof a) == 0;
 }
 
-// Empty when the two hits agree in every field castRay defines; else what differs.
-std::string difference(const svo::CastHit& a, const svo::CastHit& b) {
+// Empty when the two hits agree in every field castRay defines (the path only where `withPath`); else what
+// differs.
+std::string difference(const svo::CastHit& a, const svo::CastHit& b, bool withPath = true) {
   if (a.hit != b.hit) return fmt::format("hit {} vs {}", a.hit, b.hit);
   if (a.iterations != b.iterations) return fmt::format("iterations {} vs {}", a.iterations, b.iterations);
   if (!a.hit) return {};
@@ -35,7 +36,7 @@ std::string difference(const svo::CastHit& a, const svo::CastHit& b) {
     return "voxel";
   for (int i = 0; i < 3; ++i)
     if (!sameBits(a.position[i], b.position[i]) || !sameBits(a.cubeMin[i], b.cubeMin[i])) return "position";
-  for (int s = a.scale + 1; s < svo::kMaxLevels; ++s)
+  for (int s = a.scale + 1; withPath && s < svo::kMaxLevels; ++s)
     if (a.pathParent[s] != b.pathParent[s] || a.pathSlot[s] != b.pathSlot[s]) return "path";
   return {};
 }
@@ -71,7 +72,7 @@ std::size_t expectSameAsCastRay(const svo::BlockView& block, const std::vector<s
       svo::castPacket(block, &rays[first], count, options, packet);
       for (int l = 0; l < count; ++l) {
         const svo::CastHit single = svo::castRay(block, rays[first + std::size_t(l)], options);
-        const std::string why = difference(single, packet[l]);
+        const std::string why = difference(single, packet[l], options.recordPath);
         if (!why.empty()) {
           ADD_FAILURE() << why << " for ray " << first + std::size_t(l) << ": "
                         << describe(rays[first + std::size_t(l)]);
@@ -129,6 +130,24 @@ TEST(CastPacket, PixelPacketsEqualCastRay) {
             expectSameAsCastRay(octree.block.view(), pixelPackets(octree.transform, camera, lod), options),
             0u);
       }
+}
+
+// Without the paths (depth alone), every other field is castRay's with them, in every loop.
+TEST(CastPacket, HitsWithoutPathsEqualCastRay) {
+  const svo::Octree& octree = scene();
+  svo::CastOptions withoutPath;
+  withoutPath.recordPath = false;
+  for (const svo::Camera& camera :
+       {svo::Camera::framing(octree.transform, svo::kDefaultViewDirection, 96, 64),
+        closeUp(octree.transform)}) {
+    const std::vector<svo::OctreeRay> rays = pixelPackets(octree.transform, camera, 1.0f);
+    EXPECT_GT(expectSameAsCastRay(octree.block.view(), rays, withoutPath), 0u);
+    for (std::size_t i = 0; i < rays.size(); ++i) {
+      const std::string why = difference(svo::castRay(octree.block.view(), rays[i], {}),
+                                         svo::castRay(octree.block.view(), rays[i], withoutPath), false);
+      ASSERT_TRUE(why.empty()) << why << " for ray " << i;
+    }
+  }
 }
 
 // Far child pointers (sec. 5.1): the scene laid out again with near pointers of 16 slots at most (the least a

@@ -361,6 +361,9 @@ TEST(Render, RejectsBadOptions) {
   options = {};
   options.threads = -2;
   EXPECT_THROW(render(octree, camera, options), std::runtime_error);
+  options = {};
+  options.cast.recordPath = false;
+  EXPECT_THROW(render(octree, camera, options), std::runtime_error);
   Camera bad = camera;
   bad.target = bad.eye;
   EXPECT_THROW(render(octree, bad, {}), std::runtime_error);

@@ -37,18 +37,20 @@ constexpr double kCloseUpStart = 0.25;
 constexpr int kCloseUpProbe = 64;
 constexpr int kCloseUpHalvings = 24;
 
-// ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles with the beam pass, depth
-// written as the Embree peer writes it, on options.threads threads, into `result` (its storage reused, as
-// the peer's and the shaded frame's are).
+// ESVO without shading: PixelRays + castRay per pixel over the renderer's tiles with the beam pass, without
+// the hits' paths (no attribute is read), depth written as the Embree peer writes it, on options.threads
+// threads, into `result` (its storage reused, as the peer's and the shaded frame's are).
 void traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
                TraceResult& result) {
   result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
   const BlockView block = scene.root();
   const PixelRays rays(scene.transform(), camera, options.lodPixels);
+  CastOptions cast = options.cast;
+  cast.recordPath = false;  // depth alone: no attribute is looked up
   std::atomic<std::uint64_t> iterations{0};
   forEachTile(camera.width, camera.height, renderTileSize(options), options.threads,
               [&](const PixelTile& tile) {
-                iterations.fetch_add(castTile(block, rays, tile, options.beamTile > 0, options.cast,
+                iterations.fetch_add(castTile(block, rays, tile, options.beamTile > 0, cast,
                                               [&](int x, int y, const OctreeRay&, const CastHit& hit) {
                                                 result.depth[std::size_t(y) * camera.width + x] = hit.t;
                                               }),

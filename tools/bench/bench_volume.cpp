@@ -67,7 +67,7 @@ DepthFrame castEsvo(const BlockView& block, const SceneTransform& scene, const C
   const PixelRays rays(scene, camera, 0.0f);
   frame.seconds = timeRuns(runs, [&] {
     forEachTile(camera.width, camera.height, kVolumeTileSize, threads, [&](const PixelTile& tile) {
-      castTile(block, rays, tile, true, CastOptions{},
+      castTile(block, rays, tile, true, CastOptions{.recordPath = false},
                [&](int x, int y, const OctreeRay&, const CastHit& hit) {
                  frame.depth[std::size_t(y) * camera.width + x] = hit.t;
                });

@@ -44,6 +44,9 @@ struct CastOptions {
   // Iteration cap: a ray that would loop this often is reported as a miss (released code does the same).
   int maxIterations = 4096;
   PacketSimd simd = PacketSimd::Widest;  // castPacket's loop
+  // Record each hit's ancestors (CastHit::pathParent, pathSlot), which attribute look-ups walk; a caller that
+  // reads no attribute (depth alone) saves two stores per PUSH without them.
+  bool recordPath = true;
 };
 
 struct CastHit {
@@ -56,7 +59,7 @@ struct CastHit {
   int iterations = 0;
   bool leaf = false;  // false when stopped by level of detail
   // Descriptor and slot of every ancestor by scale, for attribute inheritance: ancestor at scale s is child
-  // `pathSlot[s]` of `pathParent[s]`. Valid for s in (scale, 22].
+  // `pathSlot[s]` of `pathParent[s]`. Valid for s in (scale, 22] where CastOptions::recordPath.
   const ChildDescriptor* pathParent[kMaxLevels];  // left uninitialized: written by each PUSH
   std::uint8_t pathSlot[kMaxLevels];
 
