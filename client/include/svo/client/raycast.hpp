@@ -139,8 +139,8 @@ class RawAttributePair {
     const AttachmentEntry* sceneEntry;       // the scene root block's: its root value ends a walk up the path
     const AttachmentEntry* entry = nullptr;  // the current parent's block's, and its words
     const std::uint32_t* words = nullptr;
-    BlockView::Attributes own;               // the current parent's lookup entry
-    std::optional<std::uint32_t> inherited;  // the value its children without their own show
+    BlockView::Attributes own{};               // the current parent's lookup entry
+    std::optional<std::uint32_t> inherited{};  // the value its children without their own show
   };
   std::uint32_t value(Attribute& a, const CastHit& hit) {
     if (hit.parent != parent_) select(hit.parent);
