@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <string>
 #include <tuple>
+#include <type_traits>
 #include <utility>
 
 #include <tbb/blocked_range.h>
@@ -71,7 +72,7 @@ struct SlotPlan {
 };
 
 // The units voxel `v` carries from a block, or nullptr.
-const CarriedUnit* carriedUnitOf(const VoxelTree& tree, std::uint32_t v) {
+const CarriedUnit* carriedUnitOf(const TreeAttachments& tree, std::uint32_t v) {
   if (tree.carriedUnitOf.empty() || tree.carriedUnitOf[v] == kNoCarriedUnit) return nullptr;
   return &tree.carriedUnits[tree.carriedUnitOf[v]];
 }
@@ -81,7 +82,7 @@ const CarriedUnit* carriedUnitOf(const VoxelTree& tree, std::uint32_t v) {
 // share units), and the units carried from a block (siblings share one only where they shared it there).
 struct UnitPlacement {
   bool compressed = false;
-  const VoxelTree* tree = nullptr;
+  const TreeAttachments* tree = nullptr;
   int rootHalf = 1;  // slot 1 (after the first page header), or slot 2 for a carried unit's first half
 
   const CarriedUnit* carried(std::uint32_t v) const { return carriedUnitOf(*tree, v); }
@@ -129,7 +130,13 @@ struct Collected {
   Scratch<std::uint32_t> contours, colors, normals;
 };
 
-Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutStats& stats) {
+// Level-order trees keep no first-child index or stub flag per voxel: collect counts the one and takes the
+// other from the tree's ascending stub list, as it visits the voxels in index order.
+template <class Tree>
+constexpr bool kLevelOrder = std::is_same_v<Tree, LevelOrderTree>;
+
+template <class Tree>
+Collected collect(const Tree& tree, const LayoutOptions& options, LayoutStats& stats) {
   const std::size_t n = tree.voxels.size();
   // The compressed layout keeps no values here, but its units need the effective values too.
   const bool raw = options.attributes == AttributeLayout::Raw;
@@ -148,6 +155,8 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   std::uint32_t* const normalOut = out.normals.data();
   std::size_t queued = 1, contourCount = 0, colorCount = 0, normalCount = 0;
   std::uint64_t inheritedColors = 0, inheritedNormals = 0, stubs = 0;
+  std::uint32_t nextChild = 1;  // level order: the first child of the voxel visited next
+  std::size_t nextStub = 0;     // level order: the first stub not yet passed
   // A child's value is written at its cursor, which moves where the child keeps a value of its own (raw
   // layout); `shown` and `shownAt` become the value the child's children inherit and where it is kept.
   const auto keep = [raw](bool own, std::uint32_t value, std::uint32_t& shown, std::uint32_t& shownAt,
@@ -161,7 +170,15 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   queue[0] = {0, tree.voxels[0].color, tree.voxels[0].normal, kAtBlockRoot, kAtBlockRoot};
   for (std::size_t qi = 0; qi < queued; ++qi) {
     const Queued parent = queue[qi];
-    const VoxelRecord& r = tree.voxels[parent.voxel];
+    const auto& r = tree.voxels[parent.voxel];
+    std::uint32_t firstChild;
+    if constexpr (kLevelOrder<Tree>) {
+      firstChild = nextChild;
+      nextChild += std::uint32_t(std::popcount(unsigned(r.childMask)));
+      assert(nextChild <= n);
+    } else {
+      firstChild = r.firstChild;
+    }
     const InheritanceRule::ParentNormal parentNormal =
         normals ? inherits.parentNormal(parent.normal) : InheritanceRule::ParentNormal{};
     const std::size_t contourFirst = contourCount, colorFirst = colorCount, normalFirst = normalCount,
@@ -169,9 +186,9 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
     // Set bits only, and only voxels with children queued. No branch on a child's values: each output is
     // written at its cursor, and the cursor moves where the child has one.
     std::uint32_t contourMask = 0, colorMask = 0, normalMask = 0, leafMask = 0, stubMask = 0;
-    for (std::uint32_t mask = r.childMask, c = r.firstChild; mask; mask &= mask - 1, ++c) {
+    for (std::uint32_t mask = r.childMask, c = firstChild; mask; mask &= mask - 1, ++c) {
       const std::uint32_t bit = mask & (0u - mask);
-      const VoxelRecord& child = tree.voxels[c];
+      const auto& child = tree.voxels[c];
       contourOut[contourCount] = child.contour;
       contourCount += child.hasContour;
       contourMask |= child.hasContour ? bit : 0u;
@@ -183,7 +200,15 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
       if (normals)
         keep(!inherits.normal(child.normal, parentNormal), child.normal, q.normal, q.normalAt, bit, normalOut,
              normalCount, normalMask);
-      const bool hasChildren = child.childMask != 0, stub = !hasChildren && child.stub;
+      bool stub;
+      if constexpr (kLevelOrder<Tree>) {
+        while (nextStub < tree.stubs.size() && tree.stubs[nextStub] < c) ++nextStub;
+        stub = nextStub < tree.stubs.size() && tree.stubs[nextStub] == c;
+      } else {
+        stub = child.stub;
+      }
+      const bool hasChildren = child.childMask != 0;
+      stub &= !hasChildren;
       queued += hasChildren;
       stubMask |= stub ? bit : 0u;  // all-zero stub descriptor and lookup entries (format.hpp)
       leafMask |= !hasChildren && !stub ? bit : 0u;
@@ -192,7 +217,7 @@ Collected collect(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
                             .colorFirst = std::uint32_t(colorFirst),
                             .normalFirst = std::uint32_t(normalFirst),
                             .firstChildEntry = std::uint32_t(firstChildEntry),
-                            .firstChild = r.firstChild,
+                            .firstChild = firstChild,
                             .childMask = r.childMask,
                             .contourMask = std::uint8_t(contourMask),
                             .colorMask = std::uint8_t(colorMask),
@@ -228,22 +253,19 @@ std::uint32_t lookupEntry(std::uint32_t slotCount, std::uint32_t first, std::uin
 // goes, without changing its own outcome, and the caller repeats it until it marks none.
 class SlotPlanner {
  public:
-  SlotPlanner(const VoxelTree& tree, const Collected& collected, std::vector<std::uint8_t>& needsFar,
-              std::uint32_t maxNearPointer, const UnitPlacement& units)
-      : tree_(tree), c_(collected), needsFar_(needsFar), maxNearPointer_(maxNearPointer), units_(units) {}
+  // `plan` has an entry per voxel, zero or as the pass before left it: a pass writes every entry the one
+  // before wrote (the same voxels are placed, and the far ones only grow in number).
+  SlotPlanner(const Collected& collected, std::vector<std::uint8_t>& needsFar, std::uint32_t maxNearPointer,
+              const UnitPlacement& units, SlotPlan& plan)
+      : c_(collected), needsFar_(needsFar), maxNearPointer_(maxNearPointer), units_(units), plan_(plan) {}
 
-  SlotPlan plan() {
-    const std::size_t n = tree_.voxels.size();
-    plan_.slotOf.assign(n, 0);
-    plan_.runOf.assign(n, 0);
-    plan_.farSlotOf.assign(n, 0);
-    plan_.linkOf.assign(units_.compressed ? n : 0, 0);
+  void plan() {
     next_ = units_.compressed && units_.rootHalf == 0 ? 2 : 1;  // slot 0 is the first page header
+    plan_.linkSlots = 0;
     plan_.slotOf[0] = next_++;
     lastUsed_ = next_;
     place(0);
     plan_.slotCount = next_;
-    return std::move(plan_);
   }
   // Voxels this pass found out of reach, now marked far.
   std::uint32_t newlyFar() const { return newlyFar_; }
@@ -334,24 +356,28 @@ class SlotPlanner {
     for (std::uint32_t k = 0; k < entries; ++k) place(e.firstChildEntry + k);
   }
 
-  const VoxelTree& tree_;
   const Collected& c_;
   std::vector<std::uint8_t>& needsFar_;
   const std::uint32_t maxNearPointer_;
   const UnitPlacement units_;
-  SlotPlan plan_;
+  SlotPlan& plan_;
   std::uint32_t next_ = 0, lastUsed_ = 0, newlyFar_ = 0;
 };
 
 // Far pointers: lay out, mark every voxel whose run is out of reach, repeat until nothing changes. The marked
 // set only grows, so this ends; in practice after one or two extra passes.
-SlotPlan planSlots(const VoxelTree& tree, const Collected& collected, const LayoutOptions& options,
+SlotPlan planSlots(std::size_t voxelCount, const Collected& collected, const LayoutOptions& options,
                    const UnitPlacement& units, std::uint64_t& farVoxels) {
-  std::vector<std::uint8_t> needsFar(tree.voxels.size(), 0);
+  std::vector<std::uint8_t> needsFar(voxelCount, 0);
+  SlotPlan plan;
+  plan.slotOf.assign(voxelCount, 0);
+  plan.runOf.assign(voxelCount, 0);
+  plan.farSlotOf.assign(voxelCount, 0);
+  plan.linkOf.assign(units.compressed ? voxelCount : 0, 0);
   farVoxels = 0;
   for (;;) {
-    SlotPlanner planner(tree, collected, needsFar, options.maxNearPointer, units);
-    SlotPlan plan = planner.plan();
+    SlotPlanner planner(collected, needsFar, options.maxNearPointer, units, plan);
+    planner.plan();
     if (planner.newlyFar() == 0) return plan;
     farVoxels += planner.newlyFar();
   }
@@ -373,14 +399,16 @@ struct EncodedUnits {
   std::uint64_t halvesUsed = 0;
 };
 
-// The root's color and normal as the block shows them (VoxelTree::shownRoot).
-std::pair<std::uint32_t, std::uint32_t> shownRoot(const VoxelTree& tree) {
+// The root's color and normal as the block shows them (TreeAttachments::shownRoot).
+template <class Tree>
+std::pair<std::uint32_t, std::uint32_t> shownRoot(const Tree& tree) {
   return tree.shownRoot.value_or(std::pair{tree.voxels[0].color, tree.voxels[0].normal});
 }
 
+template <class Tree>
 class UnitEncoder {
  public:
-  UnitEncoder(const VoxelTree& tree, const SlotPlan& plan, const Collected& c, const LayoutOptions& options)
+  UnitEncoder(const Tree& tree, const SlotPlan& plan, const Collected& c, const LayoutOptions& options)
       : tree_(tree), plan_(plan), c_(c), rule_(tolerant(options)) {
     out_.pairs = (plan.slotCount + 1) / 2;
     owner_.assign(std::size_t(out_.pairs) * 2, kNone);
@@ -452,9 +480,9 @@ class UnitEncoder {
     for (int half = 0; half < 2; ++half) {
       const std::uint32_t q = half == 0 ? a : b;
       if (q == kNone) continue;
-      const VoxelRecord& r = tree_.voxels[c_.queue[q].voxel];
-      std::uint32_t next = c_.entries[q].firstChildEntry;
-      for (std::uint32_t mask = r.childMask, child = r.firstChild; mask; mask &= mask - 1, ++child) {
+      const Entry& e = c_.entries[q];
+      std::uint32_t next = e.firstChildEntry;
+      for (std::uint32_t mask = e.childMask, child = e.firstChild; mask; mask &= mask - 1, ++child) {
         if (tree_.voxels[child].childMask == 0) continue;
         const int slot = half * 8 + std::countr_zero(mask);
         shownColor_[next] =
@@ -479,8 +507,7 @@ class UnitEncoder {
       const Queued& parent = c_.queue[q];
       const Entry& e = c_.entries[q];
       const InheritanceRule::ParentNormal shown = rule_.parentNormal(shownNormal_[q]);
-      const VoxelRecord& r = tree_.voxels[parent.voxel];
-      for (std::uint32_t mask = r.childMask, child = r.firstChild; mask; mask &= mask - 1, ++child) {
+      for (std::uint32_t mask = e.childMask, child = e.firstChild; mask; mask &= mask - 1, ++child) {
         const int childSlot = std::countr_zero(mask), slot = half * 8 + childSlot;
         usedSlots |= std::uint16_t(1u << slot);
         colors[slot] = (e.colorMask >> childSlot & 1u) ? tree_.voxels[child].color : parent.color;
@@ -499,7 +526,7 @@ class UnitEncoder {
     }
   }
 
-  const VoxelTree& tree_;
+  const Tree& tree_;
   const SlotPlan& plan_;
   const Collected& c_;
   const InheritanceRule rule_;
@@ -516,7 +543,7 @@ struct Sections {
   std::uint32_t attachmentCount = 0;
 };
 
-Sections sections(const VoxelTree& tree, const LayoutOptions& options, std::uint32_t slotCount,
+Sections sections(const TreeAttachments& tree, const LayoutOptions& options, std::uint32_t slotCount,
                   const Collected& c, const EncodedUnits& units) {
   Sections s;
   const bool compressed = options.attributes == AttributeLayout::Compressed;
@@ -563,10 +590,9 @@ void writeUnits(const EncodedUnits& encoded, const std::vector<Unit>& units, std
   }
 }
 
-}  // namespace
-
-Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutStats* statsOut,
-                  std::vector<std::uint32_t>* descriptorSlot) {
+template <class Tree>
+Block layOutTree(const Tree& tree, const LayoutOptions& options, LayoutStats* statsOut,
+                 std::vector<std::uint32_t>* descriptorSlot) {
   if (tree.voxels.empty() || tree.voxels[0].childMask == 0)
     throw std::invalid_argument("layoutBlock: the tree has no voxels below the root");
   // A run of 8 descriptors followed by up to 8 far slots must stay in reach of its own descriptors.
@@ -587,9 +613,10 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   LayoutStats stats;
   const Collected c = collect(tree, options, stats);
   std::uint64_t farVoxels = 0;
-  SlotPlan plan = planSlots(tree, c, options, units, farVoxels);
+  SlotPlan plan = planSlots(n, c, options, units, farVoxels);
   const std::uint32_t slotCount = plan.slotCount;
-  const EncodedUnits encoded = compressed ? UnitEncoder(tree, plan, c, options).encode() : EncodedUnits{};
+  const EncodedUnits encoded =
+      compressed ? UnitEncoder<Tree>(tree, plan, c, options).encode() : EncodedUnits{};
   const Sections s = sections(tree, options, slotCount, c, encoded);
 
   AlignedBytes bytes(s.end);
@@ -697,6 +724,22 @@ Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutSta
   if (statsOut) *statsOut = stats;
   if (descriptorSlot) *descriptorSlot = std::move(plan.slotOf);
   return Block(std::move(bytes));
+}
+
+}  // namespace
+
+Block layoutBlock(const VoxelTree& tree, const LayoutOptions& options, LayoutStats* stats,
+                  std::vector<std::uint32_t>* descriptorSlot) {
+  return layOutTree(tree, options, stats, descriptorSlot);
+}
+
+Block layoutBlock(const LevelOrderTree& tree, const LayoutOptions& options, LayoutStats* stats,
+                  std::vector<std::uint32_t>* descriptorSlot) {
+  for (std::size_t k = 0; k < tree.stubs.size(); ++k)
+    if (tree.stubs[k] >= tree.voxels.size() || tree.voxels[tree.stubs[k]].childMask != 0 ||
+        (k > 0 && tree.stubs[k] <= tree.stubs[k - 1]))
+      throw std::invalid_argument("layoutBlock: stubs must be ascending voxels without children");
+  return layOutTree(tree, options, stats, descriptorSlot);
 }
 
 }  // namespace svo

@@ -142,6 +142,16 @@ void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const s
   }
 }
 
+void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
+                 LevelOrderTree& tree, std::size_t parentsBegin, std::size_t parentsEnd) {
+  // decodeSlice appends no more than the directory's count: with room for it, the parents stay where they
+  // are.
+  tree.reserveMore(index.slices().at(slice).voxelCount);
+  assert(parentsBegin <= parentsEnd && parentsEnd <= tree.voxels.size());
+  const std::span<SliceVoxel> parents(tree.voxels.data() + parentsBegin, parentsEnd - parentsBegin);
+  decodeSlice(index, slice, raw, parents, tree.voxels);
+}
+
 StoreReader::StoreReader(const std::filesystem::path& path)
     : StoreReader(std::make_shared<const LocalFileSource>(path)) {}
 

@@ -98,41 +98,61 @@ class ChildValues {
   std::optional<BlockView::UnitHalf> colorUnit_, normalUnit_;
 };
 
+// The calling worker's voxel array, kept from one load to the next (RegionVoxels::tree): its pages stay
+// mapped, where a fresh array of a few MiB is mapped and zeroed a page at a time as it is written.
+std::vector<SliceVoxel>& workerVoxels() {
+  thread_local std::vector<SliceVoxel> voxels;
+  return voxels;
+}
+
+// The region's voxel array with room for `expected` voxels: the worker's, emptied.
+RegionVoxels regionVoxels(std::size_t expected) {
+  RegionVoxels out;
+  out.tree.voxels = std::move(workerVoxels());
+  out.tree.voxels.clear();
+  out.tree.voxels.reserve(expected);
+  return out;
+}
+
 // The subtree below `start` as far as the blocks hold it, level by level in Morton order, through the
 // start's children in slots [firstSlot, lastSlot] only (a run's region; its siblings may be linked to other
 // blocks). `descriptor` is the start voxel's (nullptr when it has no children here). Stubs read as voxels
 // without children. In the compressed layout each descriptor's units are carried to the new block as they
-// are: the values read back from them are lossy.
-VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& start, ReadBack& readBack,
-                        std::uint8_t firstSlot = 0, std::uint8_t lastSlot = 7) {
-  VoxelLevels levels{{start}};
+// are: the values read back from them are lossy. `expected`: the voxels the array is to hold in the end (the
+// levels read, then the slices decoded onto them), so that it moves as seldom as possible.
+RegionVoxels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& start, ReadBack& readBack,
+                         std::size_t expected, std::uint8_t firstSlot = 0, std::uint8_t lastSlot = 7) {
+  RegionVoxels out = regionVoxels(expected);
+  std::vector<SliceVoxel>& voxels = out.tree.voxels;
+  voxels.push_back(start);
+  out.endLevel();
   std::vector<const ChildDescriptor*> descriptors{descriptor};
   while (true) {
-    std::vector<SliceVoxel>& level = levels.back();
-    // The next level's size, so that it is written once rather than copied as it grows.
+    const std::size_t levels = out.levels(), begin = out.levelStart[levels - 1], end = voxels.size();
+    // The next level's size: room for it behind this level, which its voxels are read from as it is written.
     std::size_t children = 0;
     for (const ChildDescriptor* d : descriptors)
       if (d && !d->isStub()) children += std::size_t(std::popcount(unsigned(d->validMask())));
-    std::vector<SliceVoxel> next;
+    out.tree.reserveMore(children);
     std::vector<const ChildDescriptor*> nextDescriptors;
-    next.reserve(children), nextDescriptors.reserve(children);
-    if (readBack.carried) readBack.carried->unitOf.emplace_back(level.size(), kNoCarriedUnit);
-    const bool frontier = readBack.startLevel + int(levels.size()) == readBack.frontierLevel;
-    for (std::size_t i = 0; i < level.size(); ++i) {
-      const ChildDescriptor* d = descriptors[i];
+    nextDescriptors.reserve(children);
+    if (readBack.carried) readBack.carried->unitOf.emplace_back(end - begin, kNoCarriedUnit);
+    const bool frontier = readBack.startLevel + int(levels) == readBack.frontierLevel;
+    for (std::size_t i = begin; i < end; ++i) {
+      const ChildDescriptor* d = descriptors[i - begin];
       if (!d || d->isStub()) continue;
-      SliceVoxel& parent = level[i];
+      SliceVoxel& parent = voxels[i];
       std::uint8_t mask = d->validMask();
-      if (levels.size() == 1)
+      if (levels == 1)
         for (int slot = 0; slot < 8; ++slot)
           if (slot < firstSlot || slot > lastSlot) mask &= std::uint8_t(~(1u << slot));
       parent.childMask = mask;
-      if (readBack.carried) readBack.carried->carry(d, levels.size() - 1, i);
+      if (readBack.carried) readBack.carried->carry(d, levels - 1, i - begin);
       const ChildValues values(d, readBack, frontier);
       for (int slot = 0; slot < 8; ++slot) {
         if (!(mask >> slot & 1u)) continue;
         // Written in place: a voxel assembled aside and pushed back stalls on store forwarding.
-        SliceVoxel& c = next.emplace_back();
+        SliceVoxel& c = voxels.emplace_back();
         c.coord = childCoord(parent.coord, slot);
         const std::optional<std::uint32_t> contour = BlockView::contour(d, slot);
         c.hasContour = contour.has_value(), c.contour = contour.value_or(0);
@@ -140,8 +160,8 @@ VoxelLevels readSubtree(const ChildDescriptor* descriptor, const SliceVoxel& sta
         nextDescriptors.push_back((d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr);
       }
     }
-    if (next.empty()) return levels;
-    levels.push_back(std::move(next));
+    if (voxels.size() == end) return out;
+    out.endLevel();
     descriptors = std::move(nextDescriptors);
   }
 }
@@ -184,9 +204,10 @@ void CarriedLevels::carry(const ChildDescriptor* d, std::size_t level, std::size
   units.push_back(unit);
 }
 
-void RegionLoader::keepForDeepening(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
-                                    const std::vector<std::size_t>& levelStart, std::uint32_t residentAfter,
-                                    VoxelTree& tree, BuiltBlock& out) const {
+void RegionLoader::keepForDeepening(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried,
+                                    std::uint32_t residentAfter, BuiltBlock& out) const {
+  LevelOrderTree& tree = voxels.tree;
+  const std::vector<std::size_t>& levelStart = voxels.levelStart;
   tree.carriedUnits = std::move(carried.units);
   tree.shownRoot = carried.shownRoot;
   tree.carriedUnitOf.assign(tree.voxels.size(), kNoCarriedUnit);
@@ -196,7 +217,7 @@ void RegionLoader::keepForDeepening(const Region& region, const VoxelLevels& lev
   // The deepest level's exact values, while a slice of this region or of a child region may be decoded on
   // them; a region at the store's last level keeps none.
   if (residentAfter == region.slices.size() && region.children.empty()) return;
-  const std::vector<SliceVoxel>& deepest = levels.back();
+  const std::span<const SliceVoxel> deepest = voxels.level(voxels.levels() - 1);
   const StoreHeader& header = index_.header();
   for (const SliceVoxel& v : deepest) {
     if (header.hasColors) tree.exactColors.push_back(v.color);
@@ -204,7 +225,7 @@ void RegionLoader::keepForDeepening(const Region& region, const VoxelLevels& lev
   }
   if (residentAfter != region.slices.size()) return;
   // Where each child region's voxels begin among them: its first sub-cube's corner, in Morton order.
-  const int deepestLevel = region.cubeLevel + int(levels.size()) - 1;
+  const int deepestLevel = region.cubeLevel + int(voxels.levels()) - 1;
   for (const std::uint32_t child : region.children) {
     const Region& c = regions_[child];
     const auto [coords, level] = entryVoxels(c.cubeLevel, c.cubeCoord, c.firstSlot, c.lastSlot);
@@ -255,17 +276,28 @@ ReadBack RegionLoader::readBack(const Region& region, int startLevel, std::uint3
   return r;
 }
 
-VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& carried) const {
+std::size_t RegionLoader::voxelsExpected(const Region& region, std::uint32_t decoded) const {
+  std::size_t voxels = 1;  // the cube's voxel
+  for (std::uint32_t k = 0; k < region.resident + decoded; ++k)
+    voxels += index_.slices()[region.slices[k]].voxelCount;
+  return voxels;
+}
+
+RegionVoxels RegionLoader::residentLevels(const Region& region, std::size_t expected,
+                                          CarriedLevels& carried) const {
   if (region.resident > 0) {
     // Deepen: the region's own block, more levels.
     const auto [color, normal] = rootValues(regions_.view(region));
     ReadBack back = readBack(region, region.cubeLevel, 0, &carried);
     return readSubtree(regions_.descriptorAt(region, region.rootSlot),
-                       {.coord = region.cubeCoord, .color = color, .normal = normal}, back);
+                       {.coord = region.cubeCoord, .color = color, .normal = normal}, back, expected);
   }
   if (region.parent < 0) {
     const StoreHeader& header = index_.header();
-    return {{{.color = header.rootColor, .normal = header.rootNormal}}};
+    RegionVoxels root = regionVoxels(expected);
+    root.tree.voxels.push_back({.color = header.rootColor, .normal = header.rootNormal});
+    root.endLevel();
+    return root;
   }
   // A new region: its cube's voxel and subtree from the parent region's block.
   const Region& parent = regions_[std::uint32_t(region.parent)];
@@ -274,7 +306,7 @@ VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& ca
       readBack(parent, region.cubeLevel, first == parent.childFrontier.end() ? 0 : first->second, &carried);
   const auto [color, normal] = rootValues(regions_.view(parent));
   SliceVoxel voxel{.coord = parent.cubeCoord, .color = color, .normal = normal};
-  SliceVoxel shown = voxel;  // compressed: its values as the parent's block shows them (VoxelTree::shownRoot)
+  SliceVoxel shown = voxel;  // compressed: its values as the parent's block shows them (shownRoot)
   const ChildDescriptor* d = regions_.descriptorAt(parent, parent.rootSlot);
   for (int level = parent.cubeLevel + 1; level <= region.cubeLevel; ++level) {
     const int slot = slotToward(region.cubeCoord, region.cubeLevel - level);
@@ -293,25 +325,24 @@ VoxelLevels RegionLoader::residentLevels(const Region& region, CarriedLevels& ca
     d = (d->nonLeafMask() >> slot & 1u) ? BlockView::child(d, slot) : nullptr;
   }
   if (back.compressed) carried.shownRoot = {shown.color, shown.normal};
-  return readSubtree(d, voxel, back, region.firstSlot, region.lastSlot);
+  return readSubtree(d, voxel, back, expected, region.firstSlot, region.lastSlot);
 }
 
-void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
+void RegionLoader::layOut(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried,
                           std::uint32_t resident, BuiltBlock& out) {
   const StoreHeader& header = index_.header();
-  VoxelTree tree = treeOfLevels(levels, header.hasColors, header.hasNormals);
+  LevelOrderTree& tree = voxels.tree;
+  tree.hasColors = header.hasColors, tree.hasNormals = header.hasNormals;
   cpu_.voxelsLaidOut.fetch_add(tree.voxels.size(), std::memory_order_relaxed);
-  std::vector<std::size_t> levelStart{0};
-  for (const auto& l : levels) levelStart.push_back(levelStart.back() + l.size());
   // The record of voxel `coord` at `depth` below the cube, or nullopt.
   const auto recordAt = [&](std::size_t depth, const glm::ivec3& coord) -> std::optional<std::size_t> {
-    if (depth >= levels.size()) return std::nullopt;
-    const auto& level = levels[depth];
+    if (depth >= voxels.levels()) return std::nullopt;
+    const std::span<const SliceVoxel> level = voxels.level(depth);
     const auto it =
         std::lower_bound(level.begin(), level.end(), coord,
                          [](const SliceVoxel& v, const glm::ivec3& k) { return mortonLess(v.coord, k); });
     if (it == level.end() || it->coord != coord) return std::nullopt;
-    return levelStart[depth] + std::size_t(it - level.begin());
+    return voxels.levelStart[depth] + std::size_t(it - level.begin());
   };
   // Completing the region: its child regions' entry voxels get descriptors to link them by (stubs where
   // the voxel has no children here).
@@ -324,12 +355,13 @@ void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, Carri
       for (const glm::ivec3& coord : coords) {
         const auto record = recordAt(std::size_t(level - region.cubeLevel), coord);
         if (!record) continue;  // a sub-cube of the run without voxels
-        if (tree.voxels[*record].childMask == 0) tree.voxels[*record].stub = true;
+        if (tree.voxels[*record].childMask == 0) tree.stubs.push_back(std::uint32_t(*record));
         records.push_back({coord, *record});
       }
       if (records.empty()) throw std::runtime_error("a child region's voxels are missing");
     }
   }
+  std::sort(tree.stubs.begin(), tree.stubs.end());
   // Its own entry voxels that have children, which the parent's links lead to.
   std::vector<std::pair<glm::ivec3, std::size_t>> entryRecords;
   const auto [coords, level] =
@@ -339,7 +371,7 @@ void RegionLoader::layOut(const Region& region, const VoxelLevels& levels, Carri
         record && tree.voxels[*record].childMask != 0)
       entryRecords.push_back({coord, *record});
   if (attributes_ == AttributeLayout::Compressed)
-    keepForDeepening(region, levels, std::move(carried), levelStart, resident + out.added, tree, out);
+    keepForDeepening(region, voxels, std::move(carried), resident + out.added, out);
   std::vector<std::uint32_t> slotOf;
   LayoutOptions layout;
   layout.inheritEqualOnly = true;  // decoded slices: the store already decided what inherits
@@ -395,10 +427,10 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   if (resident != first) return out;  // stale: the commit drops it
   if (region.resident == 0 && region.parent >= 0 && !regions_[std::uint32_t(region.parent)].complete())
     return out;  // stale
-  VoxelLevels levels;
+  RegionVoxels voxels;
   CarriedLevels carried;
   try {
-    levels = residentLevels(region, carried);
+    voxels = residentLevels(region, voxelsExpected(region, std::uint32_t(raw.size())), carried);
   } catch (const std::exception& e) {
     fail(request.slice, e.what());
     return out;
@@ -406,16 +438,24 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   // The pool is read; decoding and layout need only this copy, so commits need not wait for them.
   lock.unlock();
   clock.enter(cpu_.decode);
+  // Room for every slice's voxels behind the levels read, exactly: the array moves once at most (where a new
+  // region read more levels from its parent's block than voxelsExpected counts), not once per slice.
+  std::size_t decodedAtMost = 0;
+  for (std::uint32_t k = 0; k < raw.size(); ++k)
+    decodedAtMost += index_.slices()[region.slices[first + k]].voxelCount;
+  voxels.tree.voxels.reserve(voxels.tree.voxels.size() + decodedAtMost);
   for (std::uint32_t k = 0; k < raw.size(); ++k) {
     const std::uint32_t slice = region.slices[first + k];
     pause();
     try {
-      if (region.cubeLevel + int(levels.size()) != index_.slices()[slice].voxelLevel)
+      const std::size_t levels = voxels.levels();
+      if (region.cubeLevel + int(levels) != index_.slices()[slice].voxelLevel)
         throw std::runtime_error("the resident levels do not end above it");
-      std::vector<SliceVoxel> added;
-      decodeSlice(index_, slice, raw[k], levels.back(), added);
-      cpu_.voxelsDecoded.fetch_add(added.size(), std::memory_order_relaxed);
-      levels.push_back(std::move(added));
+      decodeSlice(index_, slice, raw[k], voxels.tree, voxels.levelStart[levels - 1],
+                  voxels.levelStart[levels]);
+      cpu_.voxelsDecoded.fetch_add(voxels.tree.voxels.size() - voxels.levelStart[levels],
+                                   std::memory_order_relaxed);
+      voxels.endLevel();
       ++out.added;
     } catch (const std::exception& e) {
       fail(slice, e.what());
@@ -427,7 +467,8 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   pause();
   clock.enter(cpu_.layout);
   try {
-    layOut(region, levels, std::move(carried), resident, out);
+    layOut(region, voxels, std::move(carried), resident, out);
+    workerVoxels() = std::move(voxels.tree.voxels);
   } catch (const std::exception& e) {
     fail(region.slices[first + out.added - 1], e.what());
     out.added = 0;

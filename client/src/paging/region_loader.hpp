@@ -9,6 +9,7 @@
 #include <mutex>
 #include <optional>
 #include <shared_mutex>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -39,8 +40,22 @@ struct StageCounters {
 struct CarriedLevels {
   std::vector<CarriedUnit> units;
   std::vector<std::vector<std::uint32_t>> unitOf;  // per level read, per voxel: into units, or kNoCarriedUnit
-  std::optional<std::pair<std::uint32_t, std::uint32_t>> shownRoot;  // VoxelTree::shownRoot
+  std::optional<std::pair<std::uint32_t, std::uint32_t>> shownRoot;  // TreeAttachments::shownRoot
   void carry(const ChildDescriptor* d, std::size_t level, std::size_t index);
+};
+
+// A region's voxels level by level in one array (the tree its block is laid out from), and where each level
+// begins: level k below the region's cube is voxels [levelStart[k], levelStart[k + 1]).
+struct RegionVoxels {
+  LevelOrderTree tree;
+  std::vector<std::size_t> levelStart{0};
+
+  std::size_t levels() const { return levelStart.size() - 1; }
+  std::span<SliceVoxel> level(std::size_t k) {
+    return std::span(tree.voxels).subspan(levelStart[k], levelStart[k + 1] - levelStart[k]);
+  }
+  // The voxels appended since the last level ended become a level.
+  void endLevel() { levelStart.push_back(tree.voxels.size()); }
 };
 
 // How to read a block back beyond its descriptors. In the compressed layout the units are lossy, so the
@@ -73,18 +88,21 @@ class RegionLoader {
 
  private:
   // The region's voxels as far as the pool holds them, level by level: the levels to deepen.
-  VoxelLevels residentLevels(const Region& region, CarriedLevels& carried) const;
+  // `expected`: the voxels the region's array is to hold when the request's slices are decoded onto them.
+  RegionVoxels residentLevels(const Region& region, std::size_t expected, CarriedLevels& carried) const;
+  // The voxels of the region's block with `decoded` more slices: exact for a region's own levels; a new
+  // region reads a few levels more from its parent's block, which its cube's voxel starts.
+  std::size_t voxelsExpected(const Region& region, std::uint32_t decoded) const;
   ReadBack readBack(const Region& region, int startLevel, std::uint32_t exactFirst,
                     CarriedLevels* carried) const;
   // Lays the decoded levels out as the region's block, with the slots of its entry voxels and, when the
   // region is complete, of its child regions' entry voxels.
-  void layOut(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
-              std::uint32_t resident, BuiltBlock& out);
+  void layOut(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried, std::uint32_t resident,
+              BuiltBlock& out);
   // The compressed layout: the units carried from the pool, and the exact values of the deepest level (and
   // where each child region's begin) while another slice may be decoded on them.
-  void keepForDeepening(const Region& region, const VoxelLevels& levels, CarriedLevels&& carried,
-                        const std::vector<std::size_t>& levelStart, std::uint32_t residentAfter,
-                        VoxelTree& tree, BuiltBlock& out) const;
+  void keepForDeepening(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried,
+                        std::uint32_t residentAfter, BuiltBlock& out) const;
 
   const SliceSource& source_;
   const StoreIndex& index_;

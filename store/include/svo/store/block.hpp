@@ -186,8 +186,9 @@ struct CarriedUnit {
 };
 inline constexpr std::uint32_t kNoCarriedUnit = 0xFFFFFFFFu;
 
-struct VoxelTree {
-  std::vector<VoxelRecord> voxels;
+// What a layout needs of a voxel tree besides its voxels: which attributes it has and, for the compressed
+// layout, what a pool block carries over.
+struct TreeAttachments {
   bool hasColors = false;
   bool hasNormals = false;
 
@@ -208,6 +209,10 @@ struct VoxelTree {
   // parent region's deepest level. A pair of slots goes without a unit only where each child is within the
   // inheritance tolerance of the value its parent shows. Unset: the root's own values.
   std::optional<std::pair<std::uint32_t, std::uint32_t>> shownRoot;
+};
+
+struct VoxelTree : TreeAttachments {
+  std::vector<VoxelRecord> voxels;
 };
 
 struct LayoutOptions {

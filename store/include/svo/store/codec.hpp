@@ -144,6 +144,8 @@ struct SliceDecodeError : std::runtime_error {
 // predict their children's): sets their child masks and appends the new voxels to `children` in Morton
 // order. `slice` is its directory entry, whose counts the head must repeat; `header` gives the store's
 // attachment types. Throws SliceDecodeError when the bytes disagree with either or with the parents.
+// `children` grows only where its capacity is short of the directory's voxel count, so it may hold the
+// parents when it has room for that many more.
 void decodeSlice(std::span<const std::byte> raw, const SliceInfo& slice, const StoreHeader& header,
                  std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children);
 

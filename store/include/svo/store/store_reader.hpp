@@ -41,6 +41,10 @@ SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<c
 // cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
 void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
                  std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children);
+// decodeSlice onto voxels [parentsBegin, parentsEnd) of `tree`, its new voxels appended to the same array: a
+// level-order tree grown a slice at a time.
+void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
+                 LevelOrderTree& tree, std::size_t parentsBegin, std::size_t parentsEnd);
 
 // A store read from one source: the header and directory on open (checked), slices on demand. Throws
 // std::runtime_error naming the store and what is wrong; slice problems throw SliceError. Copies share the

@@ -15,6 +15,7 @@
 // voxels slices decode to, the header's contents and the slice error.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -128,6 +129,26 @@ struct SliceVoxel {
 using VoxelLevels = std::vector<std::vector<SliceVoxel>>;
 // The voxel tree of `levels` (levels[0] holds the root alone); record indices run level by level.
 VoxelTree treeOfLevels(const VoxelLevels& levels, bool hasColors, bool hasNormals);
+
+// A voxel tree as decoded slices give it, laid out without copying it into records: its voxels level by
+// level in one array from the root (alone on its level) down, each level in Morton order, so that every
+// voxel's children are contiguous and follow their parents' order, and a voxel's first child is found by
+// counting the children of the voxels before it.
+struct LevelOrderTree : TreeAttachments {
+  std::vector<SliceVoxel> voxels;  // their child masks count them: one voxel more than children
+  // The voxels laid out as stub descriptors (VoxelRecord::stub), ascending; each without children.
+  std::vector<std::uint32_t> stubs;
+
+  // Room for `count` more voxels, so that appending them moves none of those there (a level is appended
+  // while the one above it is read). Geometric: a tree grown a level at a time is copied a few times at most.
+  void reserveMore(std::size_t count) {
+    if (voxels.size() + count > voxels.capacity())
+      voxels.reserve(std::max(voxels.size() + count, 2 * voxels.capacity()));
+  }
+};
+// layoutBlock of the tree that treeOfLevels would give, with the same block and descriptor slots.
+Block layoutBlock(const LevelOrderTree& tree, const LayoutOptions& options = {}, LayoutStats* stats = nullptr,
+                  std::vector<std::uint32_t>* descriptorSlot = nullptr);
 
 // A vector whose growth leaves its elements default-initialized (bytes: uninitialized) rather than zeroed.
 template <class T>
