@@ -458,6 +458,10 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
       voxels.endLevel();
       ++out.added;
     } catch (const std::exception& e) {
+      // The block ends at the level above: the slice's partial level goes, and the voxels it split (leaves
+      // until then) are leaves again, so that the array is a whole tree.
+      voxels.tree.voxels.resize(voxels.levelStart.back());
+      for (SliceVoxel& v : voxels.level(voxels.levels() - 1)) v.childMask = 0;
       fail(slice, e.what());
       break;
     }
