@@ -276,10 +276,9 @@ ReadBack RegionLoader::readBack(const Region& region, int startLevel, std::uint3
   return r;
 }
 
-std::size_t RegionLoader::voxelsExpected(const Region& region, std::uint32_t decoded) const {
-  std::size_t voxels = 1;  // the cube's voxel
-  for (std::uint32_t k = 0; k < region.resident + decoded; ++k)
-    voxels += index_.slices()[region.slices[k]].voxelCount;
+std::size_t RegionLoader::voxelsOfSlices(const Region& region, std::uint32_t begin, std::uint32_t end) const {
+  std::size_t voxels = 0;
+  for (std::uint32_t k = begin; k < end; ++k) voxels += index_.slices()[region.slices[k]].voxelCount;
   return voxels;
 }
 
@@ -427,10 +426,13 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   if (resident != first) return out;  // stale: the commit drops it
   if (region.resident == 0 && region.parent >= 0 && !regions_[std::uint32_t(region.parent)].complete())
     return out;  // stale
+  // The voxels the request's slices add (fewer where one fails), and with the resident ones and the cube's
+  // voxel (in no slice), what the region's array is to hold.
+  const std::size_t decodedAtMost = voxelsOfSlices(region, first, first + std::uint32_t(raw.size()));
   RegionVoxels voxels;
   CarriedLevels carried;
   try {
-    voxels = residentLevels(region, voxelsExpected(region, std::uint32_t(raw.size())), carried);
+    voxels = residentLevels(region, 1 + voxelsOfSlices(region, 0, first) + decodedAtMost, carried);
   } catch (const std::exception& e) {
     fail(request.slice, e.what());
     return out;
@@ -439,10 +441,7 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   lock.unlock();
   clock.enter(cpu_.decode);
   // Room for every slice's voxels behind the levels read, exactly: the array moves once at most (where a new
-  // region read more levels from its parent's block than voxelsExpected counts), not once per slice.
-  std::size_t decodedAtMost = 0;
-  for (std::uint32_t k = 0; k < raw.size(); ++k)
-    decodedAtMost += index_.slices()[region.slices[first + k]].voxelCount;
+  // region read more levels from its parent's block than its own slices count), not once per slice.
   voxels.tree.voxels.reserve(voxels.tree.voxels.size() + decodedAtMost);
   for (std::uint32_t k = 0; k < raw.size(); ++k) {
     const std::uint32_t slice = region.slices[first + k];

@@ -90,9 +90,9 @@ class RegionLoader {
   // The region's voxels as far as the pool holds them, level by level: the levels to deepen.
   // `expected`: the voxels the region's array is to hold when the request's slices are decoded onto them.
   RegionVoxels residentLevels(const Region& region, std::size_t expected, CarriedLevels& carried) const;
-  // The voxels of the region's block with `decoded` more slices: exact for a region's own levels; a new
-  // region reads a few levels more from its parent's block, which its cube's voxel starts.
-  std::size_t voxelsExpected(const Region& region, std::uint32_t decoded) const;
+  // The voxels the region's slices [begin, end) add: with the cube's voxel, exactly a region's own levels (a
+  // new region reads a few levels more from its parent's block).
+  std::size_t voxelsOfSlices(const Region& region, std::uint32_t begin, std::uint32_t end) const;
   ReadBack readBack(const Region& region, int startLevel, std::uint32_t exactFirst,
                     CarriedLevels* carried) const;
   // Lays the decoded levels out as the region's block, with the slots of its entry voxels and, when the
