@@ -457,6 +457,25 @@ TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
   if (std::abs(ratio - 1.5) > 0.01)
     EXPECT_EQ(r.out.find("the disk outruns zstd alone") != std::string::npos, ratio > 1.5) << r.out;
   EXPECT_LE(cores - 0.05, (cpu + kHalfStep) / (1.5 * std::max(1e-3, seq - kHalfStep)));
+  // The workers' CPU row: the stages (read + zstd, assemble, decode, layout, pool pages) add up to the total.
+  const std::size_t cpuTitle = r.out.find("pager workers' CPU");
+  ASSERT_NE(cpuTitle, std::string::npos) << r.out;
+  const std::size_t cpuRow = r.out.find("4.0 MiB", cpuTitle);
+  ASSERT_NE(cpuRow, std::string::npos) << r.out;
+  std::istringstream cpuFields(r.out.substr(cpuRow, r.out.find('\n', cpuRow) - cpuRow));
+  double stages[5], total;
+  std::string units;
+  cpuFields >> budget >> mib;
+  for (double& stage : stages) {
+    cpuFields >> stage >> units;
+    EXPECT_EQ(units, "ms");
+  }
+  cpuFields >> total >> units;
+  ASSERT_FALSE(cpuFields.fail()) << r.out.substr(cpuRow);
+  EXPECT_EQ(units, "ms");
+  EXPECT_GT(stages[2], 0.0) << "decode";
+  EXPECT_GT(stages[3], 0.0) << "layout";
+  EXPECT_NEAR(stages[0] + stages[1] + stages[2] + stages[3] + stages[4], total, 6 * kHalfStep);
   expectCleanFailure(svo("bench stream " + (dir_ / "none.svo").string() + " -o " + out.string()), "none.svo",
                      dir_ / "none.svo");
 }

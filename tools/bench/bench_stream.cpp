@@ -279,6 +279,7 @@ void addCpuRow(Table& table, std::size_t budget, const CloseUp& closeUp) {
                 formatSeconds(median([](const WorkerCpu& c) { return c.assembleSeconds; })),
                 formatSeconds(median([](const WorkerCpu& c) { return c.decodeSeconds; })),
                 formatSeconds(median([](const WorkerCpu& c) { return c.layoutSeconds; })),
+                formatSeconds(median([](const WorkerCpu& c) { return c.poolPagesSeconds; })),
                 formatSeconds(cpuSeconds), busy, formatCount(std::uint64_t(decoded)),
                 formatCount(std::uint64_t(median([](const WorkerCpu& c) { return c.voxelsLaidOut; }))),
                 nanosPerVoxel, perCore, bytesPerCpu});
@@ -296,7 +297,7 @@ void runStreamBench(StreamArgs args) {
   Table table({"budget", "first image", "view converged", "image final", "bytes read", "sequential read",
                "view / seq", "all converged", "all read", "stream p99", "resident p99", "p99 ratio",
                "max resident"});
-  Table cpuTable({"budget", "read + zstd", "assemble", "decode", "layout", "worker CPU", "CPU / wall",
+  Table cpuTable({"budget", "read + zstd", "assemble", "decode", "layout", "pool pages", "worker CPU", "CPU / wall",
                   "voxels decoded", "voxels laid out", "CPU per voxel", "voxels per core s",
                   "bytes per CPU s"});
   const std::string goal = fmt::format("{:g}x", kViewOverSequentialGoal);
@@ -387,7 +388,8 @@ void runStreamBench(StreamArgs args) {
   cpuTable.print();
   std::printf(
       "assemble: the levels a load builds on, read back from the pool (a region's own, or its parent "
-      "region's below its cube); layout: voxel tree, block layout, pool pages\n"
+      "region's below its cube); layout: voxel tree and block layout; pool pages: the pool's pages mapped on "
+      "first use (the first fill only)\n"
       "CPU / wall: cores busy on average; voxels per core s: voxels decoded per worker CPU second (goal: "
       "%.0f M); bytes per CPU s: compressed bytes read per worker CPU second (view / seq <= %s needs the "
       "workers to keep up with the disk: about its sequential rate per busy core)\n",

@@ -176,6 +176,7 @@ WorkerCpu StageCounters::seconds() const {
           seconds(assemble),
           seconds(decode),
           seconds(layout),
+          seconds(poolPages),
           voxelsDecoded.load(std::memory_order_relaxed),
           voxelsLaidOut.load(std::memory_order_relaxed)};
 }
@@ -479,6 +480,7 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
     return out;
   }
   // The pages the commit will most likely copy the block into, mapped here rather than on the render thread.
+  clock.enter(cpu_.poolPages);
   std::shared_lock poolShared(poolMutex_);  // no commit beside it
   std::lock_guard prefaulting(prefaultMutex_);
   regions_.pool().prefault(out.block.bytes().size());

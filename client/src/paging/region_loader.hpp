@@ -30,7 +30,7 @@ struct FetchedChain {
 
 // Worker CPU time per stage in nanoseconds (thread CPU time), and the voxels decoded and laid out.
 struct StageCounters {
-  std::atomic<std::uint64_t> read{0}, assemble{0}, decode{0}, layout{0};
+  std::atomic<std::uint64_t> read{0}, assemble{0}, decode{0}, layout{0}, poolPages{0};
   std::atomic<std::uint64_t> voxelsDecoded{0}, voxelsLaidOut{0};
   WorkerCpu seconds() const;
 };

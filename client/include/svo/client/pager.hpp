@@ -85,9 +85,14 @@ struct WorkerCpu {
   double readSeconds = 0.0;      // pread, checksum, zstd
   double assembleSeconds = 0.0;  // the region's resident levels read back from its block
   double decodeSeconds = 0.0;    // slices decoded against their parent voxels
-  double layoutSeconds = 0.0;    // voxel tree, block layout, pool pages prefaulted
+  double layoutSeconds = 0.0;    // voxel tree, block layout
+  // The pool's pages the block will be copied into, mapped on their first use: a cost of the pool's first
+  // fill, bounded by the budget, which a pager that has run a while no longer pays.
+  double poolPagesSeconds = 0.0;
   std::uint64_t voxelsDecoded = 0, voxelsLaidOut = 0;
-  double seconds() const { return readSeconds + assembleSeconds + decodeSeconds + layoutSeconds; }
+  double seconds() const {
+    return readSeconds + assembleSeconds + decodeSeconds + layoutSeconds + poolPagesSeconds;
+  }
 };
 
 // What a pixel shows against what the store holds, for the viewer's false colors.
