@@ -297,8 +297,8 @@ void runStreamBench(StreamArgs args) {
   Table table({"budget", "first image", "view converged", "image final", "bytes read", "sequential read",
                "view / seq", "all converged", "all read", "stream p99", "resident p99", "p99 ratio",
                "max resident"});
-  Table cpuTable({"budget", "read + zstd", "assemble", "decode", "layout", "pool pages", "worker CPU", "CPU / wall",
-                  "voxels decoded", "voxels laid out", "CPU per voxel", "voxels per core s",
+  Table cpuTable({"budget", "read + zstd", "assemble", "decode", "layout", "pool pages", "worker CPU",
+                  "CPU / wall", "voxels decoded", "voxels laid out", "CPU per voxel", "voxels per core s",
                   "bytes per CPU s"});
   const std::string goal = fmt::format("{:g}x", kViewOverSequentialGoal);
   Table goalTable({"budget", "sequential read", "read + zstd alone", "alone / seq", "worker CPU to view",
