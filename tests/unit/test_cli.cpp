@@ -41,6 +41,14 @@ std::vector<std::string> lines(const std::string& text) {
   return out;
 }
 
+// The line of a printed table under `title` that starts with `first` (a row's first cell), or "" where either
+// is missing.
+std::string tableRow(const std::string& out, const std::string& title, const std::string& first) {
+  const std::size_t at = out.find(title);
+  const std::size_t row = at == std::string::npos ? at : out.find(first, at);
+  return row == std::string::npos ? "" : out.substr(row, out.find('\n', row) - row);
+}
+
 // A plot as the plot driver leaves it: a PNG of `width` x `height` pixels that OpenImageIO reads, and beside
 // it its data, NAME.csv. Returns the data rows (panel,series,x,y) after checking the header.
 std::vector<std::string> plotRows(const fs::path& png, int width, int height) {
@@ -434,16 +442,14 @@ TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
   EXPECT_GE(countSeries(plotted, "4.0 MiB"), 1u);
   EXPECT_EQ(countSeries(plotted, "4.0 MiB"), plotted.size());
   // The goal table's row: budget, sequential read, read + zstd alone, alone / seq, worker CPU to view, cores.
-  const std::size_t title = r.out.find("what view / seq <= 1.5x asks");
-  ASSERT_NE(title, std::string::npos) << r.out;
-  const std::size_t row = r.out.find("4.0 MiB", title);
-  ASSERT_NE(row, std::string::npos) << r.out;
-  std::istringstream fields(r.out.substr(row, r.out.find('\n', row) - row));
+  const std::string row = tableRow(r.out, "what view / seq <= 1.5x asks", "4.0 MiB");
+  ASSERT_FALSE(row.empty()) << r.out;
+  std::istringstream fields(row);
   double budget, seq, alone, ratio, cpu, cores;
   std::string mib, ms1, ms2, ms3;
   char x;
   fields >> budget >> mib >> seq >> ms1 >> alone >> ms2 >> ratio >> x >> cpu >> ms3 >> cores;
-  ASSERT_FALSE(fields.fail()) << r.out.substr(row);
+  ASSERT_FALSE(fields.fail()) << row;
   EXPECT_EQ(ms1 + ms2 + ms3, "msmsms");
   EXPECT_GE(seq, 0.0);  // a file left in the page cache reads in microseconds: 0.0 ms
   EXPECT_GE(alone, 0.0);
@@ -458,11 +464,9 @@ TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
     EXPECT_EQ(r.out.find("the disk outruns zstd alone") != std::string::npos, ratio > 1.5) << r.out;
   EXPECT_LE(cores - 0.05, (cpu + kHalfStep) / (1.5 * std::max(1e-3, seq - kHalfStep)));
   // The workers' CPU row: the stages (read + zstd, assemble, decode, layout, pool pages) add up to the total.
-  const std::size_t cpuTitle = r.out.find("pager workers' CPU");
-  ASSERT_NE(cpuTitle, std::string::npos) << r.out;
-  const std::size_t cpuRow = r.out.find("4.0 MiB", cpuTitle);
-  ASSERT_NE(cpuRow, std::string::npos) << r.out;
-  std::istringstream cpuFields(r.out.substr(cpuRow, r.out.find('\n', cpuRow) - cpuRow));
+  const std::string cpuRow = tableRow(r.out, "pager workers' CPU", "4.0 MiB");
+  ASSERT_FALSE(cpuRow.empty()) << r.out;
+  std::istringstream cpuFields(cpuRow);
   double stages[5], total;
   std::string units;
   cpuFields >> budget >> mib;
@@ -471,7 +475,7 @@ TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
     EXPECT_EQ(units, "ms");
   }
   cpuFields >> total >> units;
-  ASSERT_FALSE(cpuFields.fail()) << r.out.substr(cpuRow);
+  ASSERT_FALSE(cpuFields.fail()) << cpuRow;
   EXPECT_EQ(units, "ms");
   EXPECT_GT(stages[2], 0.0) << "decode";
   EXPECT_GT(stages[3], 0.0) << "layout";
