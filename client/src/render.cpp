@@ -21,6 +21,9 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 #include <glm/geometric.hpp>
+#if defined(__SSE__)
+#include <immintrin.h>
+#endif
 
 #include "svo/client/post_filter.hpp"
 #include "svo/client/render.hpp"
@@ -64,6 +67,49 @@ glm::vec3 estimateNormal(const CastHit& hit, bool contours) {
     }
   }
   return normal;
+}
+
+// Runs `work` in an arena of `threads` threads, or in the caller's arena (all cores by default) for 0.
+template <class Work>
+void inArena(int threads, const Work& work) {
+  if (threads > 0) {
+    tbb::task_arena arena(threads);
+    arena.execute(work);
+  } else {
+    work();
+  }
+}
+
+// Frame clears in pieces of at least this many pixels, one task each: a 1024 x 1024 frame in up to 16 (1 MiB
+// of colors each), few enough that scheduling them costs nothing beside the writes.
+constexpr std::size_t kClearGrainPixels = std::size_t(1) << 16;
+
+// Writes `pattern` (four floats, repeated) over out[0, count), by non-temporal stores where the CPU has them:
+// a frame is larger than the caches and the casting evicts it before most of its pixels are written again,
+// so a clear through the caches would read every line first and write it back later.
+void streamFill(float* out, std::size_t count, const std::array<float, 4>& pattern) {
+  std::size_t i = 0;
+#if defined(__SSE__)
+  while (i < count && reinterpret_cast<std::uintptr_t>(out + i) % 16 != 0) out[i] = pattern[i % 4], ++i;
+  const __m128 value =
+      _mm_setr_ps(pattern[i % 4], pattern[(i + 1) % 4], pattern[(i + 2) % 4], pattern[(i + 3) % 4]);
+  for (; i + 4 <= count; i += 4) _mm_stream_ps(out + i, value);
+  _mm_sfence();  // the stores are seen when the task ends, as ordinary ones are
+#endif
+  for (; i < count; ++i) out[i] = pattern[i % 4];
+}
+
+// Every pixel of the frame a miss, on the calling arena's threads.
+static_assert(sizeof(glm::vec4) == 4 * sizeof(float), "a color is four floats side by side");
+void clearFrame(Frame& frame, glm::vec4 missColor) {
+  const float inf = std::numeric_limits<float>::infinity();
+  const auto clear = [&](const tbb::blocked_range<std::size_t>& pixels) {
+    const std::size_t first = pixels.begin(), count = pixels.size();
+    streamFill(&frame.color[first].x, 4 * count, {missColor.r, missColor.g, missColor.b, missColor.a});
+    streamFill(&frame.depth[first], count, {inf, inf, inf, inf});
+    streamFill(&frame.voxelPixels[first], count, {0.0f, 0.0f, 0.0f, 0.0f});
+  };
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, frame.depth.size(), kClearGrainPixels), clear);
 }
 
 struct Shading {
@@ -240,13 +286,7 @@ void forEachTile(int width, int height, int tileSize, int threads,
       trace(PixelTile{x0, y0, std::min(x0 + tileSize, width), std::min(y0 + tileSize, height)});
     }
   };
-  const tbb::blocked_range<int> all(0, tilesX * tilesY);
-  if (threads > 0) {
-    tbb::task_arena arena(threads);
-    arena.execute([&] { tbb::parallel_for(all, traceTiles); });
-  } else {
-    tbb::parallel_for(all, traceTiles);
-  }
+  inArena(threads, [&] { tbb::parallel_for(tbb::blocked_range<int>(0, tilesX * tilesY), traceTiles); });
 }
 
 Frame render(const Octree& octree, const Camera& camera, const RenderOptions& options) {
@@ -284,9 +324,9 @@ void render(const BlockView& block, const SceneTransform& scene, const Camera& c
   frame.width = camera.width;
   frame.height = camera.height;
   const std::size_t pixels = std::size_t(camera.width) * std::size_t(camera.height);
-  frame.color.assign(pixels, glm::vec4(options.background, 0.0f));
-  frame.depth.assign(pixels, std::numeric_limits<float>::infinity());
-  frame.voxelPixels.assign(pixels, 0.0f);
+  frame.color.resize(pixels);
+  frame.depth.resize(pixels);
+  frame.voxelPixels.resize(pixels);
   frame.iterations.assign(options.diagnostics ? pixels : 0, 0);
   frame.lodStopped.assign(options.diagnostics ? pixels : 0, 0);
   frame.filterSeconds = frame.deviceSeconds = 0.0;
@@ -298,28 +338,31 @@ void render(const BlockView& block, const SceneTransform& scene, const Camera& c
 
   std::atomic<std::uint64_t> iterations{0};
   const auto start = std::chrono::steady_clock::now();
-  forEachTile(camera.width, camera.height, renderTileSize(options), options.threads,
-              [&](const PixelTile& tile) {
-                TileShading shade(block, frame, shading, scene.size, pixelAngle);
-                const auto onHit = [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
-                  const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
-                  shade.add(i, ray, hit);
-                  keepIterations(x, y, hit);
-                  if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
-                };
-                const bool beam = options.beamTile > 0;
-                std::uint64_t tileIterations;
-                if (options.prefetchAttributes) {
-                  AttributePrefetcher prefetcher(block);
-                  tileIterations = castTile<AttributePrefetcher::kLag>(
-                      block, rays, tile, beam, options.cast, onHit, keepIterations,
-                      [&](const CastHit* hits, int count) { prefetcher.packet(hits, count); });
-                } else {
-                  tileIterations = castTile(block, rays, tile, beam, options.cast, onHit, keepIterations);
-                }
-                shade.flush();
-                iterations.fetch_add(tileIterations, std::memory_order_relaxed);
-              });
+  const auto clearAndTrace = [&] {
+    clearFrame(frame, glm::vec4(options.background, 0.0f));
+    forEachTile(camera.width, camera.height, renderTileSize(options), 0, [&](const PixelTile& tile) {
+      TileShading shade(block, frame, shading, scene.size, pixelAngle);
+      const auto onHit = [&](int x, int y, const OctreeRay& ray, const CastHit& hit) {
+        const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+        shade.add(i, ray, hit);
+        keepIterations(x, y, hit);
+        if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
+      };
+      const bool beam = options.beamTile > 0;
+      std::uint64_t tileIterations;
+      if (options.prefetchAttributes) {
+        AttributePrefetcher prefetcher(block);
+        tileIterations = castTile<AttributePrefetcher::kLag>(
+            block, rays, tile, beam, options.cast, onHit, keepIterations,
+            [&](const CastHit* hits, int count) { prefetcher.packet(hits, count); });
+      } else {
+        tileIterations = castTile(block, rays, tile, beam, options.cast, onHit, keepIterations);
+      }
+      shade.flush();
+      iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+    });
+  };
+  inArena(options.threads, clearAndTrace);
   if (options.filter) applyFilter(frame, options);
   frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   frame.meanIterations = double(iterations.load()) / double(pixels);

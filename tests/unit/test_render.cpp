@@ -288,6 +288,68 @@ TEST_P(RenderLayouts, RenderingIntoAUsedFrameEqualsAFreshOne) {
             64 * 48 / 10);
 }
 
+// Where a ray from `eye` along `direction` enters the box [lo, hi] (the slab test in double), or nullopt
+// where it misses.
+std::optional<double> boxEntry(glm::dvec3 eye, glm::dvec3 direction, glm::dvec3 lo, glm::dvec3 hi) {
+  double enter = 0.0, leave = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < 3; ++k) {
+    const double a = (lo[k] - eye[k]) / direction[k], b = (hi[k] - eye[k]) / direction[k];
+    enter = std::max(enter, std::min(a, b)), leave = std::min(leave, std::max(a, b));
+  }
+  return enter <= leave ? std::optional(enter) : std::nullopt;
+}
+
+// Every pixel of a frame is written by the frame: in one that held other values at the same size, a ray
+// that misses the cube shows the background with alpha 0, infinite depth and no voxel size, and one that
+// hits shows the cube's depth, in tiles whose rays were cast and in those the beam pass skipped alike. At
+// 301 x 251 pixels on two threads the frame is cleared in pieces that start off a 16-byte boundary.
+TEST(Render, EveryPixelOfAUsedFrameIsWrittenAgain) {
+  const SceneTransform scene{{-2.0, 1.0, 3.0}, 4.0};  // world cube [-2,2] x [1,5] x [3,7]
+  const Octree octree = solidCube(scene, glm::vec4(1.0f, 0.0f, 0.0f, 1.0f), glm::vec3(0.0f, 0.0f, 1.0f));
+  // The cube's corner (2, 5, 7) below and left of the middle of the view (where the clear's pieces meet):
+  // it fills less than the lower left quarter.
+  const Camera camera{
+      .eye = {3.0, 6.0, 15.0}, .target = {2.5, 5.5, 7.0}, .fovYDegrees = 40.0, .width = 301, .height = 251};
+  const std::size_t pixels = std::size_t(camera.width) * camera.height;
+  RenderOptions options;
+  options.lodPixels = 0.0f;
+  options.threads = 2;
+  Frame frame;
+  frame.color.assign(pixels, glm::vec4(9.0f));
+  frame.depth.assign(pixels, 9.0f);
+  frame.voxelPixels.assign(pixels, 9.0f);
+  render(octree.block.view(), octree.transform, camera, options, frame);
+  ASSERT_EQ(frame.color.size(), pixels);
+
+  // Rays within this distance (world units) of the cube's edges may go either way in float: left out.
+  constexpr double kEdge = 1e-4;
+  const glm::dvec3 lo(-2.0, 1.0, 3.0), hi(2.0, 5.0, 7.0);
+  const Camera::Basis basis = camera.basis();
+  std::size_t hits = 0, misses = 0;
+  for (int y = 0; y < camera.height; ++y)
+    for (int x = 0; x < camera.width; ++x) {
+      glm::dvec3 direction;
+      Camera::pixelRay(camera, basis, x, y, direction);
+      const auto inner = boxEntry(camera.eye, direction, lo + kEdge, hi - kEdge);
+      const auto outer = boxEntry(camera.eye, direction, lo - kEdge, hi + kEdge);
+      const std::size_t i = std::size_t(y) * camera.width + x;
+      if (inner) {
+        ++hits;
+        EXPECT_EQ(frame.color[i].a, 1.0f) << x << "," << y;
+        // Grazing rays on the top face (y = 5, seen from 0.5 above) lose ~2e-4 of t in float.
+        EXPECT_NEAR(frame.depth[i], *inner, 1e-3 * *inner) << x << "," << y;
+        EXPECT_GT(frame.voxelPixels[i], 0.0f) << x << "," << y;
+      } else if (!outer) {
+        ++misses;
+        EXPECT_EQ(frame.color[i], glm::vec4(options.background, 0.0f)) << x << "," << y;
+        EXPECT_EQ(frame.depth[i], std::numeric_limits<float>::infinity()) << x << "," << y;
+        EXPECT_EQ(frame.voxelPixels[i], 0.0f) << x << "," << y;
+      }
+    }
+  EXPECT_GT(hits, pixels / 8);
+  EXPECT_GT(misses, pixels / 2);
+}
+
 TEST(Render, NormalsFacingAwayAreFlippedAndThreadCountDoesNotMatter) {
   const SceneTransform scene{{0.0, 0.0, 0.0}, 1.0};
   const Camera camera = Camera::framing(scene, {0.3, -0.2, -1.0}, 40, 30);

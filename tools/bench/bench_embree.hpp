@@ -103,9 +103,13 @@ class EmbreePeer {
   }
   // The same into `result`, its storage reused where the size is unchanged (as svo::render's frame).
   void trace(const Camera& camera, int threads, const MeshShading* shading, TraceResult& result) const {
-    result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
-    result.primitive.assign(result.depth.size(), kNoPrimitive);
-    result.color.assign(shading ? result.depth.size() : 0, shading ? shading->background() : glm::vec3());
+    // Each pixel is written once, hit or miss, in its tile's task, as a renderer built on Embree does (no
+    // clear of the frame first, which would be a pass on one thread).
+    const std::size_t pixels = std::size_t(camera.width) * camera.height;
+    result.depth.resize(pixels);
+    result.primitive.resize(pixels);
+    result.color.resize(shading ? pixels : 0);
+    const glm::vec3 background = shading ? shading->background() : glm::vec3();
     // Per-frame constants computed once, as svo::render does: the look-at basis and the eye relative to the
     // scene centre.
     const Camera::Basis basis = camera.basis();
@@ -137,13 +141,17 @@ class EmbreePeer {
           rayHit.hit.geomID = RTC_INVALID_GEOMETRY_ID;
           rayHit.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
           rtcIntersect1(scene_, &context, &rayHit);
+          const std::size_t pixel = std::size_t(y) * camera.width + x;
           if (rayHit.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
-            result.depth[std::size_t(y) * camera.width + x] = rayHit.ray.tfar;
-            result.primitive[std::size_t(y) * camera.width + x] = rayHit.hit.primID;
+            result.depth[pixel] = rayHit.ray.tfar;
+            result.primitive[pixel] = rayHit.hit.primID;
             if (shading)
-              result.color[std::size_t(y) * camera.width + x] =
-                  shading->shade(rayHit.hit.primID, rayHit.hit.u, rayHit.hit.v, direction,
-                                 PixelFootprint::at(basis, rayHit.ray.tfar, pixelAngle));
+              result.color[pixel] = shading->shade(rayHit.hit.primID, rayHit.hit.u, rayHit.hit.v, direction,
+                                                   PixelFootprint::at(basis, rayHit.ray.tfar, pixelAngle));
+          } else {
+            result.depth[pixel] = kInfinity;
+            result.primitive[pixel] = kNoPrimitive;
+            if (shading) result.color[pixel] = background;
           }
         }
       }

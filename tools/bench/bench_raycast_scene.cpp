@@ -42,7 +42,8 @@ constexpr int kCloseUpHalvings = 24;
 // threads, into `result` (its storage reused, as the peer's and the shaded frame's are).
 void traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOptions& options,
                TraceResult& result) {
-  result.depth.assign(std::size_t(camera.width) * camera.height, kInfinity);
+  // Each pixel is written once, in its tile's task, as the Embree peer writes them.
+  result.depth.resize(std::size_t(camera.width) * camera.height);
   const BlockView block = scene.root();
   const PixelRays rays(scene.transform(), camera, options.lodPixels);
   CastOptions cast = options.cast;
@@ -50,11 +51,21 @@ void traceEsvo(const WholeScene& scene, const Camera& camera, const RenderOption
   std::atomic<std::uint64_t> iterations{0};
   forEachTile(camera.width, camera.height, renderTileSize(options), options.threads,
               [&](const PixelTile& tile) {
-                iterations.fetch_add(castTile(block, rays, tile, options.beamTile > 0, cast,
-                                              [&](int x, int y, const OctreeRay&, const CastHit& hit) {
-                                                result.depth[std::size_t(y) * camera.width + x] = hit.t;
-                                              }),
-                                     std::memory_order_relaxed);
+                int raysCast = 0;
+                const auto write = [&](int x, int y, float depth) {
+                  result.depth[std::size_t(y) * camera.width + x] = depth;
+                  ++raysCast;
+                };
+                iterations.fetch_add(
+                    castTile(
+                        block, rays, tile, options.beamTile > 0, cast,
+                        [&](int x, int y, const OctreeRay&, const CastHit& hit) { write(x, y, hit.t); },
+                        [&](int x, int y, const CastHit&) { write(x, y, kInfinity); }),
+                    std::memory_order_relaxed);
+                // A tile the beam pass skipped casts no ray: all misses.
+                for (int y = tile.y0; y < tile.y1 && raysCast == 0; ++y)
+                  for (int x = tile.x0; x < tile.x1; ++x)
+                    result.depth[std::size_t(y) * camera.width + x] = kInfinity;
               });
   result.hits = countHits(result.depth);
   result.meanIterations = double(iterations.load()) / double(result.depth.size());

@@ -133,7 +133,7 @@ struct Frame {
   // the deepest voxel it found.
   std::vector<std::uint16_t> iterations;
   std::vector<std::uint8_t> lodStopped;
-  double seconds = 0.0;        // casting and shading, and filtering when on
+  double seconds = 0.0;        // clearing, casting and shading, and filtering when on
   double filterSeconds = 0.0;  // of which the post-process filter
   double deviceSeconds = 0.0;  // GPU caster: its dispatches alone (GPU timestamps), no read-back; 0 on CPU
   double meanIterations = 0.0;
@@ -224,7 +224,8 @@ class PixelRays {
 // Pixels per edge of the tiles render casts: the beam tile, else the paper's 8x8.
 int renderTileSize(const RenderOptions& options);
 
-// Runs `trace` over the image in tiles of `tileSize` pixels on `threads` threads (0 = all cores).
+// Runs `trace` over the image in tiles of `tileSize` pixels on `threads` threads (0 = the calling task
+// arena's: all cores, unless called inside an arena of fewer).
 void forEachTile(int width, int height, int tileSize, int threads,
                  const std::function<void(const PixelTile&)>& trace);
 
