@@ -6,6 +6,8 @@
 #include <stdexcept>
 #include <string>
 
+#include <sys/mman.h>
+
 namespace svo {
 
 BlockPool::BlockPool(std::size_t budgetBytes) {
@@ -107,7 +109,8 @@ std::optional<BlockPool::BlockId> BlockPool::insert(std::span<const std::byte> b
   }
   blocks_[id] = {*first, pages};
   usedPages_ += pages;
-  touchedPages_ = std::max(touchedPages_, *first + pages);
+  for (std::uint32_t touched = touchedPages_.load(std::memory_order_relaxed); touched < *first + pages;)
+    touchedPages_.compare_exchange_weak(touched, *first + pages, std::memory_order_relaxed);
   std::byte* at = arena_.data() + std::size_t(*first) * kPageBytes;
   std::memcpy(at, bytes.data(), bytes.size());
   std::memset(at + bytes.size(), 0, std::size_t(pages) * kPageBytes - bytes.size());
@@ -116,14 +119,17 @@ std::optional<BlockPool::BlockId> BlockPool::insert(std::span<const std::byte> b
 }
 
 void BlockPool::prefault(std::size_t bytes) {
-  const std::uint32_t end =
-      std::uint32_t(std::min<std::uint64_t>(pageCount_, std::uint64_t(touchedPages_) + pagesFor(bytes)));
-  // One write per OS page maps it; the pages past touchedPages_ were never used, so they are free.
-  constexpr std::size_t kOsPage = 4096;
-  for (std::size_t at = std::size_t(touchedPages_) * kPageBytes; at < std::size_t(end) * kPageBytes;
-       at += kOsPage)
-    arena_.data()[at] = std::byte{0};
-  touchedPages_ = std::max(touchedPages_, end);
+  // Claims the next never used pages, so that two prefaults map different ones.
+  std::uint32_t begin = touchedPages_.load(std::memory_order_relaxed), end = 0;
+  do {
+    end = std::uint32_t(std::min<std::uint64_t>(pageCount_, std::uint64_t(begin) + pagesFor(bytes)));
+    if (end <= begin) return;
+  } while (!touchedPages_.compare_exchange_weak(begin, end, std::memory_order_relaxed));
+#ifdef MADV_POPULATE_WRITE
+  // A failure (a kernel without it) leaves the pages to insert's first writes.
+  madvise(arena_.data() + std::size_t(begin) * kPageBytes, std::size_t(end - begin) * kPageBytes,
+          MADV_POPULATE_WRITE);
+#endif
 }
 
 void BlockPool::erase(BlockId id) {

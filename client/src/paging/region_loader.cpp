@@ -479,10 +479,9 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
     out.block = Block();
     return out;
   }
-  // The pages the commit will most likely copy the block into, mapped here rather than on the render thread.
+  // The pages the commit will most likely copy the block into, mapped here rather than on the render thread,
+  // and without the pool lock, which a commit would wait for.
   clock.enter(cpu_.poolPages);
-  std::shared_lock poolShared(poolMutex_);  // no commit beside it
-  std::lock_guard prefaulting(prefaultMutex_);
   regions_.pool().prefault(out.block.bytes().size());
   return out;
 }

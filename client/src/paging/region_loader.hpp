@@ -6,7 +6,6 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
-#include <mutex>
 #include <optional>
 #include <shared_mutex>
 #include <span>
@@ -109,7 +108,6 @@ class RegionLoader {
   RegionTable& regions_;  // read only, but for prefaulting the pool's free pages
   std::shared_mutex& poolMutex_;
   const AttributeLayout attributes_;
-  std::mutex prefaultMutex_;  // one worker at a time prefaults the pool (BlockPool::prefault)
   std::atomic<std::uint64_t> bytesRead_{0};
   StageCounters cpu_;
 };

@@ -203,7 +203,7 @@ class Pager {
 
   std::shared_ptr<const SliceSource> source_;
   PagerOptions options_;
-  // Workers read blocks shared (assembling a region's levels, prefaulting); commits and evictions write
+  // Workers read blocks shared (assembling a region's levels); commits and evictions write
   // exclusively.
   mutable std::shared_mutex poolMutex_;
   std::unique_ptr<paging::RegionTable> regions_;

@@ -5,6 +5,7 @@
 // past the arena.
 #pragma once
 
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <functional>
@@ -38,10 +39,11 @@ class BlockPool {
   std::optional<BlockId> insert(std::span<const std::byte> bytes,
                                 const std::function<void(BlockId)>& moved = nullptr);
   void erase(BlockId id);
-  // Writes the `bytes` of never used pages that a coming insert will most likely take (best fit from a fresh
+  // Maps the `bytes` of never used pages that a coming insert will most likely take (best fit from a fresh
   // arena takes them in order), so the OS maps them here and not in insert's memcpy: on the render thread
-  // those first writes cost about 1 ms per MB block. Touches free pages only; the caller keeps it from
-  // running beside insert, erase or another prefault (the pager: under its pool lock).
+  // those first writes cost about 1 ms per MB block. The pages are mapped without being written (madvise
+  // MADV_POPULATE_WRITE, Linux 5.14), so it may run beside insert, erase and another prefault: a page an
+  // insert has begun to fill keeps what it holds. Where the kernel cannot, it maps nothing (insert does).
   void prefault(std::size_t bytes);
 
   std::byte* data(BlockId id) { return arena_.data() + std::size_t(blocks_.at(id).firstPage) * kPageBytes; }
@@ -81,7 +83,8 @@ class BlockPool {
 
   AlignedBytes arena_;
   std::uint32_t pageCount_ = 0, usedPages_ = 0;
-  std::uint32_t touchedPages_ = 0;  // every page below was written: by insert or prefault
+  // Every page below was written by insert or mapped by prefault (or is being mapped).
+  std::atomic<std::uint32_t> touchedPages_{0};
   std::vector<Entry> blocks_;
   std::vector<BlockId> freeIds_;
   std::map<std::uint32_t, std::uint32_t> freeRuns_;  // first page -> pages
