@@ -39,11 +39,17 @@ PagerOptions checked(PagerOptions options) {
                              std::to_string(options.workerNice));
   if (!(options.sourceRetrySeconds >= 0.0) || !(options.sourceRetryMaxSeconds >= options.sourceRetrySeconds))
     throw std::runtime_error("pager: source retry seconds must be >= 0 and at most the maximum");
-  if (options.decodersDuringFrames < 0)
+  if (options.decodersDuringFrames < 0 || options.decodersDuringMovingFrames < 0)
     throw std::runtime_error("pager: decoders during frames must be >= 0, got " +
-                             std::to_string(options.decodersDuringFrames));
+                             std::to_string(options.decodersDuringFrames) + " (still), " +
+                             std::to_string(options.decodersDuringMovingFrames) + " (moving)");
   options.maxInFlight = std::max(options.maxInFlight, options.fetchThreads + options.decodeThreads);
   return options;
+}
+
+bool sameView(const ViewQuery& a, const ViewQuery& b) {
+  return a.eye == b.eye && a.pixelAngle == b.pixelAngle && a.lodPixels == b.lodPixels &&
+         a.frustum == b.frustum && a.outsideWeight == b.outsideWeight;
 }
 
 }  // namespace
@@ -94,7 +100,6 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
   paging::LoadWorkers::Options workers;
   workers.fetchThreads = options_.fetchThreads;
   workers.decodeThreads = options_.decodeThreads;
-  workers.decodersDuringFrames = options_.decodersDuringFrames;
   workers.nice = options_.workerNice;
   workers_ = std::make_unique<paging::LoadWorkers>(
       workers, [this](const paging::LoadRequest& r) { return loader_->fetch(r); },
@@ -106,7 +111,8 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
 Pager::~Pager() = default;
 
 Pager::FrameScope::FrameScope(Pager& pager) : pager_(pager) {
-  pager_.workers_->frameBegins();
+  const PagerOptions& o = pager_.options_;
+  pager_.workers_->frameBegins(pager_.viewMoving_ ? o.decodersDuringMovingFrames : o.decodersDuringFrames);
 }
 
 Pager::FrameScope::~FrameScope() {
@@ -196,6 +202,8 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
 
 PagerStats Pager::update(const ViewQuery& view) {
   PagerStats stats;
+  viewMoving_ = lastView_ && !sameView(*lastView_, view);
+  lastView_ = view;
   // 1. What the view wants, with ray feedback.
   stats.wantedRawBytes = scheduler_->rank(scheduleSlices(index(), view), *regions_);
 

@@ -270,6 +270,42 @@ TEST(Pager, WorkersWaitForTheFrameToEnd) {
   EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
 }
 
+// Which decoders go on during a frame follows the camera: PagerOptions::decodersDuringMovingFrames (none by
+// default) where the last update's view differs from the one before it, decodersDuringFrames (one) where it
+// is the same. Two views that want nothing beyond the trunk set the camera moving or still before any
+// request goes out.
+TEST(Pager, AMovingCameraPausesTheDecodersThatAStillOneLetsGoOn) {
+  const TempStore& store = sphereStore();
+  for (const bool moving : {true, false}) {
+    SCOPED_TRACE(moving ? "moving" : "still");
+    svo::Pager pager(store.path, {});
+    const auto coarse = [&](const glm::dvec3& eye) {
+      constexpr double kEveryVoxelIsSmallEnough = 1e9;
+      return svo::viewOf(pager.transform(), cameraAt(eye, {0, 0, 0}, 96), kEveryVoxelIsSmallEnough);
+    };
+    EXPECT_EQ(pager.update(coarse({1.6, 2.4, 3.0})).requested, 0u);
+    EXPECT_EQ(pager.update(coarse(moving ? glm::dvec3{1.7, 2.4, 3.0} : glm::dvec3{1.6, 2.4, 3.0})).requested,
+              0u);
+    svo::ViewQuery everything =
+        svo::viewOf(pager.transform(), cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 96), 1e-9);
+    everything.frustum.clear();
+    const std::uint64_t trunkDecoded = pager.workerCpu().voxelsDecoded;
+    {
+      const svo::Pager::FrameScope frame(pager);
+      EXPECT_GT(pager.update(everything).requested, 0u);
+      pager.waitForWork(moving ? 0.2 : 30.0);  // still: returns when the decoder that goes on is done
+      if (moving) {
+        EXPECT_EQ(pager.update(everything).loaded, 0u);
+        EXPECT_EQ(pager.workerCpu().voxelsDecoded, trunkDecoded);
+      } else {
+        EXPECT_GT(pager.update(everything).loaded, 0u);
+      }
+    }
+    converge(pager, everything);
+    EXPECT_EQ(pager.residentSlices().size(), pager.index().slices().size());
+  }
+}
+
 // A close view converges inside its frustum first: then every slice the view wants inside the frustum is
 // resident (the budget holds everything), and the frame is already the one after the slices around the view
 // have loaded too, bit for bit.

@@ -15,6 +15,7 @@
 // reads the same slices over the same link, one request after another (the server's cache stays warm);
 // --link-delay puts a relay adding a one-way delay in front of an http:// server (link_delay.hpp).
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -222,10 +223,33 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
   return r;
 }
 
+// A frame's linear RGB at 8 bits per channel: a path's streaming frames wait in this form (a quarter of the
+// floats) until the resident ones are rendered.
+using CompactColors = std::vector<std::array<std::uint8_t, 3>>;
+CompactColors compactColors(const Frame& frame) {
+  CompactColors out(frame.color.size());
+  for (std::size_t i = 0; i < out.size(); ++i)
+    for (int c = 0; c < 3; ++c)
+      out[i][c] = std::uint8_t(std::lround(255.0f * std::clamp(frame.color[i][c], 0.0f, 1.0f)));
+  return out;
+}
+// Both compacted alike, so that equal frames differ by nothing.
+double compactRmse(const CompactColors& a, const CompactColors& b) {
+  double squares = 0.0;
+  for (std::size_t i = 0; i < a.size(); ++i)
+    for (int c = 0; c < 3; ++c) {
+      const double d = (double(a[i][c]) - double(b[i][c])) / 255.0;
+      squares += d * d;
+    }
+  return std::sqrt(squares / double(3 * std::max<std::size_t>(1, a.size())));
+}
+
 // A camera path streaming from a cold file, against the same path with everything each frame wants
-// resident; per run, as one stall decides a p99.
+// resident; per run, as one stall decides a p99. What the streaming frames lack, against the resident ones,
+// is the price of keeping their times.
 struct PathTimes {
   std::vector<double> streamP99s, residentP99s, p99Ratios;
+  std::vector<double> meanRmses;  // per run: the streaming frames' RMSE against the resident ones, mean
   std::size_t maxResident = 0;
 };
 PathTimes measurePath(const StreamArgs& args, const PagerOptions& pagerOptions,
@@ -235,18 +259,24 @@ PathTimes measurePath(const StreamArgs& args, const PagerOptions& pagerOptions,
     dropFileCache(args.input);
     Pager pager(openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly)), pagerOptions);
     std::vector<double> streaming, resident;
+    std::vector<CompactColors> streamed;
     for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
       const StreamedFrame step = streamFrame(pager, c, options);
       streaming.push_back(step.seconds());
       r.maxResident = std::max(r.maxResident, step.stats.residentBytes);
+      streamed.push_back(compactColors(step.frame));
     }
+    double rmseSum = 0.0;
     for (const Camera& c : orbitPath(pager.transform(), args.pathFrames, args.size)) {
       convergeView(pager, c, options, args.timeout);
-      resident.push_back(streamFrame(pager, c, options).seconds());
+      const StreamedFrame step = streamFrame(pager, c, options);
+      resident.push_back(step.seconds());
+      rmseSum += compactRmse(streamed[resident.size() - 1], compactColors(step.frame));
     }
     r.streamP99s.push_back(percentile(streaming, 0.99));
     r.residentP99s.push_back(percentile(resident, 0.99));
     r.p99Ratios.push_back(r.streamP99s.back() / r.residentP99s.back());
+    r.meanRmses.push_back(rmseSum / double(resident.size()));
   }
   return r;
 }
@@ -296,7 +326,7 @@ void runStreamBench(StreamArgs args) {
   options.lodPixels = args.lodPixels;
   Table table({"budget", "first image", "view converged", "image final", "bytes read", "sequential read",
                "view / seq", "all converged", "all read", "stream p99", "resident p99", "p99 ratio",
-               "max resident"});
+               "path RMSE", "max resident"});
   Table cpuTable({"budget", "read + zstd", "assemble", "decode", "layout", "pool pages", "worker CPU",
                   "CPU / wall", "voxels decoded", "voxels laid out", "CPU per voxel", "voxels per core s",
                   "bytes per CPU s"});
@@ -336,7 +366,8 @@ void runStreamBench(StreamArgs args) {
     table.addRow({formatBytes(budget), formatSeconds(first.median), formatSeconds(view.median),
                   formatSeconds(final.median), formatBytes(closeUp.viewBytes), formatSeconds(seq.median),
                   ratio, formatSeconds(all.median), formatBytes(closeUp.bytes), formatSeconds(streamP99),
-                  formatSeconds(residentP99), p99ratio, formatBytes(path.maxResident)});
+                  formatSeconds(residentP99), p99ratio,
+                  fmt::format("{:.4f}", summarize(path.meanRmses).median), formatBytes(path.maxResident)});
     if (!closeUp.requests.empty()) {
       const double requests = summarize(closeUp.requests).median;
       requestLines.push_back(
@@ -370,9 +401,9 @@ void runStreamBench(StreamArgs args) {
       (link ? " through " + linkDescription(args.linkDelayMs, args.linkRate) : "") + " (" +
       std::to_string(args.size) + "^2, LOD " + std::to_string(args.lodPixels) + " px, median of " +
       std::to_string(args.runs) + " runs, " +
-      fmt::format("{} fetch and {} decode threads at nice {}, {} decoding during frames",
+      fmt::format("{} fetch and {} decode threads at nice {}, {} / {} decoding during still / moving frames",
                   pagerOptionsOf(args, 0).fetchThreads, args.pager.decodeThreads, args.pager.workerNice,
-                  args.pager.decodersDuringFrames) +
+                  args.pager.decodersDuringFrames, args.pager.decodersDuringMovingFrames) +
       (args.backgroundLoad ? fmt::format(", background load: {} busy threads", args.backgroundLoad) : "") +
       ")");
   table.print();
@@ -382,7 +413,8 @@ void runStreamBench(StreamArgs args) {
       "view converged: nothing inside the close-up's frustum left to load (bytes read: by then); all "
       "converged: also the slices around it, wanted for turns\n"
       "p99 ratio: the median over the runs of each run's streaming p99 / resident p99 (the p99 columns: "
-      "medians)\n"
+      "medians); path RMSE: each streaming frame of the path against the resident one (linear RGB at 8 "
+      "bits), the mean over the path: the detail the frames lack while streaming (median over the runs)\n"
       "goals: first image < 100 ms; view / seq <= 1.5x; streaming p99 <= 1.5x resident p99\n");
   printTitle("pager workers' CPU during the close-up, until all converged (thread CPU time, medians)");
   cpuTable.print();

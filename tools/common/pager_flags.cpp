@@ -29,8 +29,12 @@ void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options) {
       ->check(CLI::Range(0, 19))
       ->capture_default_str();
   cmd.add_option("--decoders-during-frames", options.decodersDuringFrames,
-                 "when streaming: decode threads that go on while a frame renders (the others wait for it to "
-                 "end)")
+                 "when streaming: decode threads that go on while a frame of a still view renders (the "
+                 "others wait for it to end)")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
+  cmd.add_option("--decoders-during-moving-frames", options.decodersDuringMovingFrames,
+                 "when streaming: the same while the camera moves (the view differs from the frame before)")
       ->check(CLI::Range(0, 64))
       ->capture_default_str();
 }

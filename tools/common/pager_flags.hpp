@@ -13,8 +13,8 @@ class App;
 
 namespace svo::tools {
 
-// Adds --fetch-threads, --decode-threads, --worker-nice and --decoders-during-frames to `cmd`, bound to
-// `options` (whose values are the defaults shown). Fetch threads start at 0, resolved by
+// Adds --fetch-threads, --decode-threads, --worker-nice and --decoders-during-(moving-)frames to `cmd`, bound
+// to `options` (whose values are the defaults shown). Fetch threads start at 0, resolved by
 // resolvedFetchThreads once the store is known.
 void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options);
 // `flag` when the command line set it, else fetchThreadsFor(locator): more for a URL than for a file.

@@ -126,9 +126,10 @@ void LoadWorkers::waitForWork(double seconds) {
   doneReady_.wait_for(lock, std::chrono::duration<double>(seconds), [&] { return !done_.empty(); });
 }
 
-void LoadWorkers::frameBegins() {
+void LoadWorkers::frameBegins(int decodersGoingOn) {
   std::lock_guard lock(frameMutex_);
   frameRendering_ = true;
+  decodersDuringFrame_ = decodersGoingOn;
 }
 
 void LoadWorkers::frameEnds() {
@@ -140,9 +141,8 @@ void LoadWorkers::frameEnds() {
 }
 
 void LoadWorkers::waitForFrameEnd(int decoder) {
-  if (decoder < options_.decodersDuringFrames) return;
   std::unique_lock lock(frameMutex_);
-  frameEnded_.wait(lock, [&] { return !frameRendering_ || stopping_; });
+  frameEnded_.wait(lock, [&] { return !frameRendering_ || decoder < decodersDuringFrame_ || stopping_; });
 }
 
 }  // namespace svo::paging

@@ -22,8 +22,7 @@ class LoadWorkers {
  public:
   struct Options {
     int fetchThreads = 1, decodeThreads = 1;
-    int decodersDuringFrames = 1;  // decode threads that go on while a frame renders
-    int nice = 0;                  // of every worker thread (0-19)
+    int nice = 0;  // of every worker thread (0-19)
   };
   using Fetch = std::function<FetchedChain(const LoadRequest&)>;
   // `pause` blocks while a frame renders, for the decode threads that must let it have the cores.
@@ -46,7 +45,9 @@ class LoadWorkers {
   // Blocks until a block is done or `seconds` pass.
   void waitForWork(double seconds);
 
-  void frameBegins();
+  // A frame renders from frameBegins to frameEnds: the decode threads beyond the first `decodersGoingOn` wait
+  // at their next stage meanwhile.
+  void frameBegins(int decodersGoingOn);
   void frameEnds();
 
  private:
@@ -72,6 +73,7 @@ class LoadWorkers {
   std::mutex frameMutex_;
   std::condition_variable frameEnded_;
   bool frameRendering_ = false, stopping_ = false;  // under frameMutex_: paused decoders leave when stopping
+  int decodersDuringFrame_ = 0;                     // under frameMutex_: frameBegins' decodersGoingOn
   std::vector<std::jthread> threads_;
 };
 
