@@ -463,6 +463,16 @@ TEST_F(Cli, BenchStreamReportsWhatTheViewGoalAsks) {
   if (std::abs(ratio - 1.5) > 0.01)
     EXPECT_EQ(r.out.find("the disk outruns zstd alone") != std::string::npos, ratio > 1.5) << r.out;
   EXPECT_LE(cores - 0.05, (cpu + kHalfStep) / (1.5 * std::max(1e-3, seq - kHalfStep)));
+  // The main row ends with the path's mean RMSE against its resident frames, then the most resident.
+  const std::string mainRow = tableRow(r.out, "svo bench stream", "4.0 MiB");
+  std::istringstream mainFields(mainRow);
+  std::vector<std::string> tokens;
+  for (std::string t; mainFields >> t;) tokens.push_back(t);
+  ASSERT_GE(tokens.size(), 3u) << r.out;
+  EXPECT_TRUE(tokens.back().ends_with("B")) << mainRow;
+  const double pathRmse = std::stod(tokens[tokens.size() - 3]);
+  EXPECT_GE(pathRmse, 0.0) << mainRow;
+  EXPECT_LE(pathRmse, 1.0) << mainRow;
   // The workers' CPU row: the stages (read + zstd, assemble, decode, layout, pool pages) add up to the total.
   const std::string cpuRow = tableRow(r.out, "pager workers' CPU", "4.0 MiB");
   ASSERT_FALSE(cpuRow.empty()) << r.out;

@@ -223,8 +223,8 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
   return r;
 }
 
-// A frame's linear RGB at 8 bits per channel: a path's streaming frames wait in this form (a quarter of the
-// floats) until the resident ones are rendered.
+// A frame's linear RGB at 8 bits per channel: a path's streaming frames wait in this form (3 bytes a pixel
+// instead of 16) until the resident ones are rendered.
 using CompactColors = std::vector<std::array<std::uint8_t, 3>>;
 CompactColors compactColors(const Frame& frame) {
   CompactColors out(frame.color.size());
