@@ -85,7 +85,7 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
   // The trunk: the root cube's levels, synchronously. It is the first coarse image and never leaves the pool.
   const std::vector<std::uint32_t>& trunk = (*regions_)[0].slices;
   const paging::LoadRequest request{trunk.front(), std::uint32_t(trunk.size()), 1.0};
-  paging::BuiltBlock built = loader_->build(request, loader_->fetch(request), [] {});
+  paging::BuiltBlock built = loader_->build(request, loader_->fetch(request), {[] {}, {}});
   if (!built.error.empty()) throw std::runtime_error(built.error);
   const std::size_t needed = built.block.bytes().size();
   if (needed > regions_->pool().capacityBytes())
@@ -103,8 +103,8 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
   workers.nice = options_.workerNice;
   workers_ = std::make_unique<paging::LoadWorkers>(
       workers, [this](const paging::LoadRequest& r) { return loader_->fetch(r); },
-      [this](const paging::LoadRequest& r, paging::FetchedChain&& chain, const std::function<void()>& pause) {
-        return loader_->build(r, std::move(chain), pause);
+      [this](const paging::LoadRequest& r, paging::FetchedChain&& chain, const paging::Pauses& pauses) {
+        return loader_->build(r, std::move(chain), pauses);
       });
 }
 
@@ -112,7 +112,8 @@ Pager::~Pager() = default;
 
 Pager::FrameScope::FrameScope(Pager& pager) : pager_(pager) {
   const PagerOptions& o = pager_.options_;
-  pager_.workers_->frameBegins(pager_.viewMoving_ ? o.decodersDuringMovingFrames : o.decodersDuringFrames);
+  const bool moving = pager_.viewMoving_;
+  pager_.workers_->frameBegins(moving ? o.decodersDuringMovingFrames : o.decodersDuringFrames, moving);
 }
 
 Pager::FrameScope::~FrameScope() {

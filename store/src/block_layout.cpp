@@ -404,12 +404,18 @@ Block layOutTree(const Tree& tree, const LayoutOptions& options, LayoutStats* st
   units.tree = &tree;
   if (compressed && units.carried(0)) units.rootHalf = units.carried(0)->half;
   LayoutStats stats;
+  const auto pause = [&] {
+    if (options.betweenPasses) options.betweenPasses();
+  };
   const Collected c = collect(tree, options, stats);
+  pause();
   std::uint64_t farVoxels = 0;
   SlotPlan plan = planSlots(n, c, options, units, farVoxels);
+  pause();
   const std::uint32_t slotCount = plan.slotCount;
   const EncodedUnits encoded =
       compressed ? UnitEncoder<Tree>(tree, plan, c, options).encode() : EncodedUnits{};
+  if (compressed) pause();
   const Sections s = sections(tree, options, slotCount, c, encoded);
 
   AlignedBytes bytes(s.end);

@@ -317,7 +317,8 @@ class PresentValues {
 // child masks and appends their children (coordinates, inherited attributes), and each child takes its own
 // values as it is appended. Normals before contours: a contour is coded against its voxel's normal.
 void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreHeader& header,
-                    std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children) {
+                    std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children,
+                    const std::function<void()>& pause) {
   const std::byte* splitBits = cursor;
   const std::byte* masks = splitBits + bitBytes(head.parentCount);
   const std::byte* sections = masks + head.splitCount;
@@ -344,6 +345,7 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
   std::size_t added = 0;  // new voxels so far: the index into every per-voxel section
   NormalCodes codes;
   for (std::size_t i = 0; i < parents.size(); ++i) {
+    if (pause && i % kParentsBetweenPauses == kParentsBetweenPauses - 1) pause();
     SliceVoxel& p = parents[i];
     if (!bitAt(splitBits, i)) continue;
     if (split == head.splitCount) throw SliceDecodeError("more split bits than valid masks");
@@ -385,9 +387,10 @@ void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreH
 }  // namespace
 
 void decodeSlice(std::span<const std::byte> raw, const SliceInfo& slice, const StoreHeader& header,
-                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children) {
+                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children,
+                 const std::function<void()>& pause) {
   const SliceHead head = checkedHead(raw, slice, header, parents.size());
-  decodeSections(head, raw.data() + sizeof head, header, parents, children);
+  decodeSections(head, raw.data() + sizeof head, header, parents, children, pause);
 }
 
 }  // namespace svo

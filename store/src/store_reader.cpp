@@ -134,22 +134,24 @@ SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<c
 }
 
 void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
-                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children) {
+                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children,
+                 const std::function<void()>& pause) {
   try {
-    decodeSlice(raw, index.slices().at(slice), index.header(), parents, children);
+    decodeSlice(raw, index.slices().at(slice), index.header(), parents, children, pause);
   } catch (const SliceDecodeError& e) {
     throw index.sliceError(slice, e.what());
   }
 }
 
 void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
-                 LevelOrderTree& tree, std::size_t parentsBegin, std::size_t parentsEnd) {
+                 LevelOrderTree& tree, std::size_t parentsBegin, std::size_t parentsEnd,
+                 const std::function<void()>& pause) {
   // decodeSlice appends no more than the directory's count: with room for it, the parents stay where they
   // are.
   tree.reserveMore(index.slices().at(slice).voxelCount);
   assert(parentsBegin <= parentsEnd && parentsEnd <= tree.voxels.size());
   const std::span<SliceVoxel> parents(tree.voxels.data() + parentsBegin, parentsEnd - parentsBegin);
-  decodeSlice(index, slice, raw, parents, tree.voxels);
+  decodeSlice(index, slice, raw, parents, tree.voxels, pause);
 }
 
 StoreReader::StoreReader(const std::filesystem::path& path)

@@ -1,6 +1,7 @@
 // layoutBlock of a level-order tree (the pager's decoded slices, laid out without copying them into records)
 // against layoutBlock of the records treeOfLevels makes of the same levels: the same bytes and the same
-// descriptor slots, in both attribute layouts, with stubs, far pointers and carried values.
+// descriptor slots, in both attribute layouts, with stubs, far pointers and carried values, and with a hook
+// between the layout's passes.
 #include <gtest/gtest.h>
 
 #include <bit>
@@ -81,7 +82,11 @@ TEST(LevelOrderLayout, EqualsTheRecordsLayout) {
       svo::LayoutStats stats;
       const svo::Block expected = svo::layoutBlock(records, options, &stats, &slotsOfRecords);
       farSlots += stats.farSlots;
+      // A hook between the passes changes nothing (a pager worker pauses there).
+      int passes = 0;
+      options.betweenPasses = [&] { ++passes; };
       const svo::Block got = svo::layoutBlock(tree, options, nullptr, &slotsOfLevels);
+      EXPECT_EQ(passes, layoutCase.attributes == svo::AttributeLayout::Compressed ? 3 : 2);
       SCOPED_TRACE("trial " + std::to_string(trial) + ", " + svo::nameOf(layoutCase.attributes) +
                    ", near pointers up to " + std::to_string(layoutCase.maxNearPointer));
       ASSERT_EQ(got.bytes().size(), expected.bytes().size());

@@ -27,6 +27,7 @@
 
 #include "reference.hpp"
 #include "svo/builder/build.hpp"
+#include "svo/store/codec.hpp"
 #include "svo/store/store_reader.hpp"
 #include "svo/store/store_writer.hpp"
 
@@ -104,6 +105,36 @@ TEST(Store, RoundTripGivesTheInCoreBlockByteForByte) {
       fs::remove(path);
     }
   }
+}
+
+// Decoding calls its pause hook (a pager worker leaving the cores to a frame) after every
+// kParentsBetweenPauses parents of a slice, and decodes the same voxels as without it (walk's decoding).
+TEST(Store, DecodingPausesAfterEveryFewThousandParentsAndDecodesTheSame) {
+  const fs::path path = tempPath("pauses.svo");
+  svo::writeOctree(path, coloredSphere(9), {});
+  const svo::StoreReader reader(path);
+  std::size_t slicesPaused = 0;
+  const auto enter = [&](std::uint32_t slice, std::span<const svo::SliceVoxel> parents,
+                         std::span<const svo::SliceVoxel> voxels) {
+    SCOPED_TRACE("slice " + std::to_string(slice));
+    std::vector<svo::SliceVoxel> paused(parents.begin(), parents.end()), children;
+    for (svo::SliceVoxel& p : paused) p.childMask = 0;
+    std::size_t pauses = 0;
+    svo::decodeSlice(reader.index(), slice, reader.readSlice(slice), paused, children, [&] { ++pauses; });
+    EXPECT_EQ(pauses, parents.size() / svo::kParentsBetweenPauses);
+    slicesPaused += pauses > 0;
+    for (std::size_t i = 0; i < parents.size(); ++i) ASSERT_EQ(paused[i].childMask, parents[i].childMask);
+    ASSERT_EQ(children.size(), voxels.size());
+    for (std::size_t i = 0; i < voxels.size(); ++i) {
+      const svo::SliceVoxel &a = children[i], &b = voxels[i];
+      ASSERT_TRUE(a.coord == b.coord && a.hasContour == b.hasContour && a.contour == b.contour &&
+                  a.color == b.color && a.normal == b.normal)
+          << "voxel " << i;
+    }
+  };
+  reader.walk(enter, [](auto, auto, auto) {});
+  EXPECT_GT(slicesPaused, 0u) << "no slice has enough parents to pause";
+  fs::remove(path);
 }
 
 // The writer compresses slices in parallel batches and writes them in the order they came: one thread and

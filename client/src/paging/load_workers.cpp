@@ -64,7 +64,8 @@ void LoadWorkers::fetchLoop(std::stop_token stop) {
 
 void LoadWorkers::decodeLoop(int decoder, std::stop_token stop) {
   setUpWorker("svo-decode", options_.nice);
-  const std::function<void()> pause = [this, decoder] { waitForFrameEnd(decoder); };
+  const Pauses pauses{[this, decoder] { waitForFrameEnd(decoder, false); },
+                      [this, decoder] { waitForFrameEnd(decoder, true); }};
   while (true) {
     Fetched item;
     {
@@ -78,7 +79,7 @@ void LoadWorkers::decodeLoop(int decoder, std::stop_token stop) {
       fetched_.erase(best);
       ++decoding_;
     }
-    BuiltBlock built = build_(item.request, std::move(item.chain), pause);
+    BuiltBlock built = build_(item.request, std::move(item.chain), pauses);
     {
       std::lock_guard lock(mutex_);
       --decoding_;
@@ -126,10 +127,11 @@ void LoadWorkers::waitForWork(double seconds) {
   doneReady_.wait_for(lock, std::chrono::duration<double>(seconds), [&] { return !done_.empty(); });
 }
 
-void LoadWorkers::frameBegins(int decodersGoingOn) {
+void LoadWorkers::frameBegins(int decodersGoingOn, bool withinStages) {
   std::lock_guard lock(frameMutex_);
   frameRendering_ = true;
   decodersDuringFrame_ = decodersGoingOn;
+  frameWithinStages_ = withinStages;
 }
 
 void LoadWorkers::frameEnds() {
@@ -140,9 +142,12 @@ void LoadWorkers::frameEnds() {
   frameEnded_.notify_all();
 }
 
-void LoadWorkers::waitForFrameEnd(int decoder) {
+void LoadWorkers::waitForFrameEnd(int decoder, bool withinStage) {
   std::unique_lock lock(frameMutex_);
-  frameEnded_.wait(lock, [&] { return !frameRendering_ || decoder < decodersDuringFrame_ || stopping_; });
+  frameEnded_.wait(lock, [&] {
+    return !frameRendering_ || decoder < decodersDuringFrame_ || (withinStage && !frameWithinStages_) ||
+           stopping_;
+  });
 }
 
 }  // namespace svo::paging

@@ -25,9 +25,7 @@ class LoadWorkers {
     int nice = 0;  // of every worker thread (0-19)
   };
   using Fetch = std::function<FetchedChain(const LoadRequest&)>;
-  // `pause` blocks while a frame renders, for the decode threads that must let it have the cores.
-  using Build =
-      std::function<BuiltBlock(const LoadRequest&, FetchedChain&&, const std::function<void()>& pause)>;
+  using Build = std::function<BuiltBlock(const LoadRequest&, FetchedChain&&, const Pauses& pauses)>;
 
   LoadWorkers(const Options& options, Fetch fetch, Build build);
   ~LoadWorkers();  // stops and joins every thread; unfinished requests are dropped
@@ -46,8 +44,8 @@ class LoadWorkers {
   void waitForWork(double seconds);
 
   // A frame renders from frameBegins to frameEnds: the decode threads beyond the first `decodersGoingOn` wait
-  // at their next stage meanwhile.
-  void frameBegins(int decodersGoingOn);
+  // at their next stage meanwhile, and `withinStages` within their stage too (Pauses).
+  void frameBegins(int decodersGoingOn, bool withinStages);
   void frameEnds();
 
  private:
@@ -57,7 +55,7 @@ class LoadWorkers {
   };
   void fetchLoop(std::stop_token stop);
   void decodeLoop(int decoder, std::stop_token stop);
-  void waitForFrameEnd(int decoder);
+  void waitForFrameEnd(int decoder, bool withinStage);
   std::size_t busy() const { return fetching_ + decoding_ + done_.size(); }
 
   Options options_;
@@ -74,6 +72,7 @@ class LoadWorkers {
   std::condition_variable frameEnded_;
   bool frameRendering_ = false, stopping_ = false;  // under frameMutex_: paused decoders leave when stopping
   int decodersDuringFrame_ = 0;                     // under frameMutex_: frameBegins' decodersGoingOn
+  bool frameWithinStages_ = false;                  // under frameMutex_: frameBegins' withinStages
   std::vector<std::jthread> threads_;
 };
 

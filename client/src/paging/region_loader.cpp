@@ -329,7 +329,7 @@ RegionVoxels RegionLoader::residentLevels(const Region& region, std::size_t expe
 }
 
 void RegionLoader::layOut(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried,
-                          std::uint32_t resident, BuiltBlock& out) {
+                          std::uint32_t resident, const std::function<void()>& pause, BuiltBlock& out) {
   const StoreHeader& header = index_.header();
   LevelOrderTree& tree = voxels.tree;
   tree.hasColors = header.hasColors, tree.hasNormals = header.hasNormals;
@@ -376,6 +376,7 @@ void RegionLoader::layOut(const Region& region, RegionVoxels& voxels, CarriedLev
   LayoutOptions layout;
   layout.inheritEqualOnly = true;  // decoded slices: the store already decided what inherits
   layout.attributes = attributes_;
+  layout.betweenPasses = pause;
   out.block = layoutBlock(tree, layout, nullptr, &slotOf);
   out.rootSlot = out.block.view().info().rootSlot;
   for (const auto& [coord, record] : entryRecords) out.entries.push_back({coord, slotOf[record]});
@@ -383,8 +384,7 @@ void RegionLoader::layOut(const Region& region, RegionVoxels& voxels, CarriedLev
     for (const auto& [coord, record] : records) out.childSlots[child].push_back({coord, slotOf[record]});
 }
 
-BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetched,
-                               const std::function<void()>& pause) {
+BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetched, const Pauses& pauses) {
   BuiltBlock out;
   out.slice = request.slice;
   out.region = regions_.regionOf(request.slice);
@@ -403,7 +403,7 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   if (fetched.slices.empty()) return out;
 
   // Checksums and zstd: a failure ends the chain, the slices before it still load.
-  pause();
+  pauses.betweenStages();
   StageClock clock(cpu_.read);
   std::vector<SliceBytes> raw;
   for (std::uint32_t k = 0; k < fetched.slices.size(); ++k) {
@@ -446,13 +446,13 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   voxels.tree.voxels.reserve(voxels.tree.voxels.size() + decodedAtMost);
   for (std::uint32_t k = 0; k < raw.size(); ++k) {
     const std::uint32_t slice = region.slices[first + k];
-    pause();
+    pauses.betweenStages();
     try {
       const std::size_t levels = voxels.levels();
       if (region.cubeLevel + int(levels) != index_.slices()[slice].voxelLevel)
         throw std::runtime_error("the resident levels do not end above it");
       decodeSlice(index_, slice, raw[k], voxels.tree, voxels.levelStart[levels - 1],
-                  voxels.levelStart[levels]);
+                  voxels.levelStart[levels], pauses.withinStage);
       cpu_.voxelsDecoded.fetch_add(voxels.tree.voxels.size() - voxels.levelStart[levels],
                                    std::memory_order_relaxed);
       voxels.endLevel();
@@ -468,10 +468,10 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   }
   if (out.added == 0) return out;
 
-  pause();
+  pauses.betweenStages();
   clock.enter(cpu_.layout);
   try {
-    layOut(region, voxels, std::move(carried), resident, out);
+    layOut(region, voxels, std::move(carried), resident, pauses.withinStage, out);
     workerVoxels() = std::move(voxels.tree.voxels);
   } catch (const std::exception& e) {
     fail(region.slices[first + out.added - 1], e.what());

@@ -69,6 +69,14 @@ struct ReadBack {
   CarriedLevels* carried = nullptr;
 };
 
+// Where a decode thread waits while a frame renders, when it must let the frame have the cores: between the
+// stages of a load for every frame, and within a stage's long loops (decoding, layout passes) only for a
+// moving camera's frames, which must not share the cores with a stage begun before them; a still view's loads
+// matter more than its frame time.
+struct Pauses {
+  std::function<void()> betweenStages, withinStage;
+};
+
 class RegionLoader {
  public:
   // Workers read the pool under `poolMutex` shared; commits write it exclusively.
@@ -77,10 +85,10 @@ class RegionLoader {
 
   // The request's slices from the source (I/O).
   FetchedChain fetch(const LoadRequest& request);
-  // The region's new block with the fetched slices checked, decompressed and decoded onto it (CPU); `pause`
-  // lets a frame have the cores between stages. A slice that fails ends the chain: the block holds the ones
-  // before it.
-  BuiltBlock build(const LoadRequest& request, FetchedChain&& fetched, const std::function<void()>& pause);
+  // The region's new block with the fetched slices checked, decompressed and decoded onto it (CPU); `pauses`
+  // let a frame have the cores between stages and within them. A slice that fails ends the chain: the block
+  // holds the ones before it.
+  BuiltBlock build(const LoadRequest& request, FetchedChain&& fetched, const Pauses& pauses);
 
   std::uint64_t bytesRead() const { return bytesRead_.load(std::memory_order_relaxed); }
   WorkerCpu cpu() const { return cpu_.seconds(); }
@@ -95,9 +103,9 @@ class RegionLoader {
   ReadBack readBack(const Region& region, int startLevel, std::uint32_t exactFirst,
                     CarriedLevels* carried) const;
   // Lays the decoded levels out as the region's block, with the slots of its entry voxels and, when the
-  // region is complete, of its child regions' entry voxels.
+  // region is complete, of its child regions' entry voxels. `pause` between the layout's passes.
   void layOut(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried, std::uint32_t resident,
-              BuiltBlock& out);
+              const std::function<void()>& pause, BuiltBlock& out);
   // The compressed layout: the units carried from the pool, and the exact values of the deepest level (and
   // where each child region's begin) while another slice may be decoded on them.
   void keepForDeepening(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried,

@@ -56,8 +56,9 @@ struct PagerOptions {
   // Decode threads that go on while a frame renders (Pager::FrameScope); the others pause at their next
   // stage until the frame ends. A still view (the one the update before had too), rendered a few times a
   // second, leaves the workers the time between frames, and one decoder beside its frames brings its detail
-  // sooner. A moving camera's frames keep the cores, its loads running between frames and once it stops
-  // (chosen by the path's p99 against resident frames, svo bench stream on 2 cores).
+  // sooner. A moving camera's frames keep the cores, its decoders stopping within a stage too, and its loads
+  // run between frames and once it stops (chosen by the path's p99 against resident frames, svo bench stream
+  // on 2 cores).
   int decodersDuringFrames = 1;
   int decodersDuringMovingFrames = 0;
   // A slice whose fetch failed for a reason that may pass (a server restarting or overloaded, a timeout: the

@@ -20,6 +20,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <span>
@@ -227,6 +228,10 @@ struct LayoutOptions {
   // give for a store written with them, without testing every voxel against them (the pager).
   bool inheritEqualOnly = false;
   AttributeLayout attributes = AttributeLayout::Raw;
+  // Called between the layout's passes (collecting the voxels, planning the slots, encoding units, writing):
+  // a caller that must leave the cores to another thread for a while (a pager worker while a frame renders)
+  // waits there.
+  std::function<void()> betweenPasses;
 };
 
 // Sec. 5.4: whether a child's attribute value is left out and inherited from its parent's effective value.

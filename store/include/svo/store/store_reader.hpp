@@ -39,12 +39,15 @@ void checkSlice(const StoreIndex& index, std::uint32_t slice, std::span<const st
 SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
 // Decodes slice `slice` (its bytes from unpackSlice) onto its parents: the voxels of the level above in its
 // cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
+// `pause` as codec.hpp's decodeSlice calls it.
 void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
-                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children);
+                 std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children,
+                 const std::function<void()>& pause = {});
 // decodeSlice onto voxels [parentsBegin, parentsEnd) of `tree`, its new voxels appended to the same array: a
 // level-order tree grown a slice at a time.
 void decodeSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> raw,
-                 LevelOrderTree& tree, std::size_t parentsBegin, std::size_t parentsEnd);
+                 LevelOrderTree& tree, std::size_t parentsBegin, std::size_t parentsEnd,
+                 const std::function<void()>& pause = {});
 
 // A store read from one source: the header and directory on open (checked), slices on demand. Throws
 // std::runtime_error naming the store and what is wrong; slice problems throw SliceError. Copies share the
