@@ -47,11 +47,6 @@ PagerOptions checked(PagerOptions options) {
   return options;
 }
 
-bool sameView(const ViewQuery& a, const ViewQuery& b) {
-  return a.eye == b.eye && a.pixelAngle == b.pixelAngle && a.lodPixels == b.lodPixels &&
-         a.frustum == b.frustum && a.outsideWeight == b.outsideWeight;
-}
-
 }  // namespace
 
 ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPixels) {
@@ -203,7 +198,7 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
 
 PagerStats Pager::update(const ViewQuery& view) {
   PagerStats stats;
-  viewMoving_ = lastView_ && !sameView(*lastView_, view);
+  viewMoving_ = lastView_ && *lastView_ != view;
   lastView_ = view;
   // 1. What the view wants, with ray feedback.
   stats.wantedRawBytes = scheduler_->rank(scheduleSlices(index(), view), *regions_);

@@ -29,6 +29,8 @@ struct ViewQuery {
   // Priority factor for slices outside the frustum: still worth loading for turns, but after what is seen
   // (released code: slices outside the view are loaded only when nothing inside is missing).
   double outsideWeight = 1.0 / 64.0;
+
+  bool operator==(const ViewQuery&) const = default;
 };
 
 struct SliceRequest {
