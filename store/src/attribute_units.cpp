@@ -5,9 +5,12 @@
 #include "svo/store/attribute_units.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <numeric>
+
+#include <immintrin.h>
 
 #include <glm/geometric.hpp>
 #include <glm/mat3x3.hpp>
@@ -18,8 +21,12 @@
 namespace svo {
 namespace {
 
-// Power iterations for a dominant eigenvector: enough to order points along it and to start fits.
+// Power iterations for a dominant eigenvector: enough to order points along it and to start fits. They stop
+// early once the unit vector moves less than 1e-6 (squared: kPowerConvergence) in an iteration: the fits
+// only start from it (the 2M terrain's units: the same mean error to 1e-4 degrees, 0.03% of their bytes
+// differ).
 constexpr int kPowerIterations = 16;
+constexpr double kPowerConvergence = 1e-12;
 // Bound on the lattice climbs; from a rounded continuous optimum they move a step or two in practice.
 constexpr int kMaxClimbSteps = 16;
 
@@ -28,11 +35,16 @@ constexpr int kMaxClimbSteps = 16;
 glm::dvec3 dominantAxis(const glm::dmat3& c) {
   int column = 0;
   for (int k = 1; k < 3; ++k) column = glm::dot(c[k], c[k]) > glm::dot(c[column], c[column]) ? k : column;
-  glm::dvec3 v = c[column];
-  for (int it = 0; it <= kPowerIterations; ++it) {
-    const double length = glm::length(v);
+  double length = glm::length(c[column]);
+  if (!(length > 0.0)) return glm::dvec3(0.0);
+  glm::dvec3 v = c[column] / length;
+  for (int it = 0; it < kPowerIterations; ++it) {
+    const glm::dvec3 w = c * v;
+    length = glm::length(w);
     if (!(length > 0.0)) return glm::dvec3(0.0);
-    v = it < kPowerIterations ? c * (v / length) : v / length;
+    const glm::dvec3 next = w / length, moved = next - v;
+    v = next;
+    if (glm::dot(moved, moved) < kPowerConvergence) break;
   }
   return v;
 }
@@ -474,41 +486,61 @@ struct QuantizedGrid {
 };
 
 // Each target's best selector among the 16 decoded normals (the lowest on ties), and the total error. The
-// candidates are kept by coordinate so that a target's 16 errors vectorize; each is glm::dot's
-// (dx * dx + dy * dy) + dz * dz.
+// candidates are kept by coordinate, four to an SSE register (register k: c_v = kSelectorValue[k] and the
+// four c_u, as selector 4 k + j), so that a target's 16 errors and their least take a few vector operations
+// and no branch; each is glm::dot's (dx * dx + dy * dy) + dz * dz, as the scalar operations round.
 void evaluate(QuantizedGrid& q, const NormalTargets& t) {
-  constexpr int kCandidates = 16;
-  alignas(32) float cx[kCandidates], cy[kCandidates], cz[kCandidates], e[kCandidates];
+  constexpr int kRegisters = 4;
+  __m128 cx[kRegisters], cy[kRegisters], cz[kRegisters];
+  const __m128 cu = _mm_setr_ps(kSelectorValue[0], kSelectorValue[1], kSelectorValue[2], kSelectorValue[3]);
   bool degenerate = false;
-  for (int s = 0; s < kCandidates; ++s) {  // gridNormal's operations, by coordinate
-    const float cu = kSelectorValue[s & 3], cv = kSelectorValue[s >> 2];
-    const float x = (q.nb.x + cu * q.nu.x) + cv * q.nv.x, y = (q.nb.y + cu * q.nu.y) + cv * q.nv.y,
-                z = (q.nb.z + cu * q.nu.z) + cv * q.nv.z;
-    const float length2 = (x * x + y * y) + z * z, scale = 1.0f / std::sqrt(length2);
-    degenerate |= !(length2 > 0.0f) || !(length2 <= std::numeric_limits<float>::max());
-    cx[s] = x * scale, cy[s] = y * scale, cz[s] = z * scale;
+  for (int k = 0; k < kRegisters; ++k) {  // gridNormal's operations, by coordinate
+    const __m128 cv = _mm_set1_ps(kSelectorValue[k]);
+    const auto coordinate = [&](float b, float u, float v) {
+      return _mm_add_ps(_mm_add_ps(_mm_set1_ps(b), _mm_mul_ps(cu, _mm_set1_ps(u))),
+                        _mm_mul_ps(cv, _mm_set1_ps(v)));
+    };
+    const __m128 x = coordinate(q.nb.x, q.nu.x, q.nv.x), y = coordinate(q.nb.y, q.nu.y, q.nv.y),
+                 z = coordinate(q.nb.z, q.nu.z, q.nv.z);
+    const __m128 length2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(x, x), _mm_mul_ps(y, y)), _mm_mul_ps(z, z));
+    const __m128 scale = _mm_div_ps(_mm_set1_ps(1.0f), _mm_sqrt_ps(length2));
+    const __m128 finite = _mm_and_ps(_mm_cmpgt_ps(length2, _mm_setzero_ps()),  // false for NaN
+                                     _mm_cmple_ps(length2, _mm_set1_ps(std::numeric_limits<float>::max())));
+    degenerate |= _mm_movemask_ps(finite) != 15;
+    cx[k] = _mm_mul_ps(x, scale), cy[k] = _mm_mul_ps(y, scale), cz[k] = _mm_mul_ps(z, scale);
   }
-  for (unsigned s = 0; degenerate && s < kCandidates; ++s) {
-    const glm::vec3 c = gridNormal(q.nb, q.nu, q.nv, s);
-    cx[s] = c.x, cy[s] = c.y, cz[s] = c.z;
+  if (degenerate) {
+    alignas(16) float x[16], y[16], z[16];
+    for (unsigned s = 0; s < 16; ++s) {
+      const glm::vec3 c = gridNormal(q.nb, q.nu, q.nv, s);
+      x[s] = c.x, y[s] = c.y, z[s] = c.z;
+    }
+    for (int k = 0; k < kRegisters; ++k)
+      cx[k] = _mm_load_ps(x + 4 * k), cy[k] = _mm_load_ps(y + 4 * k), cz[k] = _mm_load_ps(z + 4 * k);
   }
   q.error = 0.0f;
   for (int i = 0; i < t.count; ++i) {
     const glm::vec3 target(t.dir[i]);
-    for (int s = 0; s < kCandidates; ++s) {
-      const float dx = cx[s] - target.x, dy = cy[s] - target.y, dz = cz[s] - target.z;
-      e[s] = (dx * dx + dy * dy) + dz * dz;
+    const __m128 tx = _mm_set1_ps(target.x), ty = _mm_set1_ps(target.y), tz = _mm_set1_ps(target.z);
+    __m128 e[kRegisters];
+    for (int k = 0; k < kRegisters; ++k) {
+      const __m128 dx = _mm_sub_ps(cx[k], tx), dy = _mm_sub_ps(cy[k], ty), dz = _mm_sub_ps(cz[k], tz);
+      e[k] = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
     }
-    int best = 0;
-    for (int s = 1; s < kCandidates; ++s) best = e[s] < e[best] ? s : best;
-    q.selector[i] = std::uint8_t(best);
-    q.error += e[best];
+    __m128 least = _mm_min_ps(_mm_min_ps(e[0], e[1]), _mm_min_ps(e[2], e[3]));
+    least = _mm_min_ps(least, _mm_shuffle_ps(least, least, _MM_SHUFFLE(2, 3, 0, 1)));
+    least = _mm_min_ps(least, _mm_shuffle_ps(least, least, _MM_SHUFFLE(1, 0, 3, 2)));
+    unsigned withLeast = 0;
+    for (int k = 0; k < kRegisters; ++k)
+      withLeast |= unsigned(_mm_movemask_ps(_mm_cmpeq_ps(e[k], least))) << (4 * k);
+    q.selector[i] = std::uint8_t(std::countr_zero(withLeast));
+    q.error += _mm_cvtss_f32(least);
   }
 }
 
 // The quantized unit nearest the points for fixed selectors (n_b fixed where `base` is given). With n_b
 // eliminated the squared distance is one quadratic per coordinate in its two mantissas; for each axis's
-// finest fitting exponent or one coarser, each coordinate climbs from its rounded continuous optimum. n_b
+// finest fitting exponent or one coarser, each coordinate searches from its rounded continuous optimum. n_b
 // is then the mean residual. False where n_b has no direction.
 bool quantizedFit(const glm::dvec3* points, const Selectors& sel, int n, const glm::dvec3* base,
                   QuantizedGrid& q) {
@@ -536,10 +568,16 @@ bool quantizedFit(const glm::dvec3* points, const Selectors& sel, int n, const g
     return e;
   };
   const int eu0 = finest(u), ev0 = finest(v);
+  // A coarser exponent adds only values beyond the finer one's range (its others are the finer one's even
+  // mantissas), so an axis tries it only where its finest fit holds a mantissa at an end of the range.
+  bool coarserU = false, coarserV = false;
+  const auto atEnd = [](int m) { return m == kMantissaMin || m == kMantissaMax; };
   double best = std::numeric_limits<double>::infinity();
   for (int eu = eu0; eu <= std::min(eu0 + 1, kExponentMax); ++eu)
     for (int ev = ev0; ev <= std::min(ev0 + 1, kExponentMax); ++ev) {
+      if ((eu > eu0 && !coarserU) || (ev > ev0 && !coarserV)) continue;
       const double su = axisScale(eu), sv = axisScale(ev), h[3] = {uu * su * su, uv * su * sv, vv * sv * sv};
+      const double inverseH2 = 1.0 / h[2];
       std::uint32_t axes = std::uint32_t(eu) << 12 | std::uint32_t(ev) << 28;
       double total = 0.0;
       for (int k = 0; k < 3; ++k) {
@@ -547,9 +585,26 @@ bool quantizedFit(const glm::dvec3* points, const Selectors& sel, int n, const g
         const auto f = [&](int mu, int mv) {  // m^T H m - 2 d.m
           return (h[0] * mu + 2.0 * h[1] * mv) * mu + h[2] * mv * mv - 2.0 * (d[0] * mu + d[1] * mv);
         };
-        int m[2] = {mantissa(u[k], eu), mantissa(v[k], ev)};  // the rounded continuous optimum
-        total += climb(f, kMantissaMin, kMantissaMax, 1, m);
+        // For a given m_u, f is a convex quadratic in m_v: its best m_v is the real minimiser, rounded
+        // and clamped. From the rounded continuous optimum's m_u, m_u moves while a neighbour's best pair
+        // is better.
+        const auto bestV = [&](int mu) {
+          return int(std::clamp(std::floor((d[1] - h[1] * mu) * inverseH2 + 0.5), double(kMantissaMin),
+                                double(kMantissaMax)));
+        };
+        int m[2] = {mantissa(u[k], eu), 0};
+        m[1] = bestV(m[0]);
+        double least = f(m[0], m[1]);
+        for (const int direction : {-1, 1})
+          for (int mu = m[0] + direction; mu >= kMantissaMin && mu <= kMantissaMax; mu += direction) {
+            const int mv = bestV(mu);
+            const double e = f(mu, mv);
+            if (!(e < least)) break;
+            least = e, m[0] = mu, m[1] = mv;
+          }
+        total += least;
         axes |= std::uint32_t(m[0] & 15) << (4 * k) | std::uint32_t(m[1] & 15) << (16 + 4 * k);
+        if (eu == eu0 && ev == ev0) coarserU |= atEnd(m[0]), coarserV |= atEnd(m[1]);
       }
       if (total < best) best = total, q.axes = axes;
     }
