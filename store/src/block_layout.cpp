@@ -181,7 +181,8 @@ std::uint32_t lookupEntry(std::uint32_t slotCount, std::uint32_t first, std::uin
 // goes without a unit where every child is within the inheritance tolerance of the value its parent shows
 // (decoded from the pair above, or shown by an ancestor in turn), so that no unit's error spreads to the
 // levels below it. Pairs hold siblings, so they are encoded a depth at a time, top down (what a parent
-// shows is known before its children's pair is decided), and in parallel within a depth.
+// shows is known before its children's pair is decided), and in parallel within a depth (in order on the
+// calling thread where LayoutOptions::betweenPasses pauses it).
 struct EncodedUnits {
   static constexpr std::uint8_t kColor = 1, kNormal = 2;
   std::uint32_t pairs = 0;
@@ -202,7 +203,7 @@ template <class Tree>
 class UnitEncoder {
  public:
   UnitEncoder(const Tree& tree, const SlotPlan& plan, const Collected& c, const LayoutOptions& options)
-      : tree_(tree), plan_(plan), c_(c), rule_(tolerant(options)) {
+      : tree_(tree), plan_(plan), c_(c), rule_(tolerant(options)), pause_(options.betweenPasses) {
     out_.pairs = (plan.slotCount + 1) / 2;
     owner_.assign(std::size_t(out_.pairs) * 2, kNone);
     for (std::size_t q = 0; q < c.queue.size(); ++q) owner_[plan.slotOf[c.queue[q].voxel]] = std::uint32_t(q);
@@ -226,11 +227,20 @@ class UnitEncoder {
       if (!listed[pair]) listed[pair] = 1, pairs.push_back(pair);
     }
     depthStart.push_back(pairs.size());
-    for (std::size_t d = 0; d + 1 < depthStart.size(); ++d)
-      tbb::parallel_for(tbb::blocked_range<std::size_t>(depthStart[d], depthStart[d + 1], 128),
-                        [&](const auto& range) {
-                          for (std::size_t i = range.begin(); i != range.end(); ++i) encodePair(pairs[i]);
-                        });
+    if (pause_) {
+      // On the calling thread, pausing every few pairs: a pager worker, whose threads the pager counts and
+      // stops while a frame renders, must not spread onto every core.
+      for (std::size_t i = 0; i < pairs.size(); ++i) {
+        encodePair(pairs[i]);
+        if (i % kPairsBetweenPauses == kPairsBetweenPauses - 1) pause_();
+      }
+    } else {
+      for (std::size_t d = 0; d + 1 < depthStart.size(); ++d)
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(depthStart[d], depthStart[d + 1], 128),
+                          [&](const auto& range) {
+                            for (std::size_t i = range.begin(); i != range.end(); ++i) encodePair(pairs[i]);
+                          });
+    }
     for (const std::uint8_t k : out_.kept) {
       out_.colorCount += (k & EncodedUnits::kColor) != 0;
       out_.normalCount += (k & EncodedUnits::kNormal) != 0;
@@ -323,6 +333,7 @@ class UnitEncoder {
   const SlotPlan& plan_;
   const Collected& c_;
   const InheritanceRule rule_;
+  const std::function<void()>& pause_;
   std::vector<std::uint32_t> owner_;                     // slot -> queue entry
   std::vector<std::uint32_t> shownColor_, shownNormal_;  // per queue entry: the value the voxel shows
   EncodedUnits out_;

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <cstring>
 #include <random>
+#include <set>
 #include <vector>
 
 #include "reference.hpp"
@@ -54,9 +55,10 @@ TEST(LevelOrderLayout, EqualsTheRecordsLayout) {
        {Case{svo::AttributeLayout::Raw, svo::kMaxNearPointer}, Case{svo::AttributeLayout::Raw, 16},
         Case{svo::AttributeLayout::Compressed, svo::kMaxNearPointer},
         Case{svo::AttributeLayout::Compressed, 16}}) {
-    std::uint64_t farSlots = 0;  // the short reach must lead to far pointers, or the case tests nothing
+    std::uint64_t farSlots = 0;    // the short reach must lead to far pointers, or the case tests nothing
+    int pausesWithinEncoding = 0;  // and the compressed cases must pause within the units' encoding
     for (int trial = 0; trial < 12; ++trial) {
-      const svo::VoxelLevels levels = randomLevels(rng, 2 + trial % 5, 0.6);
+      const svo::VoxelLevels levels = randomLevels(rng, 2 + trial % 7, 0.6);
       svo::VoxelTree records = svo::treeOfLevels(levels, true, true);
       svo::LevelOrderTree tree;
       for (const auto& level : levels) tree.voxels.insert(tree.voxels.end(), level.begin(), level.end());
@@ -82,11 +84,20 @@ TEST(LevelOrderLayout, EqualsTheRecordsLayout) {
       svo::LayoutStats stats;
       const svo::Block expected = svo::layoutBlock(records, options, &stats, &slotsOfRecords);
       farSlots += stats.farSlots;
-      // A hook between the passes changes nothing (a pager worker pauses there).
-      int passes = 0;
-      options.betweenPasses = [&] { ++passes; };
+      // A hook between the passes, and between every few pairs' units, changes nothing (a pager worker
+      // pauses there; units are then encoded on its thread alone).
+      int pauses = 0;
+      options.betweenPasses = [&] { ++pauses; };
       const svo::Block got = svo::layoutBlock(tree, options, nullptr, &slotsOfLevels);
-      EXPECT_EQ(passes, layoutCase.attributes == svo::AttributeLayout::Compressed ? 3 : 2);
+      if (layoutCase.attributes == svo::AttributeLayout::Compressed) {
+        std::set<std::uint32_t> pairsEncoded;  // the pairs holding a descriptor with children
+        for (std::size_t v = 0; v < records.voxels.size(); ++v)
+          if (records.voxels[v].childMask != 0) pairsEncoded.insert(slotsOfRecords[v] / 2);
+        EXPECT_EQ(pauses, 3 + int(pairsEncoded.size() / svo::kPairsBetweenPauses));
+        pausesWithinEncoding += int(pairsEncoded.size() / svo::kPairsBetweenPauses);
+      } else {
+        EXPECT_EQ(pauses, 2);
+      }
       SCOPED_TRACE("trial " + std::to_string(trial) + ", " + svo::nameOf(layoutCase.attributes) +
                    ", near pointers up to " + std::to_string(layoutCase.maxNearPointer));
       ASSERT_EQ(got.bytes().size(), expected.bytes().size());
@@ -94,6 +105,7 @@ TEST(LevelOrderLayout, EqualsTheRecordsLayout) {
       EXPECT_EQ(slotsOfLevels, slotsOfRecords);
     }
     if (layoutCase.maxNearPointer < svo::kMaxNearPointer) EXPECT_GT(farSlots, 0u);
+    if (layoutCase.attributes == svo::AttributeLayout::Compressed) EXPECT_GT(pausesWithinEncoding, 0);
   }
 }
 
