@@ -490,7 +490,7 @@ struct QuantizedGrid {
 // four c_u, as selector 4 k + j), so that a target's 16 errors and their least take a few vector operations
 // and no branch; each is glm::dot's (dx * dx + dy * dy) + dz * dz, as the scalar operations round.
 void evaluate(QuantizedGrid& q, const NormalTargets& t) {
-  constexpr int kRegisters = 4;
+  constexpr int kCandidates = 16, kRegisters = kCandidates / 4;
   __m128 cx[kRegisters], cy[kRegisters], cz[kRegisters];
   const __m128 cu = _mm_setr_ps(kSelectorValue[0], kSelectorValue[1], kSelectorValue[2], kSelectorValue[3]);
   bool degenerate = false;
@@ -510,8 +510,8 @@ void evaluate(QuantizedGrid& q, const NormalTargets& t) {
     cx[k] = _mm_mul_ps(x, scale), cy[k] = _mm_mul_ps(y, scale), cz[k] = _mm_mul_ps(z, scale);
   }
   if (degenerate) {
-    alignas(16) float x[16], y[16], z[16];
-    for (unsigned s = 0; s < 16; ++s) {
+    alignas(16) float x[kCandidates], y[kCandidates], z[kCandidates];
+    for (unsigned s = 0; s < kCandidates; ++s) {
       const glm::vec3 c = gridNormal(q.nb, q.nu, q.nv, s);
       x[s] = c.x, y[s] = c.y, z[s] = c.z;
     }

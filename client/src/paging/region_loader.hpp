@@ -70,9 +70,9 @@ struct ReadBack {
 };
 
 // Where a decode thread waits while a frame renders, when it must let the frame have the cores: between the
-// stages of a load for every frame, and within a stage's long loops (decoding, layout passes) only for a
-// moving camera's frames, which must not share the cores with a stage begun before them; a still view's loads
-// matter more than its frame time.
+// stages of a load for every frame, and within a stage's long loops (decoding, layout passes, unit encoding)
+// only for a moving camera's frames, which must not share the cores with a stage begun before them; a still
+// view's loads matter more than its frame time.
 struct Pauses {
   std::function<void()> betweenStages, withinStage;
 };
@@ -103,7 +103,8 @@ class RegionLoader {
   ReadBack readBack(const Region& region, int startLevel, std::uint32_t exactFirst,
                     CarriedLevels* carried) const;
   // Lays the decoded levels out as the region's block, with the slots of its entry voxels and, when the
-  // region is complete, of its child regions' entry voxels. `pause` between the layout's passes.
+  // region is complete, of its child regions' entry voxels. `pause` as LayoutOptions::betweenPasses: between
+  // the layout's passes and within its unit encoding, which it then keeps on this thread.
   void layOut(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried, std::uint32_t resident,
               const std::function<void()>& pause, BuiltBlock& out);
   // The compressed layout: the units carried from the pool, and the exact values of the deepest level (and
