@@ -330,7 +330,7 @@ int unitOf(uint slot, uint type, uint unitWords, out uint start, out uint pairHa
   return kNoAttachment;
 }
 
-// attribute_units.cpp's decodeColorUnit: RGB565 endpoints widened by bit replication, thirds in integers.
+// color_units.cpp's decodeColorUnit: RGB565 endpoints widened by bit replication, thirds in integers.
 uint paletteChannel(uint word0, uint shift, uint bits, uint index) {
   uint mask = (1u << bits) - 1u;
   uint qa = (word0 >> shift) & mask, qb = (word0 >> (16u + shift)) & mask;
@@ -345,7 +345,7 @@ vec3 unitColor(uint start, uint unitSlot) {
               float(paletteChannel(c, 0u, 5u, index))) / 255.0;
 }
 
-// attribute_units.cpp's decodeNormalUnit, in its order of float operations.
+// normal_units.cpp's decodeNormalUnit, in its order of float operations.
 vec3 axisVector(uint bits) {
   float scale = ldexp(1.0, int((bits >> 12) & 15u) - 16);
   return vec3(float(int(bits << 28) >> 28), float(int(bits << 24) >> 28), float(int(bits << 20) >> 28)) * scale;
