@@ -14,14 +14,11 @@
 #include "svo/store/codec.hpp"
 
 namespace svo {
-namespace {
 
-// Slice `id`'s parents: the voxels of `level` (Morton order, one level above the slice) inside its run of
-// sub-cubes, each marked in `covered`; one marked before means two slices claim it.
-std::span<SliceVoxel> claimParents(const StoreIndex& index, std::uint32_t id, std::vector<SliceVoxel>& level,
-                                   std::vector<std::uint8_t>& covered) {
+std::span<SliceVoxel> sliceParents(const StoreIndex& index, std::uint32_t slice,
+                                   std::span<SliceVoxel> level) {
   // The run's voxels one level above the slice: a contiguous Morton range.
-  const SliceInfo& s = index.slices()[id];
+  const SliceInfo& s = index.slices().at(slice);
   glm::ivec3 first, last;
   if (s.wholeCube()) {
     const int shift = s.voxelLevel - 1 - s.cubeLevel;
@@ -34,15 +31,22 @@ std::span<SliceVoxel> claimParents(const StoreIndex& index, std::uint32_t id, st
   const auto lo =
       std::lower_bound(level.begin(), level.end(), first,
                        [](const SliceVoxel& n, const glm::ivec3& k) { return mortonLess(n.coord, k); });
-  const auto hi =
-      std::upper_bound(level.begin(), level.end(), last,
-                       [](const glm::ivec3& k, const SliceVoxel& n) { return mortonLess(k, n.coord); });
-  for (auto p = lo; p != hi; ++p) {
-    std::uint8_t& seen = covered[std::size_t(p - level.begin())];
-    if (seen) throw index.sliceError(id, "overlaps another slice's sub-cubes");
-    seen = 1;
-  }
+  const auto hi = std::upper_bound(
+      lo, level.end(), last, [](const glm::ivec3& k, const SliceVoxel& n) { return mortonLess(k, n.coord); });
   return {lo, hi};
+}
+
+namespace {
+
+// Slice `id`'s parents (sliceParents), each marked in `covered`; one marked before means two slices claim it.
+std::span<SliceVoxel> claimParents(const StoreIndex& index, std::uint32_t id, std::vector<SliceVoxel>& level,
+                                   std::vector<std::uint8_t>& covered) {
+  const std::span<SliceVoxel> parents = sliceParents(index, id, level);
+  for (std::size_t p = std::size_t(parents.data() - level.data()), end = p + parents.size(); p < end; ++p) {
+    if (covered[p]) throw index.sliceError(id, "overlaps another slice's sub-cubes");
+    covered[p] = 1;
+  }
+  return parents;
 }
 
 // The root voxel as the header gives it: the parent of the first slice.

@@ -6,6 +6,9 @@
 //     `dd bs=1M` gets from the same cold file (the page cache is dropped with
 //     posix_fadvise(POSIX_FADV_DONTNEED) before every run); the goal is judged on readSlice with readers;
 //   - bytes per leaf voxel on disk, per part and attachment (the accounting `svo inspect` uses);
+//   - what a load costs per voxel, stage by stage on one thread, against the pager's goal, and the pool's
+//     laid-out blocks stored as they are instead: their bytes on disk and their decompression
+//     (bench_store_load.cpp);
 //   - given a mesh: the in-core build (buildOctree + writeOctree) on 1 and 2 threads, triangles/s, voxels/s
 //     and peak RSS, against OpenVDB meshToLevelSet at the same resolution (bench_build.cpp's peer).
 #include <fcntl.h>
@@ -34,6 +37,7 @@
 #include <zstd.h>
 
 #include "bench_common.hpp"
+#include "bench_store_load.hpp"
 #include "machine.hpp"
 #include "process.hpp"
 #include "store_stats.hpp"
@@ -186,8 +190,8 @@ struct DdResult {
   double seconds = 0.0;
 };
 std::optional<DdResult> runDd(const std::filesystem::path& file) {
-  const std::optional<ProcessResult> dd =
-      runProcess({"dd", "if=" + file.string(), "of=/dev/null", "bs=1M"}, {.workingDirectory = {}, .cLocale = true});
+  const std::optional<ProcessResult> dd = runProcess({"dd", "if=" + file.string(), "of=/dev/null", "bs=1M"},
+                                                     {.workingDirectory = {}, .cLocale = true});
   if (!dd || !dd->succeeded()) return std::nullopt;
   const std::string& output = dd->output;
   const std::size_t line = output.rfind(" bytes");
@@ -518,6 +522,7 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
 
   const WarmDecoding warm = measureWarmDecoding(reader, file, total.largestSlice, runs);
   const ColdReads cold = measureColdReads(reader, file, runs, readThreads);
+  const LoadCosts load = measureLoadCosts(reader, runs);
   printTitle("Slice store: read, verify, decode");
   fmt::print(
       "{}: {} MiB, {} slices ({} decoded MiB, slice size {} B), {} levels, attachments:{}{}; median of {} "
@@ -529,6 +534,7 @@ void benchStore(const std::filesystem::path& path, int runs, int readThreads) {
   printColdReads(cold, double(total.diskBytes), slices.size());
   printSliceSizes(slices, h);
   printBytesPerLeaf(reader, total, leaves);
+  printLoadCosts(load);
   if (warm.sink + cold.sink == 0) fmt::print("(nothing read)\n");
 }
 

@@ -37,6 +37,9 @@ void fetchSlices(const ByteSource& source, const StoreIndex& index, std::span<co
 void checkSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
 // Slice `slice`'s decoded bytes from its compressed bytes, after checkSlice and the frame's size check.
 SliceBytes unpackSlice(const StoreIndex& index, std::uint32_t slice, std::span<const std::byte> compressed);
+// Slice `slice`'s parents among `level`, the voxels of the level above it in Morton order (its cube's, or
+// the whole octree's): the contiguous range inside its run of sub-cubes, what decodeSlice decodes onto.
+std::span<SliceVoxel> sliceParents(const StoreIndex& index, std::uint32_t slice, std::span<SliceVoxel> level);
 // Decodes slice `slice` (its bytes from unpackSlice) onto its parents: the voxels of the level above in its
 // cube, in Morton order. Sets their child masks and appends the new voxels to `children` in Morton order.
 // `pause` as codec.hpp's decodeSlice calls it.

@@ -1,0 +1,39 @@
+// `svo bench store`'s load costs (bench_store_load.cpp): what bringing a store's voxels into the block pool
+// costs per voxel on one thread, stage by stage, and what storing the pool's own block bytes instead would
+// cost on disk and to decompress.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "report.hpp"
+#include "svo/store/block.hpp"
+#include "svo/store/store_reader.hpp"
+
+namespace svo::tools::bench {
+
+struct LoadCosts {
+  int deepestLevel = 0;  // levels 1 to this, decoded into one tree
+  std::uint64_t slices = 0, voxels = 0, leaves = 0;
+  std::uint64_t storeDiskBytes = 0;  // those slices' compressed bytes
+  // The stages of a pager load, each over all of the tree's voxels: read + XXH3 + zstd from the page cache,
+  // decodeSlice onto the levels above, layoutBlock in either attribute layout (on the calling thread, as a
+  // pager worker lays out).
+  Summary read, decode, layoutRaw, layoutCompressed;
+  // The alternative: the laid-out block stored as it is, zstd-compressed in slice-sized chunks.
+  struct StoredBlock {
+    AttributeLayout attributes = AttributeLayout::Raw;
+    std::uint64_t memoryBytes = 0;
+    int zstdLevel = 0;
+    std::uint64_t diskBytes = 0;
+    Summary decompress;
+  };
+  std::vector<StoredBlock> stored;
+};
+
+// Levels 1 down to the deepest whose voxels, with those above, stay within kLoadSampleVoxels (at least level
+// 1), timed `runs` times after a warm-up, the stages interleaved.
+LoadCosts measureLoadCosts(const StoreReader& reader, int runs);
+void printLoadCosts(const LoadCosts& costs);
+
+}  // namespace svo::tools::bench
