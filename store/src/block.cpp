@@ -71,6 +71,19 @@ void checkUnitDirectory(const std::uint32_t* directory, std::uint64_t pairs, std
     corrupt("unit directory holds " + std::to_string(units) + " units, not " + std::to_string(count));
 }
 
+// Each exact normal unit's values (attribute_units.hpp) lie behind the attachment's `count` units and within
+// the `blockWords` words from the first unit to the block's end.
+void checkExactNormalUnits(const std::uint32_t* units, std::uint64_t count, std::uint64_t blockWords) {
+  for (std::uint64_t u = 0; u < count; ++u) {
+    const std::uint32_t* unit = units + u * kNormalUnitWords;
+    if (unit[1] != kExactNormalAxes) continue;
+    const std::uint64_t first = u * kNormalUnitWords + unit[0], held = std::popcount(unit[2]);
+    if (unit[2] >> kUnitSlots != 0 || held == 0 || first < count * kNormalUnitWords ||
+        first + held > blockWords)
+      corrupt("exact normal unit " + std::to_string(u) + " points outside the attachment's values");
+  }
+}
+
 }  // namespace
 
 std::optional<std::uint32_t> BlockView::contour(const ChildDescriptor* parent, int slot) {
@@ -243,6 +256,11 @@ BlockView::BlockView(const std::byte* data, std::size_t size) : base_(data), siz
     if (begin < std::int64_t(directoryEnd) || std::uint64_t(begin) + words * 4 > size)
       corrupt("attachment runs past the end");
     if (isUnits) checkUnitDirectory(at<std::uint32_t>(data, begin), pairs, count);
+    if (entries[a].type == AttachmentType::NormalUnits) {
+      const std::uint64_t unitsBegin = std::uint64_t(begin) + unitDirectoryWords(info.slotCount) * 4;
+      checkExactNormalUnits(at<std::uint32_t>(data, std::ptrdiff_t(unitsBegin)), count,
+                            (size - unitsBegin) / 4);
+    }
   }
   const bool raw = attachment(AttachmentType::Color) || attachment(AttachmentType::Normal);
   if (raw && attributeLayout() == AttributeLayout::Compressed) corrupt("both attribute layouts in one block");
@@ -270,7 +288,8 @@ std::uint32_t BlockView::UnitHalf::color(int childSlot) const {
 glm::vec3 BlockView::UnitHalf::normal(int childSlot) const {
   NormalUnit unit;
   std::memcpy(unit.words.data(), words, sizeof(unit.words));
-  return decodeNormalUnit(unit, half * 8 + childSlot);
+  const int slot = half * 8 + childSlot;
+  return isExact(unit) ? decodeNormal(exactNormalBits(words, slot)) : decodeNormalUnit(unit, slot);
 }
 
 VoxelTree readBlock(const BlockView& block) {

@@ -9,6 +9,9 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
+#include <memory>
+#include <numbers>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -189,7 +192,9 @@ struct EncodedUnits {
   std::vector<ColorUnit> colors;  // per pair; where kept
   std::vector<NormalUnit> normals;
   std::vector<std::uint8_t> kept;  // per pair: kColor | kNormal
-  std::uint32_t colorCount = 0, normalCount = 0;
+  // Per pair, an exact normal unit's values by unit slot (null where the pair holds a grid unit or none).
+  std::vector<std::unique_ptr<std::array<std::uint32_t, kUnitSlots>>> exactNormals;
+  std::uint32_t colorCount = 0, normalCount = 0, exactNormalUnits = 0, exactNormalValues = 0;
   std::uint64_t halvesUsed = 0;
 };
 
@@ -203,12 +208,18 @@ template <class Tree>
 class UnitEncoder {
  public:
   UnitEncoder(const Tree& tree, const SlotPlan& plan, const Collected& c, const LayoutOptions& options)
-      : tree_(tree), plan_(plan), c_(c), rule_(tolerant(options)), pause_(options.betweenPasses) {
+      : tree_(tree),
+        plan_(plan),
+        c_(c),
+        rule_(tolerant(options)),
+        exactSquaredChord_(squaredChord(options.exactNormalUnitDegrees)),
+        pause_(options.betweenPasses) {
     out_.pairs = (plan.slotCount + 1) / 2;
     owner_.assign(std::size_t(out_.pairs) * 2, kNone);
     for (std::size_t q = 0; q < c.queue.size(); ++q) owner_[plan.slotOf[c.queue[q].voxel]] = std::uint32_t(q);
     out_.colors.resize(tree.hasColors ? out_.pairs : 0);
     out_.normals.resize(tree.hasNormals ? out_.pairs : 0);
+    out_.exactNormals.resize(tree.hasNormals ? out_.pairs : 0);
     out_.kept.assign(out_.pairs, 0);
     shownColor_.resize(c.queue.size()), shownNormal_.resize(c.queue.size());
     std::tie(shownColor_[0], shownNormal_[0]) = shownRoot(tree);
@@ -245,6 +256,11 @@ class UnitEncoder {
       out_.colorCount += (k & EncodedUnits::kColor) != 0;
       out_.normalCount += (k & EncodedUnits::kNormal) != 0;
     }
+    for (std::uint32_t u = 0; u < out_.exactNormals.size(); ++u)
+      if (out_.exactNormals[u]) {
+        ++out_.exactNormalUnits;
+        out_.exactNormalValues += std::uint32_t(std::popcount(out_.normals[u].words[2]));
+      }
     out_.halvesUsed = c_.queue.size();  // each descriptor with children takes one half
     return std::move(out_);
   }
@@ -255,6 +271,19 @@ class UnitEncoder {
   static InheritanceRule tolerant(LayoutOptions options) {
     options.inheritEqualOnly = false;
     return InheritanceRule(options);
+  }
+  // The squared chord between unit vectors `degrees` apart (what encodeNormalUnit's error sums); infinite
+  // for 0, where no unit is exact.
+  static float squaredChord(float degrees) {
+    if (!(degrees > 0.0f)) return std::numeric_limits<float>::infinity();
+    const double chord = 2.0 * std::sin(double(degrees) * std::numbers::pi / 360.0);
+    return float(chord * chord);
+  }
+  // The normal pair `u`'s unit shows at unit slot `slot`, as a decoder gives it (cube encoding).
+  std::uint32_t shownNormalOf(std::uint32_t u, int slot) const {
+    const auto& exact = out_.exactNormals[u];
+    return encodeNormal(exact ? decodeNormal((*exact)[std::size_t(slot)])
+                              : decodeNormalUnit(out_.normals[u], slot));
   }
   // The queue entries of entry q's children with children: from its firstChildEntry to the next entry's.
   std::uint32_t childEntriesEnd(std::size_t q) const {
@@ -274,8 +303,11 @@ class UnitEncoder {
       assert((a == kNone || carried(a)) && (b == kNone || carried(b)));
       if (tree_.hasColors && kept->hasColor)
         out_.colors[u] = kept->color, out_.kept[u] |= EncodedUnits::kColor;
-      if (tree_.hasNormals && kept->hasNormal)
+      if (tree_.hasNormals && kept->hasNormal) {
         out_.normals[u] = kept->normal, out_.kept[u] |= EncodedUnits::kNormal;
+        if (isExact(kept->normal))
+          out_.exactNormals[u] = std::make_unique<std::array<std::uint32_t, kUnitSlots>>(kept->exactNormals);
+      }
     } else {
       encodeNew(u, a, b);
     }
@@ -290,9 +322,8 @@ class UnitEncoder {
         const int slot = half * 8 + std::countr_zero(mask);
         shownColor_[next] =
             (out_.kept[u] & EncodedUnits::kColor) ? decodeColorUnit(out_.colors[u], slot) : shownColor_[q];
-        shownNormal_[next] = (out_.kept[u] & EncodedUnits::kNormal)
-                                 ? encodeNormal(decodeNormalUnit(out_.normals[u], slot))
-                                 : shownNormal_[q];
+        shownNormal_[next] =
+            (out_.kept[u] & EncodedUnits::kNormal) ? shownNormalOf(u, slot) : shownNormal_[q];
         ++next;
       }
     }
@@ -325,7 +356,16 @@ class UnitEncoder {
       std::array<glm::vec3, kUnitSlots> normals{};
       for (int slot = 0; slot < kUnitSlots; ++slot)
         if (usedSlots >> slot & 1u) normals[slot] = normalDirection(normalBits[slot]);
-      out_.normals[u] = encodeNormalUnit(normals, usedSlots), out_.kept[u] |= EncodedUnits::kNormal;
+      float squaredError = 0.0f;
+      out_.normals[u] = encodeNormalUnit(normals, usedSlots, &squaredError);
+      out_.kept[u] |= EncodedUnits::kNormal;
+      if (squaredError > exactSquaredChord_ * float(std::popcount(usedSlots))) {
+        // No grid comes near enough: the pair keeps its children's values.
+        out_.normals[u] = NormalUnit{{0u, kExactNormalAxes, usedSlots, 0u}};
+        auto& exact = out_.exactNormals[u] = std::make_unique<std::array<std::uint32_t, kUnitSlots>>();
+        for (int slot = 0; slot < kUnitSlots; ++slot)
+          if (usedSlots >> slot & 1u) (*exact)[std::size_t(slot)] = normalBits[slot];
+      }
     }
   }
 
@@ -333,6 +373,7 @@ class UnitEncoder {
   const SlotPlan& plan_;
   const Collected& c_;
   const InheritanceRule rule_;
+  const float exactSquaredChord_;  // per used slot, mean
   const std::function<void()>& pause_;
   std::vector<std::uint32_t> owner_;                     // slot -> queue entry
   std::vector<std::uint32_t> shownColor_, shownNormal_;  // per queue entry: the value the voxel shows
@@ -363,9 +404,10 @@ Sections sections(const TreeAttachments& tree, const LayoutOptions& options, std
                   : (std::size_t(slotCount) + c.colors.size()) * 4;
   s.normal = cursor;
   if (tree.hasNormals)
-    cursor += compressed
-                  ? (unitDirectoryWords(slotCount) + std::size_t(units.normalCount) * kNormalUnitWords) * 4
-                  : (std::size_t(slotCount) + c.normals.size()) * 4;
+    cursor += compressed ? (unitDirectoryWords(slotCount) +
+                            std::size_t(units.normalCount) * kNormalUnitWords + units.exactNormalValues) *
+                               4
+                         : (std::size_t(slotCount) + c.normals.size()) * 4;
   s.exactColors = cursor;
   cursor += tree.exactColors.size() * 4;
   s.exactNormals = cursor;
@@ -391,6 +433,21 @@ void writeUnits(const EncodedUnits& encoded, const std::vector<Unit>& units, std
     if (!(encoded.kept[pair] & kind)) continue;
     entry[0] |= 1u << (pair % kUnitGroup);
     std::memcpy(out + std::size_t(count++) * kWords, units[pair].words.data(), kWords * 4);
+  }
+}
+
+// The exact normal units' values behind the normal attachment's units (written by writeUnits), in the
+// units' order, and each exact unit's offset to its values.
+void writeExactNormals(const EncodedUnits& encoded, std::uint32_t slotCount, std::uint32_t* words) {
+  std::uint32_t* unit = words + unitDirectoryWords(slotCount);
+  std::uint32_t* values = unit + std::size_t(encoded.normalCount) * kNormalUnitWords;
+  for (std::uint32_t pair = 0; pair < encoded.pairs; ++pair) {
+    if (!(encoded.kept[pair] & EncodedUnits::kNormal)) continue;
+    if (const auto& exact = encoded.exactNormals[pair]) {
+      unit[0] = std::uint32_t(values - unit);
+      for (std::uint32_t mask = unit[2]; mask; mask &= mask - 1) *values++ = (*exact)[std::countr_zero(mask)];
+    }
+    unit += kNormalUnitWords;
   }
 }
 
@@ -507,11 +564,16 @@ Block layOutTree(const Tree& tree, const LayoutOptions& options, LayoutStats* st
           ChildDescriptor::link(std::int32_t(plan.slotOf[v]) - std::int32_t(plan.linkOf[v]));
   if (compressed) {
     if (tree.hasColors) writeUnits(encoded, encoded.colors, EncodedUnits::kColor, slotCount, colorWords);
-    if (tree.hasNormals) writeUnits(encoded, encoded.normals, EncodedUnits::kNormal, slotCount, normalWords);
+    if (tree.hasNormals) {
+      writeUnits(encoded, encoded.normals, EncodedUnits::kNormal, slotCount, normalWords);
+      writeExactNormals(encoded, slotCount, normalWords);
+    }
     stats.units = encoded.pairs;
     stats.unitHalvesUsed = encoded.halvesUsed;
     stats.colorUnitsKept = encoded.colorCount;
     stats.normalUnitsKept = encoded.normalCount;
+    stats.exactNormalUnits = encoded.exactNormalUnits;
+    stats.exactNormalValues = encoded.exactNormalValues;
   }
 
   stats.farSlots = farVoxels;

@@ -276,7 +276,8 @@ Grid startGrid(const glm::dvec3* points, int n, int pivot) {
 
 }  // namespace
 
-NormalUnit encodeNormalUnit(const std::array<glm::vec3, kUnitSlots>& normals, std::uint16_t used) {
+NormalUnit encodeNormalUnit(const std::array<glm::vec3, kUnitSlots>& normals, std::uint16_t used,
+                            float* squaredError) {
   NormalTargets t;
   glm::dvec3 sum(0.0);
   for (int s = 0; s < kUnitSlots; ++s) {
@@ -288,6 +289,7 @@ NormalUnit encodeNormalUnit(const std::array<glm::vec3, kUnitSlots>& normals, st
   }
   NormalUnit unit;
   unit.words[0] = encodeNormal(glm::vec3(0.0f, 0.0f, 1.0f));
+  if (squaredError) *squaredError = 0.0f;
   if (t.count == 0) return unit;
   // Directions that cancel (an antipodal pair) have no mean: the first stands in.
   const glm::dvec3 mean = glm::length(sum) > 0.0 ? glm::normalize(sum) : t.dir[0];
@@ -307,10 +309,13 @@ NormalUnit encodeNormalUnit(const std::array<glm::vec3, kUnitSlots>& normals, st
   }
   if (!(best.error < std::numeric_limits<float>::infinity())) {  // no fit had a base direction
     unit.words[0] = encodeNormal(glm::vec3(mean));
+    if (squaredError) *squaredError = std::numeric_limits<float>::infinity();
     return unit;
   }
+  if (squaredError) *squaredError = best.error;
   unit.words[0] = best.base;
-  unit.words[1] = best.axes;
+  // A zero n_u with exponent 0 (its exponent scales nothing), so that no grid unit reads as an exact one.
+  unit.words[1] = (best.axes & 0x0FFFu) == 0 ? best.axes & ~0xF000u : best.axes;
   for (int i = 0; i < t.count; ++i)
     unit.words[2 + t.slot[i] / 8] |= std::uint32_t(best.selector[i]) << (4 * (t.slot[i] % 8));
   return unit;

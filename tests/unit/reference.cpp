@@ -217,6 +217,21 @@ std::vector<LeafVoxel> walkLeaves(const svo::BlockView& block) {
   return out;
 }
 
+std::uint64_t exactNormalUnits(const svo::BlockView& block) {
+  std::uint64_t exact = 0;
+  std::vector<const svo::ChildDescriptor*> stack{block.root()};
+  while (!stack.empty()) {
+    const svo::ChildDescriptor* d = stack.back();
+    stack.pop_back();
+    if (d->isStub()) continue;
+    const auto unit = svo::BlockView::unit(d, svo::AttachmentType::NormalUnits);
+    exact += unit && unit->half == 0 && unit->words[1] == svo::kExactNormalAxes;  // once per pair
+    for (int slot = 0; slot < 8; ++slot)
+      if (d->nonLeafMask() >> slot & 1u) stack.push_back(svo::BlockView::child(d, slot));
+  }
+  return exact;
+}
+
 // The root's own contour is not part of the chain: a block has no parent descriptor to hold it.
 std::vector<LeafVoxel> walkLeaves(const svo::VoxelTree& tree) {
   std::vector<LeafVoxel> out;

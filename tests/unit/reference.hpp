@@ -122,6 +122,8 @@ struct LeafVoxel {
 std::vector<LeafVoxel> walkLeaves(const svo::BlockView& block);
 // Walks builder records (root first, children contiguous in slot order).
 std::vector<LeafVoxel> walkLeaves(const svo::VoxelTree& tree);
+// A compressed block's exact normal units (attribute_units.hpp), counted over its descriptor pairs.
+std::uint64_t exactNormalUnits(const svo::BlockView& block);
 // Coordinates of the leaves at `level`, sorted and unique; `otherLevels` counts the leaves at any other
 // level.
 std::vector<glm::ivec3> leafCoords(const std::vector<LeafVoxel>& leaves, int level, std::size_t* otherLevels);

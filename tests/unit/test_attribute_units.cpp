@@ -556,6 +556,37 @@ TEST(AttributeUnits, NormalDegenerateInputs) {
   EXPECT_LT(pairs.max, 20.0);
 }
 
+// The error encodeNormalUnit reports is the decoded unit's: the sum over used slots of the squared distance
+// between decoded and given unit directions, recomputed here in double. And no grid unit reads as an exact
+// one, not even where an axis is zero (identical normals: both; normals along one great circle: often one).
+TEST(AttributeUnits, NormalErrorReportedAndNoGridUnitReadsAsExact) {
+  std::mt19937_64 rng(12);
+  int zeroAxes = 0;
+  for (int t = 0; t < 300; ++t) {
+    Normals normals = spherePatch(rng, 0.5 + double(rng() % 60));
+    if (t % 3 == 1) normals.fill(glm::vec3(randomUnit(rng)));
+    if (t % 3 == 2) {
+      const glm::dvec3 d = randomUnit(rng), e = glm::normalize(glm::cross(d, randomUnit(rng)));
+      for (int s = 0; s < kUnitSlots; ++s)
+        normals[s] = glm::vec3(std::cos(0.02 * s) * d + std::sin(0.02 * s) * e);
+    }
+    const std::uint16_t used = t % 2 ? std::uint16_t(0xFFFF) : randomMask(rng, 1 + int(rng() % 16));
+    float reported = -1.0f;
+    const NormalUnit unit = encodeNormalUnit(normals, used, &reported);
+    EXPECT_FALSE(isExact(unit)) << t;
+    zeroAxes += (unit.words[1] & 0x0FFFu) == 0;
+    double squares = 0.0;
+    for (int s = 0; s < kUnitSlots; ++s)
+      if ((used >> s) & 1u) {
+        const glm::dvec3 chord =
+            glm::dvec3(decodeNormalUnit(unit, s)) - glm::normalize(glm::dvec3(normals[s]));
+        squares += glm::dot(chord, chord);
+      }
+    EXPECT_NEAR(reported, squares, 1e-5 + 1e-4 * squares) << t;
+  }
+  EXPECT_GT(zeroAxes, 50);  // the zero-axis case was met
+}
+
 TEST(AttributeUnits, NormalDeterministicAndDontCares) {
   std::mt19937_64 rng(10);
   for (int t = 0; t < 100; ++t) {

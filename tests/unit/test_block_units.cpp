@@ -161,13 +161,17 @@ TEST(BlockUnits, EveryUnitHoldsItsTwoDescriptorsChildrenAsEncodedFromTheTree) {
         const int unitSlot = int(half) * 8 + slot;
         shownColor[c] = colorWords ? svo::decodeColorUnit(color, unitSlot) : shownColor[v];
         shownNormal[c] =
-            normalWords ? svo::encodeNormal(svo::decodeNormalUnit(normal, unitSlot)) : shownNormal[v];
+            !normalWords ? shownNormal[v]
+            : isExact(normal)
+                ? svo::encodeNormal(svo::decodeNormal(svo::exactNormalBits(normalWords, unitSlot)))
+                : svo::encodeNormal(svo::decodeNormalUnit(normal, unitSlot));
       }
     }
-    std::uint64_t halves = 0, colorUnits = 0, normalUnits = 0;
+    std::uint64_t halves = 0, colorUnits = 0, normalUnits = 0, exactUnits = 0;
     for (std::uint32_t pair = 0; pair < stats.units; ++pair) {
       std::array<std::uint32_t, svo::kUnitSlots> colors{};
       std::array<glm::vec3, svo::kUnitSlots> normals{};
+      std::array<std::uint32_t, svo::kUnitSlots> exactBits{};
       std::uint16_t used = 0;
       bool any = false;
       for (int half = 0; half < 2; ++half) {
@@ -181,6 +185,7 @@ TEST(BlockUnits, EveryUnitHoldsItsTwoDescriptorsChildrenAsEncodedFromTheTree) {
           used |= std::uint16_t(1u << (half * 8 + slot));
           colors[half * 8 + slot] = c.color;
           normals[half * 8 + slot] = svo::normalDirection(c.normal);
+          exactBits[half * 8 + slot] = c.normal;
         }
       }
       const std::uint32_t* colorWords = unitFromBytes(view, AttachmentType::ColorUnits, pair);
@@ -194,12 +199,27 @@ TEST(BlockUnits, EveryUnitHoldsItsTwoDescriptorsChildrenAsEncodedFromTheTree) {
       }
       if (normalWords) {
         ++normalUnits;
-        ASSERT_EQ(std::memcmp(normalWords, svo::encodeNormalUnit(normals, used).words.data(), 16), 0) << pair;
+        // The grid unit, or where it misses the children by more than the exact-unit angle, their values.
+        float squared = 0.0f;
+        const svo::NormalUnit grid = svo::encodeNormalUnit(normals, used, &squared);
+        const double rms =
+            2.0 * std::asin(std::sqrt(double(squared) / std::popcount(used)) / 2.0) * 180.0 / kPi;
+        if (rms <= double(svo::kExactNormalUnitDegrees)) {
+          ASSERT_EQ(std::memcmp(normalWords, grid.words.data(), 16), 0) << pair;
+        } else {
+          ++exactUnits;
+          ASSERT_EQ(normalWords[1], svo::kExactNormalAxes) << pair;
+          ASSERT_EQ(normalWords[2], used) << pair;
+          for (int slot = 0; slot < svo::kUnitSlots; ++slot)
+            if (used >> slot & 1u)
+              ASSERT_EQ(svo::exactNormalBits(normalWords, slot), exactBits[slot]) << pair;
+        }
       }
     }
     EXPECT_EQ(stats.unitHalvesUsed, halves);
     EXPECT_EQ(stats.colorUnitsKept, colorUnits);
     EXPECT_EQ(stats.normalUnitsKept, normalUnits);
+    EXPECT_EQ(stats.exactNormalUnits, exactUnits);
     // Read back: the raw layout's structure and contours, values within the units' error.
     const svo::VoxelTree raw = svo::readBlock(layOut(tree, AttributeLayout::Raw).view());
     const svo::VoxelTree back = svo::readBlock(view);
@@ -364,6 +384,64 @@ TEST(BlockUnits, CarriedUnitsAreLaidOutUnchangedAndTheExactValuesKept) {
   EXPECT_EQ(stats.exactBytes, 2u * 4 + 2u * 4);  // three codes in two words
   // The raw layout takes neither.
   EXPECT_THROW(layOut(again, AttributeLayout::Raw), std::invalid_argument);
+}
+
+// Two siblings whose 16 children face every way, as the two sides of a thin sheet or a box's corner do: no
+// grid of the paper's format comes within degrees of them, so their pair keeps the values (an exact unit),
+// which read back as the raw layout's to the cube encoding's precision. Without exact units the grid's error
+// is tens of degrees. An exact unit whose values point outside the block is refused.
+TEST(BlockUnits, APairNoGridFitsKeepsItsNormalsExactly) {
+  svo::VoxelTree tree;
+  tree.hasNormals = true;
+  tree.voxels.resize(1 + 2 + 16);
+  tree.voxels[0] = {.firstChild = 1, .childMask = 0b11, .normal = svo::encodeNormal({0.0f, 0.0f, 1.0f})};
+  for (int half = 0; half < 2; ++half) {
+    svo::VoxelRecord& parent = tree.voxels[std::size_t(1 + half)];
+    parent = {.firstChild = std::uint32_t(3 + 8 * half), .childMask = 0xFF};
+    parent.normal = svo::encodeNormal({half ? -1.0f : 1.0f, 0.2f, 0.3f});
+  }
+  for (int k = 0; k < 16; ++k) {  // a Fibonacci sphere: 16 directions spread evenly
+    const double z = 1.0 - (k + 0.5) / 8.0, r = std::sqrt(1.0 - z * z),
+                 phi = k * kPi * (3.0 - std::sqrt(5.0));
+    tree.voxels[std::size_t(3 + k)].normal =
+        svo::encodeNormal(glm::vec3(r * std::cos(phi), r * std::sin(phi), z));
+  }
+  const svo::VoxelTree raw = svo::readBlock(layOut(tree, AttributeLayout::Raw).view());
+  const auto meanError = [&](const svo::LayoutOptions& options, svo::LayoutStats& stats, svo::Block& block) {
+    std::vector<std::uint32_t> slotOf;
+    block = svo::layoutBlock(tree, options, &stats, &slotOf);
+    const svo::VoxelTree back = svo::readBlock(svo::BlockView(block.bytes().data(), block.bytes().size()));
+    double sum = 0.0;
+    for (std::size_t v = 3; v < back.voxels.size(); ++v)
+      sum +=
+          degreesBetween(svo::decodeNormal(back.voxels[v].normal), svo::decodeNormal(raw.voxels[v].normal));
+    return sum / 16.0;
+  };
+  svo::LayoutOptions options;
+  options.attributes = AttributeLayout::Compressed;
+  svo::LayoutStats stats;
+  svo::Block block;
+  EXPECT_LT(meanError(options, stats, block), 1e-3);
+  EXPECT_EQ(stats.exactNormalUnits, 1u);
+  EXPECT_EQ(stats.exactNormalValues, 16u);
+  // Its pair's unit: the exact unit, values behind the units.
+  const std::uint32_t* unit = nullptr;
+  for (std::uint32_t pair = 0; pair < stats.units && !unit; ++pair) {
+    const std::uint32_t* u = unitFromBytes(block.view(), AttachmentType::NormalUnits, pair);
+    if (u && u[1] == svo::kExactNormalAxes) unit = u;
+  }
+  ASSERT_NE(unit, nullptr);
+  EXPECT_EQ(unit[2], 0xFFFFu);
+  // Pointing past the block's end is refused.
+  svo::AlignedBytes spoiled(block.bytes().size());
+  std::memcpy(spoiled.data(), block.bytes().data(), spoiled.size());
+  const std::size_t unitOffset = std::size_t(reinterpret_cast<const std::byte*>(unit) - block.bytes().data());
+  reinterpret_cast<std::uint32_t*>(spoiled.data() + unitOffset)[0] = std::uint32_t(spoiled.size());
+  EXPECT_THROW(svo::BlockView(spoiled.data(), spoiled.size()), std::runtime_error);
+  // Without exact units, a grid: degrees off on average.
+  options.exactNormalUnitDegrees = 0.0f;
+  EXPECT_GT(meanError(options, stats, block), 10.0);
+  EXPECT_EQ(stats.exactNormalUnits, 0u);
 }
 
 // A pool keeps the deepest level's normals as their 16-bit lattice codes: every code must come back from the

@@ -110,8 +110,9 @@ void printMemory(const SceneResult& scene) {
   const AttributeError& e = *scene.compressedError;
   fmt::print(
       "raw: {} colors and {} normals stored, {} and {} inherited; compressed: {} pairs of slots, {:.0f}% of "
-      "their halves hold children, {} hold a color unit and {} a normal unit (the others' children "
-      "inherit), laid out in {}. Compressed against raw over {} voxels: color RMSE {:.2f}, max {:.0f} "
+      "their halves hold children, {} hold a color unit and {} a normal unit ({} of them exact: their "
+      "values, where no grid comes within {:.1f} deg) (the others' children inherit), laid out in {}. "
+      "Compressed against raw over {} voxels: color RMSE {:.2f}, max {:.0f} "
       "(8-bit steps); normal mean {:.3f} deg, max {:.2f} deg. Paper Table 1: ~{:.0f} B per voxel of every "
       "level "
       "with compressed attributes{}.\n",
@@ -119,8 +120,9 @@ void printMemory(const SceneResult& scene) {
       formatCount(raw.inheritedNormals), formatCount(compressed.units),
       100.0 * double(compressed.unitHalvesUsed) / double(std::max<std::uint64_t>(2 * compressed.units, 1)),
       formatCount(compressed.colorUnitsKept), formatCount(compressed.normalUnitsKept),
-      formatSeconds(scene.compressSeconds), formatCount(e.voxels), e.colorRmse, e.colorMax,
-      e.normalMeanDegrees, e.normalMaxDegrees, paperTotal, hasColor ? "" : " (this scene has no color)");
+      formatCount(compressed.exactNormalUnits), kExactNormalUnitDegrees, formatSeconds(scene.compressSeconds),
+      formatCount(e.voxels), e.colorRmse, e.colorMax, e.normalMeanDegrees, e.normalMaxDegrees, paperTotal,
+      hasColor ? "" : " (this scene has no color)");
 }
 
 void printScenes(const std::vector<SceneResult>& scenes) {

@@ -200,6 +200,11 @@ void CarriedLevels::carry(const ChildDescriptor* d, std::size_t level, std::size
   if (const auto normals = BlockView::unit(d, AttachmentType::NormalUnits)) {
     std::memcpy(unit.normal.words.data(), normals->words, sizeof(unit.normal.words));
     unit.hasNormal = true;
+    if (isExact(unit.normal))
+      for (std::uint32_t mask = unit.normal.words[2]; mask; mask &= mask - 1) {
+        const int slot = std::countr_zero(mask);
+        unit.exactNormals[std::size_t(slot)] = exactNormalBits(normals->words, slot);
+      }
   }
   unitOf[level][index] = std::uint32_t(units.size());
   units.push_back(unit);

@@ -350,7 +350,11 @@ vec3 axisVector(uint bits) {
   float scale = ldexp(1.0, int((bits >> 12) & 15u) - 16);
   return vec3(float(int(bits << 28) >> 28), float(int(bits << 24) >> 28), float(int(bits << 20) >> 28)) * scale;
 }
+// An exact unit (attribute_units.hpp: word 1 kExactNormalAxes) holds its slots' values behind the units.
+const uint kExactNormalAxes = 61440u;
 vec3 unitNormal(uint start, uint unitSlot) {
+  if (words[start + 1u] == kExactNormalAxes)
+    return decodeNormal(words[start + words[start] + uint(bitCount(words[start + 2u] & ((1u << unitSlot) - 1u)))]);
   const float selectorValue[4] = float[4](-1.0, -1.0 / 3.0, 1.0 / 3.0, 1.0);
   uint selector = (words[start + 2u + unitSlot / 8u] >> (4u * (unitSlot % 8u))) & 15u;
   vec3 nb = cubePoint(words[start]);

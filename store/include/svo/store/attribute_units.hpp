@@ -5,6 +5,7 @@
 #pragma once
 
 #include <array>
+#include <bit>
 #include <cstdint>
 
 #include <glm/vec3.hpp>
@@ -36,6 +37,21 @@ struct NormalUnit {
   bool operator==(const NormalUnit&) const = default;
 };
 
+// An exact unit: where no grid fits a pair's normals within LayoutOptions::exactNormalUnitDegrees, the block
+// keeps their values instead of a grid (an extension of the paper's format). Word 1 is kExactNormalAxes
+// (n_u's mantissas zero with exponent 15, which no grid unit holds: a grid unit with a zero n_u has exponent
+// 0), word 2 the mask of the slots it holds, word 0 the offset in words from the unit's first word to their
+// values, one cube-encoded normal (format.hpp) per slot of the mask in slot order, behind the attachment's
+// units.
+inline constexpr std::uint32_t kExactNormalAxes = 0xF000u;
+constexpr bool isExact(const NormalUnit& unit) {
+  return unit.words[1] == kExactNormalAxes;
+}
+// Slot `slot`'s value in the exact unit whose first word is at `unit` in its block.
+inline std::uint32_t exactNormalBits(const std::uint32_t* unit, int slot) {
+  return unit[unit[0] + std::uint32_t(std::popcount(unit[2] & ((1u << slot) - 1u)))];
+}
+
 // Axis scales run from 2^-kNormalAxisExponentBias (finer than the base normal's 15 and 14 bits resolve near
 // a face centre) to 2^(15 - kNormalAxisExponentBias), so that 7 steps span the cube's diagonal.
 inline constexpr int kNormalAxisExponentBias = 16;
@@ -48,11 +64,15 @@ ColorUnit encodeColorUnit(const std::array<std::uint32_t, kUnitSlots>& abgr, std
 // Slot `slot`'s color as ABGR with alpha 255.
 std::uint32_t decodeColorUnit(const ColorUnit& unit, int slot);
 
-// A unit with low angular error over the used slots, found by search (it minimises the sum of 1 - cos over
-// them); the other slots are don't-cares (selector 0). Normals need not be unit length but must be non-zero
-// and finite (others are taken as +z). Deterministic as encodeColorUnit.
-NormalUnit encodeNormalUnit(const std::array<glm::vec3, kUnitSlots>& normals, std::uint16_t used);
-// Slot `slot`'s normal, unit length (n_b when the sum is zero).
+// A grid unit with low angular error over the used slots, found by search (it minimises the sum of 1 - cos
+// over them); the other slots are don't-cares (selector 0). Normals need not be unit length but must be
+// non-zero and finite (others are taken as +z). Deterministic as encodeColorUnit. `squaredError`, when given,
+// receives the sum over the used slots of the squared distance between decoded and given directions (unit
+// vectors: the squared chord, about the squared angle).
+NormalUnit encodeNormalUnit(const std::array<glm::vec3, kUnitSlots>& normals, std::uint16_t used,
+                            float* squaredError = nullptr);
+// Slot `slot`'s normal, unit length (n_b when the sum is zero), of a grid unit (an exact unit's values are
+// in its block: exactNormalBits).
 glm::vec3 decodeNormalUnit(const NormalUnit& unit, int slot);
 
 }  // namespace svo
