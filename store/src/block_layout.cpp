@@ -252,15 +252,14 @@ class UnitEncoder {
                             for (std::size_t i = range.begin(); i != range.end(); ++i) encodePair(pairs[i]);
                           });
     }
-    for (const std::uint8_t k : out_.kept) {
-      out_.colorCount += (k & EncodedUnits::kColor) != 0;
-      out_.normalCount += (k & EncodedUnits::kNormal) != 0;
-    }
-    for (std::uint32_t u = 0; u < out_.exactNormals.size(); ++u)
-      if (out_.exactNormals[u]) {
+    for (std::uint32_t u = 0; u < out_.pairs; ++u) {
+      out_.colorCount += (out_.kept[u] & EncodedUnits::kColor) != 0;
+      out_.normalCount += (out_.kept[u] & EncodedUnits::kNormal) != 0;
+      if (tree_.hasNormals && out_.exactNormals[u]) {
         ++out_.exactNormalUnits;
         out_.exactNormalValues += std::uint32_t(std::popcount(out_.normals[u].words[2]));
       }
+    }
     out_.halvesUsed = c_.queue.size();  // each descriptor with children takes one half
     return std::move(out_);
   }
