@@ -54,7 +54,7 @@ std::size_t wholeStoreBudget(const std::vector<SliceInfo>& slices) {
 WholeScene::WholeScene(Octree octree) : octree_(std::move(octree)) {}
 
 WholeScene WholeScene::paged(const std::filesystem::path& store, std::size_t poolBytes,
-                             AttributeLayout attributes) {
+                             AttributeOptions attributes) {
   PagerOptions options;
   options.budgetBytes = poolBytes;
   options.attributes = attributes;

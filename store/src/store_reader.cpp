@@ -257,17 +257,17 @@ VoxelTree StoreReader::loadTree() const {
   return tree;
 }
 
-Octree readOctree(const std::filesystem::path& path, AttributeLayout attributes) {
+Octree readOctree(const std::filesystem::path& path, AttributeOptions attributes) {
   return readOctree(StoreReader(path), attributes);
 }
 
-Octree readOctree(const StoreReader& reader, AttributeLayout attributes) {
+Octree readOctree(const StoreReader& reader, AttributeOptions attributes) {
   Octree octree;
   octree.transform = reader.header().transform;
   octree.parameters = reader.header().parameters;
   try {
     LayoutOptions layout;
-    layout.attributes = attributes;
+    attributes.applyTo(layout);
     layout.inheritEqualOnly = true;  // the store's values: it already decided what inherits, as the pager
     octree.block = layoutBlock(reader.loadTree(), layout);
   } catch (const std::invalid_argument& e) {

@@ -223,6 +223,27 @@ TEST_F(Cli, BadCameraAndOutput) {
                      "--beam-tile", dir_ / "x.png");
 }
 
+// CLI11 reads "nan" and "inf" as floats and its range checks let them through; every float option refuses
+// them, and the exact-unit angle its out-of-range values, before any work.
+TEST_F(Cli, NonFiniteAndOutOfRangeNumbersAreRefused) {
+  const fs::path good = dir_ / "good.svo";
+  ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + good.string() + " --levels 5").exitCode, 0);
+  const fs::path png = dir_ / "x.png";
+  for (const std::string flag : {"--fov nan", "--lod-pixels inf", "--timeout nan", "--exact-normals nan",
+                                 "--exact-normals -1", "--exact-normals 91"})
+    expectCleanFailure(svo("render " + good.string() + " -o " + png.string() + " " + flag),
+                       flag.substr(0, flag.find(' ')), png);
+  for (const std::string flag : {"--geometry-error nan", "--leaf-contour-min-reduction inf"})
+    expectCleanFailure(
+        svo("build " + tetrahedron().string() + " -o " + (dir_ / "o.svo").string() + " " + flag),
+        flag.substr(0, flag.find(' ')), dir_ / "o.svo");
+  ASSERT_EQ(
+      svo("render " + good.string() + " -o " + png.string() + " --attributes compressed --exact-normals 0")
+          .exitCode,
+      0);
+  EXPECT_TRUE(fs::exists(png));
+}
+
 TEST_F(Cli, VerifyAndInspect) {
   const fs::path store = dir_ / "tet.svo";
   ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + store.string() + " --levels 6 --slice-size 256")

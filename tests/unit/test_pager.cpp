@@ -428,6 +428,45 @@ TEST(Pager, RegionsOfOneVoxelsChildrenPageExactlyWithCompressedAttributes) {
   }
 }
 
+// The exact-unit angle a user picks (--exact-normals) reaches the pool's layout as it reaches the store read
+// whole: with none exact and with most exact, the paged frames equal the whole octree's of the same angle,
+// and those differ.
+TEST(Pager, TheExactNormalAngleReachesThePoolAsTheStoreReadWhole) {
+  static const TempStore store = [] {
+    TempStore s("svo_pager_exact", ".svo");
+    svotest::writeSphereAndBoxStore(s.path, 4096);
+    return s;
+  }();
+  const svo::Camera camera = cameraAt({1.6, 2.4, 3.0}, {0, 0, 0}, 128);
+  svo::RenderOptions render;
+  render.lodPixels = 0.0f, render.threads = 1;
+  std::vector<svo::Frame> wholeFrames;
+  for (const float degrees : {0.0f, 0.01f}) {
+    SCOPED_TRACE(degrees);
+    const svo::AttributeOptions attributes{svo::AttributeLayout::Compressed, degrees};
+    const svo::Octree octree = svo::readOctree(store.path, attributes);
+    const std::uint64_t exact = svotest::exactNormalUnits(octree.block.view());
+    if (degrees == 0.0f)
+      EXPECT_EQ(exact, 0u);
+    else
+      EXPECT_GT(exact, 100u);
+    svo::PagerOptions options;
+    options.attributes = attributes;
+    options.budgetBytes = std::size_t(256) << 20;
+    svo::Pager full(store.path, options);
+    svo::ViewQuery everything = svo::viewOf(full.transform(), cameraAt({0, 0, 4}, {0, 0, 0}, 64), 1e-9);
+    everything.frustum.clear();
+    converge(full, everything);
+    const svo::Frame paged = svo::render(full.trunk(), full.transform(), camera, render);
+    wholeFrames.push_back(svo::render(octree, camera, render));
+    const svo::Frame& whole = wholeFrames.back();
+    EXPECT_EQ(std::memcmp(paged.color.data(), whole.color.data(), paged.color.size() * sizeof(glm::vec4)), 0);
+  }
+  EXPECT_NE(std::memcmp(wholeFrames[0].color.data(), wholeFrames[1].color.data(),
+                        wholeFrames[0].color.size() * sizeof(glm::vec4)),
+            0);
+}
+
 INSTANTIATE_TEST_SUITE_P(Attributes, PagerLayouts,
                          ::testing::Values(svo::AttributeLayout::Raw, svo::AttributeLayout::Compressed),
                          [](const auto& info) { return std::string(svo::nameOf(info.param)); });

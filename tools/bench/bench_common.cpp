@@ -145,10 +145,10 @@ ScratchPath::~ScratchPath() {
 
 WholeScene wholeSceneOf(const VoxelTree& tree, const SceneTransform& transform,
                         const BuildParameters& parameters, const std::filesystem::path& store,
-                        LayoutStats* layout, AttributeLayout attributes) {
+                        LayoutStats* layout, AttributeOptions attributes) {
   try {
     LayoutOptions options;
-    options.attributes = attributes;
+    attributes.applyTo(options);
     return WholeScene(Octree{transform, parameters, layoutBlock(tree, options, layout)});
   } catch (const BlockTooLarge&) {
   }

@@ -130,7 +130,7 @@ class ScratchPath {
 // tree when absent (the caller removes it after the scene).
 WholeScene wholeSceneOf(const VoxelTree& tree, const SceneTransform& transform,
                         const BuildParameters& parameters, const std::filesystem::path& store,
-                        LayoutStats* layout = nullptr, AttributeLayout attributes = AttributeLayout::Raw);
+                        LayoutStats* layout = nullptr, AttributeOptions attributes = {});
 
 // The error of the compressed attribute layout against the raw one, voxel by voxel (readBlock of both):
 // colors in 8-bit units over the RGB channels, normals in degrees.

@@ -20,6 +20,7 @@
 #include "bench_common.hpp"
 #include "dimensions_report.hpp"
 #include "measure.hpp"
+#include "number_checks.hpp"
 #include "pager_flags.hpp"
 #include "plot.hpp"
 #include "remote.hpp"
@@ -216,10 +217,10 @@ void addDimensionBench(CLI::App& bench) {
   cmd->add_option("--budget", args->budget, "each view's pool budget (default 1G)")
       ->transform(CLI::AsSizeValue(false));
   cmd->add_option("--lod-pixels", args->lodPixels, "target voxel size in pixels")
-      ->check(CLI::Range(0.01, 64.0))
+      ->check(finiteRange(0.01, 64.0))
       ->capture_default_str();
   cmd->add_option("--timeout", args->timeout, "seconds a view may take to converge")
-      ->check(CLI::Range(1.0, 86400.0))
+      ->check(finiteRange(1.0, 86400.0))
       ->capture_default_str();
   addPagerThreadFlags(*cmd, args->pager);
   cmd->callback([args] { runDimensionBench(*args); });

@@ -5,6 +5,7 @@
 // Markdown report, PNG plots of each error against time with the Pareto front marked, the reference image
 // and difference images of the best and worst settings. --stream: bench_quality_stream.cpp.
 #include <algorithm>
+#include <cassert>
 #include <filesystem>
 #include <map>
 #include <memory>
@@ -17,6 +18,7 @@
 
 #include "bench_quality.hpp"
 #include "link_flags.hpp"
+#include "number_checks.hpp"
 #include "plot.hpp"
 #include "text_file.hpp"
 
@@ -80,7 +82,7 @@ std::vector<int> parseLevels(const std::string& text) {
 
 // The settings swept at one depth and contour cut: level of detail and beam, with contours and (for the
 // first cut only: cube renders ignore contours) without; and with contours and the beam, each level of
-// detail with compressed attributes and with the post-process filter.
+// detail with compressed attributes (at each exact-unit angle) and with the post-process filter.
 std::vector<Setting> settingsOf(int levels, float cut, bool firstCut, const LevelScene& level,
                                 const std::vector<float>& filterRadii) {
   std::vector<Setting> settings;
@@ -92,9 +94,9 @@ std::vector<Setting> settingsOf(int levels, float cut, bool firstCut, const Leve
   }
   for (const float lod : kLodSweep) {
     const Setting plain{levels, cut, lod, true, kBeamSweep[0]};
-    if (level.compressed) {
+    for (const auto& [degrees, scene] : level.compressed) {
       Setting compressed = plain;
-      compressed.attributes = AttributeLayout::Compressed;
+      compressed.attributes = {AttributeLayout::Compressed, degrees};
       settings.push_back(compressed);
     }
     for (const float radius : filterRadii) {
@@ -104,6 +106,15 @@ std::vector<Setting> settingsOf(int levels, float cut, bool firstCut, const Leve
     }
   }
   return settings;
+}
+
+// The level's octree laid out as `attributes` says.
+const WholeScene& sceneFor(const LevelScene& level, const AttributeOptions& attributes) {
+  if (!attributes.compressed()) return *level.scene;
+  for (const auto& [degrees, scene] : level.compressed)
+    if (degrees == attributes.exactNormalUnitDegrees) return scene;
+  assert(false && "settingsOf lists only the compressed scenes the level has");
+  return *level.scene;
 }
 
 // Every setting of every swept depth and contour cut, timed and compared with the reference.
@@ -118,8 +129,7 @@ std::vector<Measured> measureSettings(const QualityArgs& args, const Mesh& mesh,
       BuildOptions build;
       build.levels = levels;
       build.leafContourMinReduction = cut;
-      buildLevel(mesh, build, args.out, true, level);
-      const BlockView root = level.scene->root();
+      buildLevel(mesh, build, args.out, true, level, args.exactNormals);
       const double finestVoxel = scene.size / double(std::int64_t(1) << levels);
       for (const Setting& setting :
            settingsOf(levels, cut, cut == args.contourCuts.front(), level, args.filterRadii)) {
@@ -132,10 +142,10 @@ std::vector<Measured> measureSettings(const QualityArgs& args, const Mesh& mesh,
         options.beamTile = setting.beam;
         options.filter = setting.filterRadius > 0.0f;
         options.filterRadius = setting.filterRadius;
-        const BlockView from =
-            setting.attributes == AttributeLayout::Compressed ? level.compressed->root() : root;
+        const WholeScene& from = sceneFor(level, setting.attributes);
+        m.poolBytes = from.bytes();
         Frame frame;
-        m.seconds = timeRuns(args.runs, [&] { frame = render(from, scene, camera, options); }).median;
+        m.seconds = timeRuns(args.runs, [&] { frame = render(from.root(), scene, camera, options); }).median;
         m.image = imageOf(std::move(frame));
         compare(reference, m.image, finestVoxel, m);
         all.push_back(std::move(m));
@@ -246,7 +256,7 @@ std::string knobEffects(const std::filesystem::path& out, const std::vector<Meas
   const auto plainOf = [&](const Setting& s) -> const Measured* {
     for (const Measured& m : all)
       if (m.setting.levels == s.levels && m.setting.contourCut == s.contourCut && m.setting.lod == s.lod &&
-          m.setting.contours && m.setting.beam == s.beam && m.setting.attributes == AttributeLayout::Raw &&
+          m.setting.contours && m.setting.beam == s.beam && !m.setting.attributes.compressed() &&
           m.setting.filterRadius == 0.0f)
         return &m;
     return nullptr;
@@ -254,27 +264,29 @@ std::string knobEffects(const std::filesystem::path& out, const std::vector<Meas
   const int deepest = std::max_element(all.begin(), all.end(), [](const Measured& a, const Measured& b) {
                         return a.setting.levels < b.setting.levels;
                       })->setting.levels;
-  Table table({"knob", "setting", "PSNR off dB", "PSNR on dB", "render off", "render on", "knob costs"});
+  Table table({"knob", "setting", "PSNR off dB", "PSNR on dB", "render off", "render on", "knob costs",
+               "memory off MB", "memory on MB"});
   std::string markdown =
       "\n## Knobs against the same setting without them\n\n| knob | setting | PSNR off | PSNR on | render "
-      "off ms | "
-      "render on ms |\n|---|---|---|---|---|---|\n";
+      "off ms | render on ms | memory off MB | memory on MB |\n|---|---|---|---|---|---|---|---|\n";
   std::string images;
   for (const Measured& m : all) {
     const bool filter = m.setting.filterRadius > 0.0f;
-    const bool compressed = m.setting.attributes == AttributeLayout::Compressed;
+    const bool compressed = m.setting.attributes.compressed();
     if (!filter && !compressed) continue;
     const Measured* plain = plainOf(m.setting);
     if (!plain) continue;
-    const std::string knob =
-        filter ? fmt::format("post-process filter {}", m.setting.filterRadius) : "compressed attributes";
+    const std::string knob = m.setting.knobName();
+    const auto megabytes = [](const Measured& x) { return double(x.poolBytes) / (1 << 20); };
     const std::string setting =
         fmt::format("L{} lod {} cut {}", m.setting.levels, m.setting.lod, m.setting.contourCut);
     table.addRow({knob, setting, fmt::format("{:.2f}", plain->psnr), fmt::format("{:.2f}", m.psnr),
                   formatSeconds(plain->seconds), formatSeconds(m.seconds),
-                  fmt::format("{:+.1f} ms", 1e3 * (m.seconds - plain->seconds))});
-    markdown += fmt::format("| {} | {} | {:.2f} | {:.2f} | {:.2f} | {:.2f} |\n", knob, setting, plain->psnr,
-                            m.psnr, 1e3 * plain->seconds, 1e3 * m.seconds);
+                  fmt::format("{:+.1f} ms", 1e3 * (m.seconds - plain->seconds)),
+                  fmt::format("{:.2f}", megabytes(*plain)), fmt::format("{:.2f}", megabytes(m))});
+    markdown += fmt::format("| {} | {} | {:.2f} | {:.2f} | {:.2f} | {:.2f} | {:.2f} | {:.2f} |\n", knob,
+                            setting, plain->psnr, m.psnr, 1e3 * plain->seconds, 1e3 * m.seconds,
+                            megabytes(*plain), megabytes(m));
     if (filter && m.setting.levels == deepest && m.setting.contourCut == all.front().setting.contourCut) {
       const std::string before = fmt::format("lod{}-no-filter.png", m.setting.lod);
       const std::string after = fmt::format("lod{}-filter{}.png", m.setting.lod, m.setting.filterRadius);
@@ -289,14 +301,20 @@ std::string knobEffects(const std::filesystem::path& out, const std::vector<Meas
   return markdown + (images.empty() ? "" : "\n" + images);
 }
 
+// Throws UsageError naming `flag` where a value is listed twice.
+void requireDistinct(const std::vector<float>& values, const char* flag) {
+  for (std::size_t i = 0; i < values.size(); ++i)
+    if (std::count(values.begin(), values.begin() + i, values[i]))
+      throw UsageError(fmt::format("{}: {} is listed twice", flag, values[i]));
+}
+
 void runQualityBench(const QualityArgs& args) {
   requireRuns(args.runs);
   if (args.size < 16 || args.size > 8192)
     throw UsageError(fmt::format("--size must be in [16, 8192] (got {})", args.size));
   const std::vector<int> levelList = parseLevels(args.levels);
-  for (std::size_t i = 0; i < args.contourCuts.size(); ++i)
-    if (std::count(args.contourCuts.begin(), args.contourCuts.begin() + i, args.contourCuts[i]))
-      throw UsageError(fmt::format("--leaf-contour-cuts: {} is listed twice", args.contourCuts[i]));
+  requireDistinct(args.contourCuts, "--leaf-contour-cuts");
+  requireDistinct(args.exactNormals, "--exact-normals");
   const glm::dvec3 view = parseDirection(args.view, "--view");
   const int threads = resolveThreads(args.threads);
   const std::filesystem::path out = args.out;
@@ -351,14 +369,21 @@ void addQualityBench(CLI::App& bench) {
                   "finest voxels' contour thresholds to build each depth with (svo build "
                   "--leaf-contour-min-reduction), comma-separated; --stream builds with the first")
       ->delimiter(',')
-      ->check(CLI::Range(0.0f, 2.0f))
+      ->check(finiteRange(0.0, 2.0))
       ->capture_default_str();
   cmd->add_option(
          "--filter-radius", args->filterRadii,
          "post-process filter radii per voxel width to sweep at each level of detail (contours, beam), "
          "comma-separated")
       ->delimiter(',')
-      ->check(CLI::Range(0.05f, 8.0f))
+      ->check(finiteRange(0.05, 8.0))
+      ->capture_default_str();
+  cmd->add_option(
+         "--exact-normals", args->exactNormals,
+         "compressed attributes' exact-unit angles (svo render --exact-normals) to sweep at each level "
+         "of detail (contours, beam), comma-separated")
+      ->delimiter(',')
+      ->check(finiteRange(0.0, kMaxExactNormalUnitDegrees))
       ->capture_default_str();
   cmd->add_option("--size", args->size, "image width and height")->capture_default_str();
   cmd->add_option("--runs", args->runs, "timed runs per setting; the median is reported")
@@ -367,7 +392,7 @@ void addQualityBench(CLI::App& bench) {
   cmd->add_option("--zoom", args->zoom,
                   "camera this many times closer to the scene's centre than the framing view (a city's "
                   "buildings wider than a pixel)")
-      ->check(CLI::Range(1.0, 1000.0))
+      ->check(finiteRange(1.0, 1000.0))
       ->capture_default_str();
   cmd->add_option("--threads", args->threads, "threads (0 = all cores)")->capture_default_str();
   cmd->add_option("-o,--output", args->out, "folder for the report, plots and images")->capture_default_str();
@@ -380,7 +405,7 @@ void addQualityBench(CLI::App& bench) {
       ->transform(CLI::AsSizeValue(false))
       ->needs(stream);
   cmd->add_option("--timeout", args->timeout, "with --stream: seconds the view may take to converge")
-      ->check(CLI::PositiveNumber)
+      ->check(finitePositive())
       ->capture_default_str()
       ->needs(stream);
   std::vector<std::string> sourceWords;

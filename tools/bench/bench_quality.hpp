@@ -26,6 +26,7 @@ struct QualityArgs {
   std::string levels = "8,9,10";
   std::vector<float> contourCuts{BuildOptions{}.leafContourMinReduction};
   std::vector<float> filterRadii{kPostFilterRadiusPerVoxel};
+  std::vector<float> exactNormals{kExactNormalUnitDegrees};  // compressed attributes' exact-unit angles
   int size = 512;
   int runs = 3;
   std::string view = defaultViewText();
@@ -71,13 +72,16 @@ struct Setting {
   float lod = 1.0f;
   bool contours = true;
   int beam = 8;
-  AttributeLayout attributes = AttributeLayout::Raw;
+  AttributeOptions attributes;
   float filterRadius = 0.0f;  // the post-process filter's (sec. 6.3) radius per voxel width; 0: off
   std::string family() const {
     return fmt::format("{}, {}{}{}", contours ? fmt::format("contours cut {}", contourCut) : "cubes",
-                       beam ? "beam" : "no beam",
-                       attributes == AttributeLayout::Compressed ? ", compressed attributes" : "",
+                       beam ? "beam" : "no beam", attributes.compressed() ? ", " + knobName() : "",
                        filterRadius > 0.0f ? fmt::format(", filter {}", filterRadius) : "");
+  }
+  std::string knobName() const {
+    if (filterRadius > 0.0f) return fmt::format("post-process filter {}", filterRadius);
+    return fmt::format("compressed attributes, exact normals {} deg", attributes.exactNormalUnitDegrees);
   }
   std::string name() const { return fmt::format("L{} lod {} {}", levels, lod, family()); }
 };
@@ -91,6 +95,7 @@ struct Measured {
   double silhouettePercent = 0.0;
   double buildSeconds = 0.0;
   std::uint64_t storeBytes = 0;
+  std::size_t poolBytes = 0;  // the octree rendered, in memory (WholeScene::bytes)
   Image image;
 };
 
@@ -113,8 +118,9 @@ struct LevelScene {
   std::uint64_t storeBytes = 0;
   double buildSeconds = 0.0;  // voxelize + layout
   SceneTransform transform;
-  std::optional<WholeScene> scene;       // with its root: every depth, one block or paged
-  std::optional<WholeScene> compressed;  // the same with compressed attributes (when it has any)
+  std::optional<WholeScene> scene;  // with its root: every depth, one block or paged
+  // The same with compressed attributes, by exact-unit angle (where the scene has attributes).
+  std::vector<std::pair<float, WholeScene>> compressed;
   LevelScene() = default;
   LevelScene(const LevelScene&) = delete;
   ~LevelScene() {
@@ -125,9 +131,10 @@ struct LevelScene {
 };
 
 // Builds `build.levels` levels in core and writes them as a store in `out` (removed with the scene); with
-// `withRoot`, also lays it out to render from (that time counts as build time).
+// `withRoot`, also lays it out to render from (that time counts as build time), and with compressed
+// attributes at each of `exactNormals`' angles.
 void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesystem::path& out, bool withRoot,
-                LevelScene& s);
+                LevelScene& s, const std::vector<float>& exactNormals = {});
 
 // --stream's flags checked before any work: throws UsageError for a source listed twice, or a link with no
 // source over HTTP.

@@ -122,7 +122,7 @@ void compare(const Image& reference, const Image& voxels, double finestVoxel, Me
 }
 
 void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesystem::path& out, bool withRoot,
-                LevelScene& s) {
+                LevelScene& s, const std::vector<float>& exactNormals) {
   const int levels = build.levels;
   spdlog::info("building {} levels, contour cut {} ...", levels, build.leafContourMinReduction);
   s.transform = fitSceneCube(mesh);
@@ -135,9 +135,10 @@ void buildLevel(const Mesh& mesh, const BuildOptions& build, const std::filesyst
   if (!withRoot) return;
   s.buildSeconds +=
       timeSeconds([&] { s.scene.emplace(wholeSceneOf(tree, s.transform, parameters, s.store)); });
-  if (tree.hasColors || tree.hasNormals)
-    s.compressed.emplace(
-        wholeSceneOf(tree, s.transform, parameters, s.store, nullptr, AttributeLayout::Compressed));
+  if (!tree.hasColors && !tree.hasNormals) return;
+  for (const float degrees : exactNormals)
+    s.compressed.emplace_back(degrees, wholeSceneOf(tree, s.transform, parameters, s.store, nullptr,
+                                                    {AttributeLayout::Compressed, degrees}));
 }
 
 }  // namespace svo::tools::bench

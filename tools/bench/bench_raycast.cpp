@@ -69,7 +69,7 @@ std::string percent(std::uint64_t part, std::uint64_t whole) {
   return fmt::format("{:.1f}%", whole ? 100.0 * double(part) / double(whole) : 0.0);
 }
 
-void printMemory(const SceneResult& scene) {
+void printMemory(const SceneResult& scene, float exactNormalUnitDegrees) {
   const double leaves = double(std::max<std::uint64_t>(scene.stats.leafVoxels, 1));
   if (!scene.rawLayout || !scene.compressedLayout) {
     printTitle(fmt::format("Octree memory per leaf voxel ({} leaf voxels, paged)",
@@ -120,7 +120,7 @@ void printMemory(const SceneResult& scene) {
       formatCount(raw.inheritedNormals), formatCount(compressed.units),
       100.0 * double(compressed.unitHalvesUsed) / double(std::max<std::uint64_t>(2 * compressed.units, 1)),
       formatCount(compressed.colorUnitsKept), formatCount(compressed.normalUnitsKept),
-      formatCount(compressed.exactNormalUnits), kExactNormalUnitDegrees, formatSeconds(scene.compressSeconds),
+      formatCount(compressed.exactNormalUnits), exactNormalUnitDegrees, formatSeconds(scene.compressSeconds),
       formatCount(e.voxels), e.colorRmse, e.colorMax, e.normalMeanDegrees, e.normalMaxDegrees, paperTotal,
       hasColor ? "" : " (this scene has no color)");
 }
@@ -332,7 +332,7 @@ void runRaycastBench(const RaycastArgs& args) {
   }
   printScenes(scenes);
   printComparison(scenes, args);
-  for (const SceneResult& scene : scenes) printMemory(scene);
+  for (const SceneResult& scene : scenes) printMemory(scene, args.attributes.exactNormalUnitDegrees);
 }
 
 }  // namespace

@@ -26,12 +26,12 @@ struct RaycastArgs {
   std::vector<std::string> cameras{"whole", "close"};
   int width = 0, height = 0;  // 0: --size
   std::string device = "cpu";
-  std::string scaling;                                // triangle counts of the scaling sweep ("10k,100k,...")
-  std::string scalingKind = "terrain";                // the generated scene of the sweep
-  std::string output = "raycast-report";              // folder for the plot and images
-  bool images = false;                                // write each camera's ESVO and Embree images as PNG
-  AttributeLayout attributes = AttributeLayout::Raw;  // of the timed octree
-  PacketSimd simd = PacketSimd::Widest;               // ESVO's packet loop
+  std::string scaling;                    // triangle counts of the scaling sweep ("10k,100k,...")
+  std::string scalingKind = "terrain";    // the generated scene of the sweep
+  std::string output = "raycast-report";  // folder for the plot and images
+  bool images = false;                    // write each camera's ESVO and Embree images as PNG
+  AttributeOptions attributes;  // of the timed octree; its angle also the compared compressed layout's
+  PacketSimd simd = PacketSimd::Widest;  // ESVO's packet loop
 };
 
 // A method's timed frames: the median and spread of its runs and the last run's result.

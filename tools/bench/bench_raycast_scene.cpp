@@ -252,19 +252,19 @@ void measureRow(const WholeScene& scene, const PeerTrace& peer, const MeshShadin
 
 // The octree in both attribute layouts, where each fits one block: bytes by part, and the compressed
 // values' error against the raw ones. The timed scene's block is reused when it is the raw one.
-void compareLayouts(const VoxelTree& tree, const WholeScene& scene, AttributeLayout timed,
+void compareLayouts(const VoxelTree& tree, const WholeScene& scene, const AttributeOptions& timed,
                     SceneResult& result) {
   if (!tree.hasColors && !tree.hasNormals) return;
   try {
     LayoutStats raw, compressed;
     std::optional<Block> rawBlock;
-    if (timed == AttributeLayout::Raw && scene.octree()) {
+    if (!timed.compressed() && scene.octree()) {
       raw = result.stats.layout;
     } else {
       rawBlock.emplace(layoutBlock(tree, {}, &raw));
     }
     LayoutOptions options;
-    options.attributes = AttributeLayout::Compressed;
+    AttributeOptions{AttributeLayout::Compressed, timed.exactNormalUnitDegrees}.applyTo(options);
     Block compressedBlock;
     result.compressSeconds = timeSeconds([&] { compressedBlock = layoutBlock(tree, options, &compressed); });
     result.compressedError =

@@ -31,6 +31,7 @@
 #include "bench_serve_streams.hpp"
 #include "measure.hpp"
 #include "nginx_peer.hpp"
+#include "number_checks.hpp"
 #include "process.hpp"
 #include "svo/store/store_reader.hpp"
 
@@ -338,7 +339,7 @@ void addServeBench(CLI::App& bench) {
       ->check(CLI::Range(1, 10000))
       ->capture_default_str();
   cmd->add_option("--seconds", args->seconds, "length of each timed run")
-      ->check(CLI::Range(1.0, 600.0))
+      ->check(finiteRange(1.0, 600.0))
       ->capture_default_str();
   cmd->add_option("--runs", args->runs, "timed runs per peer (alternating); the median is reported")
       ->capture_default_str();

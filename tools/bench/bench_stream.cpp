@@ -33,6 +33,7 @@
 #include "bench_common.hpp"
 #include "link_flags.hpp"
 #include "measure.hpp"
+#include "number_checks.hpp"
 #include "pager_flags.hpp"
 #include "plot.hpp"
 #include "remote.hpp"
@@ -462,7 +463,7 @@ void addStreamBench(CLI::App& bench) {
       ->check(CLI::Range(2, 100000))
       ->capture_default_str();
   cmd->add_option("--lod-pixels", args->lodPixels, "target voxel size in pixels")
-      ->check(CLI::Range(0.01, 64.0))
+      ->check(finiteRange(0.01, 64.0))
       ->capture_default_str();
   addPagerThreadFlags(*cmd, args->pager);
   addAttributeLayoutFlag(*cmd, args->pager.attributes);

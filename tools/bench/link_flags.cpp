@@ -5,6 +5,7 @@
 
 #include <fmt/format.h>
 
+#include "number_checks.hpp"
 #include "usage.hpp"
 
 namespace svo::tools::bench {
@@ -16,7 +17,7 @@ std::pair<CLI::Option*, CLI::Option*> addLinkFlags(CLI::App& cmd, double& delayM
                      scope +
                          ": milliseconds a loopback relay adds to each direction (a link of twice that round "
                          "trip)")
-          ->check(CLI::Range(0.0, 10000.0));
+          ->check(finiteRange(0.0, 10000.0));
   CLI::Option* rate =
       cmd.add_option("--link-rate", bitsPerSecond,
                      scope +
@@ -24,7 +25,7 @@ std::pair<CLI::Option*, CLI::Option*> addLinkFlags(CLI::App& cmd, double& delayM
                          "connection (100M: a 100 Mbit/s link; default unbounded)")
           ->transform(CLI::AsNumberWithUnit(std::map<std::string, double>{{"k", 1e3}, {"M", 1e6}, {"G", 1e9}},
                                             CLI::AsNumberWithUnit::CASE_SENSITIVE))
-          ->check(CLI::NonNegativeNumber);
+          ->check(finiteNonNegative());
   return {delay, rate};
 }
 

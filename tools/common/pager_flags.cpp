@@ -7,6 +7,7 @@
 #include <utility>
 #include <vector>
 
+#include "number_checks.hpp"
 #include "remote.hpp"
 
 namespace svo::tools {
@@ -65,13 +66,18 @@ void addNamedOption(CLI::App& cmd, const std::string& flag, Enum& value,
 
 }  // namespace
 
-void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout) {
+void addAttributeLayoutFlag(CLI::App& cmd, AttributeOptions& attributes) {
   addNamedOption(
-      cmd, "--attributes", layout,
+      cmd, "--attributes", attributes.layout,
       {{nameOf(AttributeLayout::Raw), AttributeLayout::Raw},
        {nameOf(AttributeLayout::Compressed), AttributeLayout::Compressed}},
       "colors and normals in memory: raw (32-bit values, children inherit equal ones; sec. 5.4) or "
       "compressed (units of 16 child slots, about a byte per color and two per normal; sec. 5.5)");
+  cmd.add_option("--exact-normals", attributes.exactNormalUnitDegrees,
+                 "with --attributes compressed: a unit of normals that no grid fits within this many degrees "
+                 "(root mean square) keeps its normals' 32-bit values instead (0 = none: every unit a grid)")
+      ->check(finiteRange(0.0, kMaxExactNormalUnitDegrees))
+      ->capture_default_str();
 }
 
 void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd) {

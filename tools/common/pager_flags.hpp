@@ -19,9 +19,9 @@ namespace svo::tools {
 void addPagerThreadFlags(CLI::App& cmd, PagerOptions& options);
 // `flag` when the command line set it, else fetchThreadsFor(locator): more for a URL than for a file.
 int resolvedFetchThreads(int flag, const std::string& locator);
-// Adds --attributes raw|compressed: how the octree's blocks (the pool's, or the one block of a store read
-// whole) hold colors and normals.
-void addAttributeLayoutFlag(CLI::App& cmd, AttributeLayout& layout);
+// Adds --attributes raw|compressed and --exact-normals DEGREES: how the octree's blocks (the pool's, or the
+// one block of a store read whole) hold colors and normals.
+void addAttributeLayoutFlag(CLI::App& cmd, AttributeOptions& attributes);
 // Adds --simd widest|avx512|avx2|none: the ray caster's packet loop (CastOptions::simd).
 void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd);
 

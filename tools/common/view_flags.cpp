@@ -1,5 +1,6 @@
 #include "view_flags.hpp"
 
+#include "number_checks.hpp"
 #include "pager_flags.hpp"
 #include "usage.hpp"
 
@@ -22,7 +23,7 @@ void addCameraFlags(CLI::App& cmd, CameraFlags& flags) {
       ->delimiter(',')
       ->capture_default_str();
   cmd.add_option("--fov", flags.fov, "vertical field of view, degrees")
-      ->check(CLI::Range(1.0, 179.0))
+      ->check(finiteRange(1.0, 179.0))
       ->capture_default_str();
   cmd.add_option("--width", flags.width, "image width")->check(CLI::Range(1, 16384))->capture_default_str();
   cmd.add_option("--height", flags.height, "image height")
@@ -64,7 +65,7 @@ Camera cameraOf(const CameraFlags& flags, const BlockView& root, const SceneTran
 
 void addRenderFlags(CLI::App& cmd, RenderOptions& options, bool& noContours) {
   cmd.add_option("--lod-pixels", options.lodPixels, "stop at voxels this many pixels across (0 = finest)")
-      ->check(CLI::Range(0.0, 64.0))
+      ->check(finiteRange(0.0, 64.0))
       ->capture_default_str();
   cmd.add_option("--beam-tile", options.beamTile,
                  "beam optimization (sec. 6.2): pixels per tile edge of one coarse pass (0 = off)")

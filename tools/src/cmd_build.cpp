@@ -18,6 +18,7 @@
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
+#include "number_checks.hpp"
 #include "progress.hpp"
 #include "report.hpp"
 #include "svo/builder/build.hpp"
@@ -558,21 +559,21 @@ void addBuildCommand(CLI::App& app) {
   cmd->add_flag("--no-contours", args->noContours, "cube voxels only (no contour slabs)");
   cmd->add_option("--leaf-contour-min-reduction", args->options.leafContourMinReduction,
                   "store a finest voxel's contour only where it cuts more than this many voxels off the hull")
-      ->check(CLI::Range(0.0, 2.0))
+      ->check(finiteRange(0.0, 2.0))
       ->capture_default_str();
   cmd->add_option("--inner-contour-min-reduction", args->options.innerContourMinReduction,
                   "the same for the voxels above the finest (their contours bound every voxel below)")
-      ->check(CLI::Range(0.0, 2.0))
+      ->check(finiteRange(0.0, 2.0))
       ->capture_default_str();
   cmd->add_option("--geometry-error", args->options.geometryError,
                   "stop refining where the contour fits the surface within this many finest voxels (0 = off)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(finiteNonNegative());
   cmd->add_option("--color-error", args->options.colorError,
                   "with --geometry-error: also require colors within this many 8-bit steps (0 = not checked)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(finiteNonNegative());
   cmd->add_option("--normal-error", args->options.normalError,
                   "with --geometry-error: also require normals within this many degrees (0 = not checked)")
-      ->check(CLI::Range(0.0, 180.0));
+      ->check(finiteRange(0.0, 180.0));
   cmd->add_option("--slice-size", args->sliceBytes,
                   "bytes a slice may hold before its cube splits into 8 (sec. 7; suffixes K, M)")
       ->transform(CLI::AsSizeValue(false))

@@ -17,6 +17,7 @@
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
+#include "number_checks.hpp"
 #include "pager_flags.hpp"
 #include "plot.hpp"
 #include "remote.hpp"
@@ -263,7 +264,7 @@ void addRenderCommand(CLI::App& app) {
   addPagerThreadFlags(*cmd, args->pager);
   addAttributeLayoutFlag(*cmd, args->pager.attributes);
   cmd->add_option("--timeout", args->timeout, "when streaming: seconds a view may take to converge")
-      ->check(CLI::PositiveNumber)
+      ->check(finitePositive())
       ->capture_default_str();
   cmd->add_option("--device", args->device,
                   "cpu: the ray caster on all cores; gpu: the OpenGL 4.5 compute caster (headless EGL; the "

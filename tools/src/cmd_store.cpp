@@ -14,6 +14,7 @@
 
 #include "commands.hpp"
 #include "dimensions_report.hpp"
+#include "number_checks.hpp"
 #include "progress.hpp"
 #include "remote.hpp"
 #include "store_stats.hpp"
@@ -201,7 +202,7 @@ void addStoreCommands(CLI::App& app) {
         ->check(CLI::Range(1, 30));
     cmd->add_option("--view-pixels", args->dims.viewPixels, "--dimensions: the base view's image size")
         ->needs(dims)
-        ->check(CLI::Range(1.0, 65536.0))
+        ->check(finiteRange(1.0, 65536.0))
         ->capture_default_str();
     cmd->add_option("--steps", args->dims.steps,
                     "--dimensions: doublings of the base view's distance and of its image size")

@@ -22,6 +22,7 @@
 #include "commands.hpp"
 #include "machine.hpp"
 #include "measure.hpp"
+#include "number_checks.hpp"
 #include "pager_flags.hpp"
 #include "plot.hpp"
 #include "remote.hpp"
@@ -43,7 +44,7 @@ struct StressArgs {
   float lodPixels = 1.0f;
   double timeout = 120.0;
   double minutes = 0.0;  // soak: repeat the sequences this long
-  AttributeLayout attributes = AttributeLayout::Raw;
+  AttributeOptions attributes;
 };
 
 // Field of view of the stress cameras, degrees.
@@ -407,14 +408,14 @@ void addStressCommand(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--seed", args->seed, "random sequence seed")->capture_default_str();
   cmd->add_option("--lod-pixels", args->lodPixels, "target voxel size in pixels")
-      ->check(CLI::Range(0.01, 64.0))
+      ->check(finiteRange(0.01, 64.0))
       ->capture_default_str();
   cmd->add_option("--timeout", args->timeout, "seconds the final view may take to converge")
-      ->check(CLI::PositiveNumber)
+      ->check(finitePositive())
       ->capture_default_str();
   cmd->add_option("--minutes", args->minutes,
                   "soak: repeat the sequences this long, recording the resident set (must stay flat)")
-      ->check(CLI::PositiveNumber);
+      ->check(finitePositive());
   addAttributeLayoutFlag(*cmd, args->attributes);
   cmd->add_option("-o,--output", args->output, "with --minutes: folder for soak.csv and soak_rss.png")
       ->capture_default_str();

@@ -182,7 +182,7 @@ WorkerCpu StageCounters::seconds() const {
 }
 
 RegionLoader::RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex,
-                           AttributeLayout attributes)
+                           AttributeOptions attributes)
     : source_(source),
       index_(source.index()),
       regions_(regions),
@@ -266,7 +266,7 @@ FetchedChain RegionLoader::fetch(const LoadRequest& request) {
 ReadBack RegionLoader::readBack(const Region& region, int startLevel, std::uint32_t exactFirst,
                                 CarriedLevels* carried) const {
   ReadBack r;
-  r.compressed = attributes_ == AttributeLayout::Compressed;
+  r.compressed = attributes_.compressed();
   r.startLevel = startLevel;
   if (!r.compressed) return r;
   r.carried = carried;
@@ -375,12 +375,12 @@ void RegionLoader::layOut(const Region& region, RegionVoxels& voxels, CarriedLev
     if (const auto record = recordAt(std::size_t(level - region.cubeLevel), coord);
         record && tree.voxels[*record].childMask != 0)
       entryRecords.push_back({coord, *record});
-  if (attributes_ == AttributeLayout::Compressed)
+  if (attributes_.compressed())
     keepForDeepening(region, voxels, std::move(carried), resident + out.added, out);
   std::vector<std::uint32_t> slotOf;
   LayoutOptions layout;
   layout.inheritEqualOnly = true;  // decoded slices: the store already decided what inherits
-  layout.attributes = attributes_;
+  attributes_.applyTo(layout);
   layout.betweenPasses = pause;
   out.block = layoutBlock(tree, layout, nullptr, &slotOf);
   out.rootSlot = out.block.view().info().rootSlot;

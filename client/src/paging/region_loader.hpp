@@ -81,7 +81,7 @@ class RegionLoader {
  public:
   // Workers read the pool under `poolMutex` shared; commits write it exclusively.
   RegionLoader(const SliceSource& source, RegionTable& regions, std::shared_mutex& poolMutex,
-               AttributeLayout attributes);
+               AttributeOptions attributes);
 
   // The request's slices from the source (I/O).
   FetchedChain fetch(const LoadRequest& request);
@@ -116,7 +116,7 @@ class RegionLoader {
   const StoreIndex& index_;
   RegionTable& regions_;  // read only, but for prefaulting the pool's free pages
   std::shared_mutex& poolMutex_;
-  const AttributeLayout attributes_;
+  const AttributeOptions attributes_;
   std::atomic<std::uint64_t> bytesRead_{0};
   StageCounters cpu_;
 };

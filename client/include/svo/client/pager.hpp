@@ -69,7 +69,7 @@ struct PagerOptions {
   double sourceRetryMaxSeconds = 10.0;
   // How the pool's blocks hold colors and normals (block.hpp): compressed units take about a third of the
   // bytes of uncompressed values on colored scenes, and cost encoding time as slices load.
-  AttributeLayout attributes = AttributeLayout::Raw;
+  AttributeOptions attributes;
 };
 
 // What one update() did. Counts are slices.

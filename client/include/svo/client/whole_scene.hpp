@@ -37,7 +37,7 @@ class WholeScene {
   // Every slice of the store resident in a pool of `poolBytes` laying attributes out as `attributes` says.
   // Throws std::runtime_error naming the store when they do not all fit.
   static WholeScene paged(const std::filesystem::path& store, std::size_t poolBytes,
-                          AttributeLayout attributes = AttributeLayout::Raw);
+                          AttributeOptions attributes = {});
 
   BlockView root() const { return octree_ ? octree_->block.view() : pager_->trunk(); }
   const SceneTransform& transform() const { return octree_ ? octree_->transform : pager_->transform(); }

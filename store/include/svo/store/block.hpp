@@ -223,8 +223,12 @@ struct VoxelTree : TreeAttachments {
 // The default of LayoutOptions::exactNormalUnitDegrees. Swept on the 2 M-triangle terrain at 10 levels (8, 6,
 // 4, 3, 2.75, 2.5, 2 degrees): the normals' mean error against the raw layout falls from 1.82 to 0.80 degrees
 // at 2.5 (1.01 at 3) with 23% of the units exact, the pool 10.68 -> 12.20 B per leaf voxel (raw: 14.96); the
-// bunny's maximum error 46.7 -> 6.6 degrees for 0.01 B per leaf voxel.
+// bunny's maximum error 46.7 -> 6.6 degrees for 0.01 B per leaf voxel. svo bench quality at 1 voxel per pixel
+// barely follows it (the bunny loses 0.13 dB at 2.5, 0.11 at 0.3, nothing only at 0.05).
 inline constexpr float kExactNormalUnitDegrees = 2.5f;
+// The largest angle an exact unit threshold may take: no grid unit misses its normals by more than 90 degrees
+// root mean square unless they point every way, so a larger angle would be the same as 90.
+inline constexpr float kMaxExactNormalUnitDegrees = 90.0f;
 struct LayoutOptions {
   // Largest near child pointer; smaller values force far pointers (tests).
   std::uint32_t maxNearPointer = kMaxNearPointer;
@@ -246,6 +250,21 @@ struct LayoutOptions {
   // With it set, units are encoded on the calling thread alone (else on every core).
   std::function<void()> betweenPasses;
 };
+// The attribute choices a user makes for a pool or a store read whole (--attributes, --exact-normals): the
+// LayoutOptions fields of the same names. Built from a layout alone, it takes the default angle.
+struct AttributeOptions {
+  AttributeLayout layout = AttributeLayout::Raw;
+  float exactNormalUnitDegrees = kExactNormalUnitDegrees;
+  AttributeOptions() = default;
+  AttributeOptions(AttributeLayout layout, float exactNormalUnitDegrees = kExactNormalUnitDegrees)  // NOLINT
+      : layout(layout), exactNormalUnitDegrees(exactNormalUnitDegrees) {}
+  bool compressed() const { return layout == AttributeLayout::Compressed; }
+  void applyTo(LayoutOptions& options) const {
+    options.attributes = layout;
+    options.exactNormalUnitDegrees = exactNormalUnitDegrees;
+  }
+};
+
 // About 0.2 ms of unit encoding (1.7 us a pair of the 2M terrain's units), as decodeSlice's
 // kParentsBetweenPauses is of decoding.
 inline constexpr std::size_t kPairsBetweenPauses = 128;

@@ -96,7 +96,7 @@ class StoreReader {
 };
 
 // The whole store as one in-memory octree (loadTree + layoutBlock): the same block the in-core builder makes.
-Octree readOctree(const std::filesystem::path& path, AttributeLayout attributes = AttributeLayout::Raw);
-Octree readOctree(const StoreReader& reader, AttributeLayout attributes = AttributeLayout::Raw);
+Octree readOctree(const std::filesystem::path& path, AttributeOptions attributes = {});
+Octree readOctree(const StoreReader& reader, AttributeOptions attributes = {});
 
 }  // namespace svo
