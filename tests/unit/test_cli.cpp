@@ -229,8 +229,9 @@ TEST_F(Cli, NonFiniteAndOutOfRangeNumbersAreRefused) {
   const fs::path good = dir_ / "good.svo";
   ASSERT_EQ(svo("build " + tetrahedron().string() + " -o " + good.string() + " --levels 5").exitCode, 0);
   const fs::path png = dir_ / "x.png";
-  for (const std::string flag : {"--fov nan", "--lod-pixels inf", "--timeout nan", "--exact-normals nan",
-                                 "--exact-normals -1", "--exact-normals 91"})
+  for (const std::string flag :
+       {"--fov nan", "--lod-pixels inf", "--timeout nan", "--view nan,0,1", "--view 0,0,0",
+        "--exact-normals nan", "--exact-normals -1", "--exact-normals 91"})
     expectCleanFailure(svo("render " + good.string() + " -o " + png.string() + " " + flag),
                        flag.substr(0, flag.find(' ')), png);
   for (const std::string flag : {"--geometry-error nan", "--leaf-contour-min-reduction inf"})

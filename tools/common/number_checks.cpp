@@ -10,7 +10,7 @@ namespace {
 
 // `accepts` the finite value, else the message for `input`; "" is CLI11's "passed".
 template <class Accepts>
-CLI::Validator finiteNumber(std::string description, Accepts accepts, std::string bounds) {
+CLI::Validator numberCheck(std::string description, Accepts accepts, std::string bounds) {
   return CLI::Validator(
       [accepts, bounds](std::string& input) -> std::string {
         double value = 0.0;
@@ -23,19 +23,24 @@ CLI::Validator finiteNumber(std::string description, Accepts accepts, std::strin
 
 }  // namespace
 
+CLI::Validator finiteNumber() {
+  return numberCheck(
+      "FINITE", [](double) { return true; }, "");
+}
+
 CLI::Validator finiteRange(double min, double max) {
-  return finiteNumber(
+  return numberCheck(
       fmt::format("FLOAT in [{} - {}]", min, max), [min, max](double v) { return v >= min && v <= max; },
       fmt::format("in range [{} - {}]", min, max));
 }
 
 CLI::Validator finitePositive() {
-  return finiteNumber(
+  return numberCheck(
       "POSITIVE", [](double v) { return v > 0.0; }, "positive");
 }
 
 CLI::Validator finiteNonNegative() {
-  return finiteNumber(
+  return numberCheck(
       "NONNEGATIVE", [](double v) { return v >= 0.0; }, "non-negative");
 }
 

@@ -7,6 +7,8 @@
 
 namespace svo::tools {
 
+// Any finite number.
+CLI::Validator finiteNumber();
 // A finite number in [min, max].
 CLI::Validator finiteRange(double min, double max);
 // A finite number above 0.

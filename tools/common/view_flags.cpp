@@ -21,6 +21,7 @@ void addCameraFlags(CLI::App& cmd, CameraFlags& flags) {
   cmd.add_option("--view", flags.view, "without --eye: look along this direction at the whole scene")
       ->expected(3)
       ->delimiter(',')
+      ->check(finiteNumber())
       ->capture_default_str();
   cmd.add_option("--fov", flags.fov, "vertical field of view, degrees")
       ->check(finiteRange(1.0, 179.0))
@@ -50,7 +51,9 @@ std::optional<Camera> explicitCamera(const CameraFlags& flags) {
 }
 
 glm::dvec3 viewDirectionOf(const CameraFlags& flags) {
-  return vec3Of(flags.view);
+  const glm::dvec3 view = vec3Of(flags.view);
+  if (view == glm::dvec3(0.0)) throw UsageError("--view: the direction must not be zero");
+  return view;
 }
 
 Camera cameraOf(const CameraFlags& flags, const BlockView& root, const SceneTransform& scene,
