@@ -226,8 +226,8 @@ struct VoxelTree : TreeAttachments {
 // bunny's maximum error 46.7 -> 6.6 degrees for 0.01 B per leaf voxel. svo bench quality at 1 voxel per pixel
 // barely follows it (the bunny loses 0.13 dB at 2.5, 0.11 at 0.3, nothing only at 0.05).
 inline constexpr float kExactNormalUnitDegrees = 2.5f;
-// The largest angle an exact unit threshold may take: no grid unit misses its normals by more than 90 degrees
-// root mean square unless they point every way, so a larger angle would be the same as 90.
+// The largest exact-unit angle a command line may ask for: a larger one would keep grid units whose normals
+// point away from the values they stand for.
 inline constexpr float kMaxExactNormalUnitDegrees = 90.0f;
 struct LayoutOptions {
   // Largest near child pointer; smaller values force far pointers (tests).
@@ -256,7 +256,7 @@ struct AttributeOptions {
   AttributeLayout layout = AttributeLayout::Raw;
   float exactNormalUnitDegrees = kExactNormalUnitDegrees;
   AttributeOptions() = default;
-  AttributeOptions(AttributeLayout layout, float exactNormalUnitDegrees = kExactNormalUnitDegrees)  // NOLINT
+  AttributeOptions(AttributeLayout layout, float exactNormalUnitDegrees = kExactNormalUnitDegrees)
       : layout(layout), exactNormalUnitDegrees(exactNormalUnitDegrees) {}
   bool compressed() const { return layout == AttributeLayout::Compressed; }
   void applyTo(LayoutOptions& options) const {
