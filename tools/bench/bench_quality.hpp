@@ -79,9 +79,10 @@ struct Setting {
                        beam ? "beam" : "no beam", attributes.compressed() ? ", " + knobName() : "",
                        filterRadius > 0.0f ? fmt::format(", filter {}", filterRadius) : "");
   }
-  std::string knobName() const {
-    if (filterRadius > 0.0f) return fmt::format("post-process filter {}", filterRadius);
-    return fmt::format("compressed attributes, exact normals {} deg", attributes.exactNormalUnitDegrees);
+  std::string knobName() const {  // the knob a setting turns on: compressed attributes or the filter
+    if (attributes.compressed())
+      return fmt::format("compressed attributes, exact normals {} deg", attributes.exactNormalUnitDegrees);
+    return fmt::format("post-process filter {}", filterRadius);
   }
   std::string name() const { return fmt::format("L{} lod {} {}", levels, lod, family()); }
 };
