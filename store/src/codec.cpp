@@ -10,62 +10,14 @@
 #include <tuple>
 #include <type_traits>
 
+#include "codec_parts.hpp"
 #include "svo/store/format.hpp"
 
 namespace svo {
+
+using namespace codec;
+
 namespace {
-
-static_assert(std::endian::native == std::endian::little, "slices are little-endian, as written in memory");
-
-std::size_t bitBytes(std::size_t bits) {
-  return (bits + 7) / 8;
-}
-
-// The position field (bits [13:7]) a contour of the child in `slot` is predicted to have: its parent's slab
-// centre plane in the child's frame. Child units are half the parent's and its centre is a quarter of the
-// parent off per axis, so with the parent's fields n (/31) and p (x 1.5/63, format.hpp) the plane
-// n.u = p (1.5/63) becomes n.u' = 2 p - (21/31) sum(+-n_i) in child position steps. Integers only: the
-// prediction is part of the format, so no compiler's floating point may round it differently. 0 when the
-// parent has no contour. (Measured on the 20M terrain's v3 slices: the position plane 0.73 -> 0.55 B per
-// leaf voxel.) Set up once per parent, asked once per child.
-class ContourPositionPredictor {
- public:
-  ContourPositionPredictor(bool parentHasContour, std::uint32_t parentContour) : has_(parentHasContour) {
-    const ContourFields f = contourFields(parentContour);
-    for (int k = 0; k < 3; ++k) normal_[k] = f.normal[k];
-    twicePosition_ = 62 * f.position;
-  }
-  std::uint32_t operator()(int slot) const {
-    if (!has_) return 0;
-    int reach = 0;  // sum of +-n_i, the sign from which half of the parent the child is in
-    for (int k = 0; k < 3; ++k) reach += (slot >> k & 1) ? normal_[k] : -normal_[k];
-    const int numerator = twicePosition_ - 21 * reach;  // 31 x the prediction
-    const int rounded = (numerator >= 0 ? numerator + 15 : numerator - 15) / 31;
-    return std::uint32_t(std::clamp(rounded, -64, 63) & 127) << 7;
-  }
-
- private:
-  bool has_;
-  int normal_[3];
-  int twicePosition_;  // 62 p: 31 x twice the parent's position field
-};
-
-// The normal fields a parent's contour predicts for its children's contours (kParentContourPrediction): its
-// own, where it has one; else the prediction from each child's normal. A contour follows the geometry, which
-// the parent's contour describes one scale up.
-class ParentContourNormal {
- public:
-  ParentContourNormal(bool parentHasContour, std::uint32_t parentContour) : has_(parentHasContour) {
-    const ContourFields f = contourFields(parentContour);
-    bits_ = packContourBits(f.normal[0], f.normal[1], f.normal[2], 0, 0);
-  }
-  // `fromChildNormal`: predictedContourNormalBits of the child's normal (0 in a store without normals).
-  std::uint32_t operator()(std::uint32_t fromChildNormal) const { return has_ ? bits_ : fromChildNormal; }
-
- private:
-  bool has_;
-  std::uint32_t bits_;
-};
 
 // Bits an order-0 entropy coder needs for the values the histograms count, each field apart.
 template <class Histograms>
@@ -78,40 +30,6 @@ double entropyBits(const Histograms& histograms) {
       if (c) bits += double(c) * std::log2(double(n) / double(c));
   }
   return bits;
-}
-
-using ContourResidual = std::array<std::uint8_t, kContourBytes>;
-using NormalResidual = std::array<std::uint8_t, kNormalBytes>;
-
-// `predicted`: the normal fields predicted (from the voxel's normal, or its parent's contour) and the
-// position field ContourPositionPredictor gives.
-// Fields are differences modulo their widths (packContourBits masks them).
-ContourResidual contourResidual(std::uint32_t contour, std::uint32_t predicted) {
-  const ContourFields c = contourFields(contour), p = contourFields(predicted);
-  ContourResidual r;
-  for (int k = 0; k < 3; ++k) r[k] = std::uint8_t((c.normal[k] - p.normal[k]) & 63);
-  r[3] = std::uint8_t((c.position - p.position) & 127), r[4] = std::uint8_t(c.thickness);
-  return r;
-}
-std::uint32_t contourOf(const ContourResidual& r, std::uint32_t predicted) {
-  const ContourFields p = contourFields(predicted);
-  return packContourBits(r[0] + p.normal[0], r[1] + p.normal[1], r[2] + p.normal[2], r[3] + p.position, r[4]);
-}
-NormalResidual normalResidual(std::uint16_t code, std::uint16_t parentCode) {
-  return {std::uint8_t((code >> 8) - (parentCode >> 8)), std::uint8_t(code - parentCode)};
-}
-std::uint16_t normalCodeOf(const NormalResidual& r, std::uint16_t parentCode) {
-  return std::uint16_t(std::uint8_t(r[0] + (parentCode >> 8)) << 8 | std::uint8_t(r[1] + parentCode));
-}
-
-bool bitAt(const std::byte* bits, std::size_t i) {
-  return (std::to_integer<unsigned>(bits[i / 8]) >> (i % 8)) & 1u;
-}
-
-std::uint32_t wordAt(const std::byte* words, std::size_t i) {
-  std::uint32_t w;
-  std::memcpy(&w, words + 4 * i, 4);
-  return w;
 }
 
 }  // namespace
@@ -262,27 +180,6 @@ class NormalCodes {
   std::uint32_t normal_ = 0;
   std::uint16_t code_ = octNormalCodeOf(0);
 };
-
-// The slice's head, checked against its directory entry, the store's attachments and its size.
-SliceHead checkedHead(std::span<const std::byte> raw, const SliceInfo& s, const StoreHeader& header,
-                      std::size_t parents) {
-  if (parents != s.parentCount)
-    throw SliceDecodeError("expects " + std::to_string(s.parentCount) + " parent voxels, its cube has " +
-                           std::to_string(parents));
-  SliceHead head;
-  if (raw.size() < sizeof head) throw SliceDecodeError("shorter than its head");
-  std::memcpy(&head, raw.data(), sizeof head);
-  if (head.magic != kSliceMagic || head.parentCount != s.parentCount || head.voxelCount != s.voxelCount ||
-      head.contourCount != s.contourCount || head.colorCount != s.colorCount ||
-      head.normalCount != s.normalCount ||
-      (head.attachments & ~kParentContourPrediction) !=
-          sliceAttachments(header.hasColors, header.hasNormals) ||
-      ((head.attachments & kParentContourPrediction) && header.version < kParentContourPredictionSince) ||
-      head.splitCount > head.parentCount)
-    throw SliceDecodeError("its head does not match the directory");
-  if (sliceRawBytes(head) != raw.size()) throw SliceDecodeError("section sizes do not add up to its size");
-  return head;
-}
 
 // A per-voxel section read alongside the hierarchy: a presence bit per new voxel, then `count` values.
 class PresentValues {

@@ -245,8 +245,17 @@ TEST_F(Cli, BenchStoreOnAStoreAndOnAMesh) {
         << stage << "\n"
         << r.out;
   const std::string rawBlock = tableRow(r.out, "The pool's blocks stored as laid out", "raw attributes");
-  EXPECT_NE(rawBlock.find(perLeaf(double(svo::readOctree(store).block.bytes().size()))), std::string::npos)
-      << rawBlock;
+  const std::string rawBytes = perLeaf(double(svo::readOctree(store).block.bytes().size()));
+  EXPECT_NE(rawBlock.find(rawBytes), std::string::npos) << rawBlock;
+  // The level arrays: their decoding timed (it checks itself against decodeSlice), their bytes beside the
+  // blocks'.
+  const char* levelArrays = "The slices decoded into arrays per level";
+  EXPECT_NE(tableRow(r.out, levelArrays, "decode into level arrays").find(" ns "), std::string::npos)
+      << r.out;
+  EXPECT_NE(tableRow(r.out, levelArrays, "blocks, raw attributes").find(rawBytes), std::string::npos)
+      << r.out;
+  EXPECT_NE(tableRow(r.out, levelArrays, "level arrays (normals").find(" B/leaf"), std::string::npos)
+      << r.out;
   EXPECT_NE(r.out.find("the store's slices of these levels: " +
                        fmt::format("{:.2f} B per leaf voxel on disk", double(diskBytes) / double(leaves))),
             std::string::npos)

@@ -5,6 +5,7 @@
 #include "bench_store_load.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cstddef>
 #include <stdexcept>
 #include <string>
@@ -16,6 +17,8 @@
 
 #include "bench_common.hpp"
 #include "svo/store/block.hpp"
+#include "svo/store/format.hpp"
+#include "svo/store/level_arrays.hpp"
 #include "svo/store/store_types.hpp"
 
 namespace svo::tools::bench {
@@ -46,10 +49,18 @@ int deepestSampledLevel(const StoreIndex& index) {
   return deepest;
 }
 
+// A slice in the order both decoders take them: its level, its first parent's index in the level above, its
+// index in the sampled ids.
+struct SliceAt {
+  int level = 0;
+  std::size_t firstParent = 0, k = 0;
+};
+
 // Every sampled slice decoded onto the level above it, level by level in its parents' order: the level-order
-// tree a pager load lays out.
+// tree a pager load lays out. `order`, where given, hears that order.
 void decodeLevels(const StoreIndex& index, int deepest, const std::vector<SliceBytes>& raw,
-                  const std::vector<std::uint32_t>& ids, LevelOrderTree& tree) {
+                  const std::vector<std::uint32_t>& ids, LevelOrderTree& tree,
+                  std::vector<SliceAt>* order = nullptr) {
   tree.voxels.clear();
   tree.voxels.push_back({.color = index.header().rootColor, .normal = index.header().rootNormal});
   std::size_t levelBegin = 0, next = 0;
@@ -58,15 +69,59 @@ void decodeLevels(const StoreIndex& index, int deepest, const std::vector<SliceB
     const std::span<SliceVoxel> parents(tree.voxels.data() + levelBegin, levelEnd - levelBegin);
     // Slices of one level cover disjoint runs of their parents: in the runs' order they append the level in
     // Morton order.
-    std::vector<std::pair<std::size_t, std::size_t>> order;  // parents' first index, slice's index in ids
+    std::vector<std::pair<std::size_t, std::size_t>> runs;  // parents' first index, slice's index in ids
     const std::size_t count = index.slicesOfLevel(level).size();
     for (std::size_t k = next; k < next + count; ++k)
-      order.push_back({std::size_t(sliceParents(index, ids[k], parents).data() - tree.voxels.data()), k});
-    std::sort(order.begin(), order.end());
-    for (const auto& [first, k] : order)
+      runs.push_back({std::size_t(sliceParents(index, ids[k], parents).data() - tree.voxels.data()), k});
+    std::sort(runs.begin(), runs.end());
+    for (const auto& [first, k] : runs) {
       decodeSlice(index, ids[k], raw[k], tree, first, first + index.slices()[ids[k]].parentCount);
+      if (order) order->push_back({level, first - levelBegin, k});
+    }
     next += count;
     levelBegin = levelEnd;
+  }
+}
+
+// The same slices decoded into arrays per level (level_arrays.hpp), in `order`.
+void decodeLevelArrays(const StoreIndex& index, int deepest, const std::vector<SliceBytes>& raw,
+                       const std::vector<std::uint32_t>& ids, const std::vector<SliceAt>& order,
+                       std::vector<OctreeLevel>& levels) {
+  levels.resize(std::size_t(deepest) + 1);  // as a pager worker's arrays: their memory kept between loads
+  for (OctreeLevel& level : levels) level.clear();
+  levels[0] = rootLevel(index.header());
+  for (const SliceAt& s : order)
+    decodeSliceLevel(raw[s.k], index.slices()[ids[s.k]], index.header(), levels[std::size_t(s.level) - 1],
+                     s.firstParent, levels[std::size_t(s.level)]);
+}
+
+// The level arrays against the tree decodeSlice gave: the same hierarchy, contours, and values each voxel
+// shows (its own where its presence bit is set, else its parent's). Throws std::logic_error at the first
+// difference, so that the bench never times a decoder that is wrong.
+void checkLevelArrays(const LevelOrderTree& tree, const std::vector<OctreeLevel>& levels) {
+  const auto fail = [](int level, std::size_t i, const char* what) {
+    throw std::logic_error(
+        fmt::format("level arrays: voxel {} of level {}: {} differs from decodeSlice's", i, level, what));
+  };
+  std::size_t parentStart = 0, start = 1;
+  for (std::size_t l = 1; l < levels.size(); ++l) {
+    const OctreeLevel& level = levels[l];
+    if (start + level.voxels > tree.voxels.size()) fail(int(l), 0, "the voxel count");
+    std::size_t parent = parentStart, childrenLeft = 0, contour = 0, color = 0;
+    for (std::size_t i = 0; i < level.voxels; ++i) {
+      while (childrenLeft == 0) childrenLeft = std::size_t(std::popcount(tree.voxels[parent++].childMask));
+      --childrenLeft;
+      const SliceVoxel& v = tree.voxels[start + i];
+      const SliceVoxel& p = tree.voxels[parent - 1];
+      if (level.childMasks[i] != v.childMask) fail(int(l), i, "the child mask");
+      if (level.contourBits[i] != v.hasContour || (v.hasContour && level.contours[contour++] != v.contour))
+        fail(int(l), i, "the contour");
+      if (tree.hasNormals && latticeNormalBits(level.shownNormalCodes[i]) != v.normal)
+        fail(int(l), i, "the normal");
+      if (tree.hasColors && (level.colorBits[i] ? level.colors[color++] : p.color) != v.color)
+        fail(int(l), i, "the color");
+    }
+    parentStart = start, start += level.voxels;
   }
 }
 
@@ -139,16 +194,24 @@ LoadCosts measureLoadCosts(const StoreReader& reader, int runs) {
   // A pause hook keeps the unit encoding on this thread, as a pager worker's is.
   rawLayout.betweenPasses = compressedLayout.betweenPasses = [] {};
   Block rawBlock, compressedBlock;
+  for (std::size_t k = 0; k < ids.size(); ++k) sliceBytes[k] = reader.readSlice(ids[k]);
+  std::vector<SliceAt> order;
+  decodeLevels(index, costs.deepestLevel, sliceBytes, ids, tree, &order);
+  std::vector<OctreeLevel> levels;
   const auto summaries = timeInterleaved(
       runs,
       [&] {
         for (std::size_t k = 0; k < ids.size(); ++k) sliceBytes[k] = reader.readSlice(ids[k]);
       },
       [&] { decodeLevels(index, costs.deepestLevel, sliceBytes, ids, tree); },
-      [&] { rawBlock = layoutBlock(tree, rawLayout); },
-      [&] { compressedBlock = layoutBlock(tree, compressedLayout); });
+      [&] { rawBlock = layoutBlock(tree, rawLayout, &costs.blockStats[0]); },
+      [&] { compressedBlock = layoutBlock(tree, compressedLayout, &costs.blockStats[1]); },
+      [&] { decodeLevelArrays(index, costs.deepestLevel, sliceBytes, ids, order, levels); });
   costs.read = summaries[0], costs.decode = summaries[1];
   costs.layoutRaw = summaries[2], costs.layoutCompressed = summaries[3];
+  costs.levelArrays.decode = summaries[4];
+  costs.levelArrays.bytes = bytesOf(levels, index.header());
+  checkLevelArrays(tree, levels);
   costs.leaves = std::uint64_t(std::count_if(tree.voxels.begin(), tree.voxels.end(),
                                              [](const SliceVoxel& v) { return v.childMask == 0; }));
   const std::size_t chunk = std::max<std::size_t>(index.header().sliceBytes, kPageBytes);
@@ -206,6 +269,36 @@ void printLoadCosts(const LoadCosts& costs) {
       "children "
       "in levels\n1-{}. Stored blocks: compressed in slice-sized chunks, each alone\n",
       double(costs.storeDiskBytes) / leaves, costs.deepestLevel);
+
+  printTitle("The slices decoded into arrays per level instead (no voxel records, no layout)");
+  Table levelCost({"stage", "time", "per voxel", "voxels per s", "goal"});
+  const double levelDecode = costs.levelArrays.decode.median;
+  levelCost.addRow({"decode into level arrays (decodeSliceLevel)", formatSeconds(levelDecode),
+                    nanosecondsPerVoxel(levelDecode, n), voxelsPerSecond(levelDecode, n), ""});
+  levelCost.addRow({"a load: read + XXH3 + zstd, then that", formatSeconds(costs.read.median + levelDecode),
+                    nanosecondsPerVoxel(costs.read.median + levelDecode, n),
+                    voxelsPerSecond(costs.read.median + levelDecode, n), goal});
+  levelCost.print();
+  Table pools({"pool", "hierarchy", "contours", "colors", "normals", "in all"});
+  const auto perLeaf = [&](std::uint64_t bytes) {
+    return fmt::format("{:.2f} B/leaf", double(bytes) / leaves);
+  };
+  const LevelArrayBytes& b = costs.levelArrays.bytes;
+  pools.addRow({"level arrays (normals: the store's 16-bit codes)", perLeaf(b.hierarchy), perLeaf(b.contours),
+                perLeaf(b.colors), perLeaf(b.normals), perLeaf(b.total())});
+  for (int k = 0; k < 2; ++k) {
+    const LayoutStats& s = costs.blockStats[k];
+    pools.addRow({fmt::format("blocks, {} attributes", k == 0 ? "raw" : "compressed"),
+                  perLeaf(s.hierarchyBytes), perLeaf(s.contourBytes), perLeaf(s.colorBytes),
+                  perLeaf(s.normalBytes), perLeaf(s.totalBytes)});
+  }
+  pools.print();
+  fmt::print(
+      "level arrays: a voxel's children follow those the child masks before it count (a 32-bit count per {} "
+      "voxels), and\na present contour, color or normal those the presence bits before it count (a 32-bit "
+      "count per {} voxels). No\ncaster reads them yet: they are measured as the layout a pool could hold. "
+      "Checked against decodeSlice's tree\n",
+      kChildCountGroup, kPresenceCountGroup);
 }
 
 }  // namespace svo::tools::bench

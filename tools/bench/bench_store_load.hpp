@@ -8,6 +8,7 @@
 
 #include "report.hpp"
 #include "svo/store/block.hpp"
+#include "svo/store/level_arrays.hpp"
 #include "svo/store/store_reader.hpp"
 
 namespace svo::tools::bench {
@@ -29,6 +30,13 @@ struct LoadCosts {
     Summary decompress;
   };
   std::vector<StoredBlock> stored;
+  // The other alternative: the slices decoded straight into arrays per level (level_arrays.hpp), which need
+  // no layout; and the bytes either pool would hold (laid-out blocks: raw, compressed attributes).
+  struct LevelArrays {
+    Summary decode;
+    LevelArrayBytes bytes;
+  } levelArrays;
+  LayoutStats blockStats[2];
 };
 
 // Levels 1 down to the deepest whose voxels, with those above, stay within kLoadSampleVoxels (at least level
