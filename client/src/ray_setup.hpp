@@ -1,8 +1,8 @@
 // The parts of ESVO ray casting (paper sec. 6, Fig. 15) that castRay (raycast.cpp) and the packet loop
 // (raycast_packet.cpp) share, so that both compute every float the same way: the ray mirrored so that every
 // direction component is negative, the contour slab intersection, the single-ray loop itself (castRay runs
-// it from the root, the packet loop for its last few lanes from where they are), and the hit completed from
-// the loop's final state.
+// it from the root, the packet loop for its last few lanes from where they are, the level-array caster
+// through its own reading of the octree), and the hit completed from the loop's final state.
 #pragma once
 
 #include <algorithm>
@@ -124,8 +124,9 @@ inline void clipToContour(const Contour& c, const glm::vec3& d, float tx_center,
 
 // The hit from the loop's state where it stopped: the mirroring undone and the hit position clamped into
 // the voxel's cube (sec. 6.1).
-inline void completeHit(const OctreeRay& ray, int octant_mask, glm::vec3 pos, float scale_exp2, int scale,
-                        float t_min, const ChildDescriptor* parent, int idx, CastHit& hit) {
+template <class Node, class Hit>
+void completeHit(const OctreeRay& ray, int octant_mask, glm::vec3 pos, float scale_exp2, int scale,
+                 float t_min, Node parent, int idx, Hit& hit) {
   if ((octant_mask & 1) == 0) pos.x = 3.0f - scale_exp2 - pos.x;
   if ((octant_mask & 2) == 0) pos.y = 3.0f - scale_exp2 - pos.y;
   if ((octant_mask & 4) == 0) pos.z = 3.0f - scale_exp2 - pos.z;
@@ -141,47 +142,85 @@ inline void completeHit(const OctreeRay& ray, int octant_mask, glm::vec3 pos, fl
                                pos[i] + scale_exp2 - inset);
 }
 
+// How the loop reads a block's octree: a parent is a descriptor, whose words give its children's masks and
+// contours and lead to their descriptors. (LevelDescent, level_raycast.cpp, reads arrays per level instead.)
+struct BlockDescent {
+  using Node = const ChildDescriptor*;
+  struct Parent {  // a descriptor's words, read once per PUSH or POP
+    ChildDescriptor descriptor;
+    std::uint8_t validMask, nonLeafMask;
+  };
+  static Parent read(Node parent, int /*scale*/) {
+    const ChildDescriptor d = *parent;
+    return {d, d.validMask(), d.nonLeafMask()};
+  }
+  // The contour of child `slot`, where it has one.
+  static bool contour(Node parent, const Parent& p, int slot, int /*scale*/, Contour& c) {
+    if (!(p.descriptor.contourMask() >> slot & 1)) return false;
+    c = contourOf(parent, p.descriptor, slot);
+    return true;
+  }
+  // The child to PUSH into; false where child `slot` is the hit: a leaf, or (in a block pool) a voxel whose
+  // children are not resident.
+  static bool child(Node parent, const Parent& p, int slot, int /*scale*/, Node& child) {
+    child = (p.nonLeafMask >> slot & 1) ? BlockView::child(parent, slot) : nullptr;
+    if (!child || child->isStub()) return false;
+    prefetchBelow(child);
+    return true;
+  }
+  static void recordPath(CastHit& hit, int scale, Node parent, int slot) {
+    hit.pathParent[scale] = parent;
+    hit.pathSlot[scale] = std::uint8_t(slot);
+  }
+};
+
 // castRay's loop state part way along a ray (names as in castRay); the stack of (parent, t_max) is indexed by
 // scale.
-struct RayStackEntry {
-  const ChildDescriptor* parent;
+template <class Node>
+struct RayStackEntryOf {
+  Node parent;
   float t_max;
 };
-struct RayState {
-  const ChildDescriptor* parent;
+template <class Node>
+struct RayStateOf {
+  Node parent;
   glm::vec3 pos;
   float scale_exp2, t_min, t_max;
   int idx, scale, iterations;
 };
+using RayStackEntry = RayStackEntryOf<BlockDescent::Node>;
+using RayState = RayStateOf<BlockDescent::Node>;
 
 // Fig. 15's loop from `s` on, for the mirrored ray `m` with its footprint: true where the ray hits (hit.leaf
 // set at a leaf or a stub), false where it leaves the octree or reaches the iteration cap. PUSH writes the
 // stack and the hit's path. castRay runs it from the root; the packet loop finishes its last few lanes with
-// it.
+// it. `descent` reads the octree (BlockDescent: a block's descriptors).
+template <class Descent = BlockDescent, class Hit>
 [[gnu::always_inline]] inline bool continueRay(const MirroredRay& m, float footprintSlope,
-                                               float footprintOrigin, const CastOptions& options, RayState& s,
-                                               RayStackEntry* stack, CastHit& hit) {
+                                               float footprintOrigin, const CastOptions& options,
+                                               RayStateOf<typename Descent::Node>& s,
+                                               RayStackEntryOf<typename Descent::Node>* stack, Hit& hit,
+                                               const Descent& descent = {}) {
+  using Node = typename Descent::Node;
   const bool recordPath = options.recordPath;  // read once: the stores into `hit` might alias `options`
   const glm::vec3 d = m.d;
   const float tx_coef = m.tx_coef, ty_coef = m.ty_coef, tz_coef = m.tz_coef;
   const float tx_bias = m.tx_bias, ty_bias = m.ty_bias, tz_bias = m.tz_bias;
   const int octant_mask = m.octant_mask;
-  const ChildDescriptor* parent = s.parent;
+  Node parent = s.parent;
   glm::vec3 pos = s.pos;
   float scale_exp2 = s.scale_exp2, t_min = s.t_min, t_max = s.t_max;
   int idx = s.idx, scale = s.scale, iterations = s.iterations;
-  ChildDescriptor descriptor{};
+  typename Descent::Parent words{};
   bool cached = false;
-  std::uint8_t validMask = 0, nonLeafMask = 0;
   bool found = false;
   while (scale < kScaleMax) {
     if (++iterations > options.maxIterations) break;
     if (!cached) {
-      descriptor = *parent;
-      validMask = descriptor.validMask();
-      nonLeafMask = descriptor.nonLeafMask();
+      words = descent.read(parent, scale);
       cached = true;
     }
+    const std::uint8_t validMask = words.validMask;
     // The t-value where the ray leaves the current cube: its lower corner in the mirrored system.
     const float tx_corner = pos.x * tx_coef - tx_bias;
     const float ty_corner = pos.y * ty_coef - ty_bias;
@@ -201,27 +240,21 @@ struct RayState {
       const float tx_center = half * tx_coef + tx_corner;
       const float ty_center = half * ty_coef + ty_corner;
       const float tz_center = half * tz_coef + tz_corner;
-      if (options.contours && (descriptor.contourMask() >> slot & 1))
-        clipToContour(contourOf(parent, descriptor, slot), d, tx_center, ty_center, tz_center, scale_exp2,
-                      t_min, tv_max);
+      Contour contour;
+      if (options.contours && descent.contour(parent, words, slot, scale, contour))
+        clipToContour(contour, d, tx_center, ty_center, tz_center, scale_exp2, t_min, tv_max);
       if (t_min <= tv_max) {
-        const ChildDescriptor* child = (nonLeafMask >> slot & 1) ? BlockView::child(parent, slot) : nullptr;
-        // A leaf, or (in a block pool) a voxel whose children are not resident: this is the hit.
-        if (!child || child->isStub()) {
+        Node child;
+        if (!descent.child(parent, words, slot, scale, child)) {  // this is the hit
           found = true;
           hit.leaf = true;
           break;
         }
-        // PUSH
-        prefetchBelow(child);
-        // Fig. 15 stores the parent only when the child ends before it (tc_max < h). At the deepest scales
-        // the two exits can round to the same float while the position bits still say the ray left the
-        // child first, and POP would then read a stale or unwritten entry: store on every PUSH.
+        // PUSH. Fig. 15 stores the parent only when the child ends before it (tc_max < h). At the deepest
+        // scales the two exits can round to the same float while the position bits still say the ray left
+        // the child first, and POP would then read a stale or unwritten entry: store on every PUSH.
         stack[scale] = {parent, t_max};
-        if (recordPath) {
-          hit.pathParent[scale] = parent;
-          hit.pathSlot[scale] = std::uint8_t(slot);
-        }
+        if (recordPath) descent.recordPath(hit, scale, parent, slot);
         parent = child;
         idx = 0;
         --scale;

@@ -256,6 +256,8 @@ TEST_F(Cli, BenchStoreOnAStoreAndOnAMesh) {
       << r.out;
   EXPECT_NE(tableRow(r.out, levelArrays, "level arrays (normals").find(" B/leaf"), std::string::npos)
       << r.out;
+  EXPECT_NE(tableRow(r.out, levelArrays, "the level arrays").find(" ns "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("hitting as in the block, bit for bit"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("the store's slices of these levels: " +
                        fmt::format("{:.2f} B per leaf voxel on disk", double(diskBytes) / double(leaves))),
             std::string::npos)

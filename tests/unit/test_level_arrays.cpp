@@ -1,14 +1,18 @@
 // Level arrays (level_arrays.hpp) against decodeSlice's voxel records: every fixture store and a store of
-// many small slices decode to the same hierarchy, contours and shown values; bad slices throw.
+// many small slices decode to the same hierarchy, contours and shown values; bad slices throw. Their caster
+// (level_raycast.hpp) against the block caster on the same stores: the same hits, bit for bit.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <bit>
 #include <cstring>
 #include <filesystem>
+#include <random>
 #include <vector>
 
 #include "reference.hpp"
+#include "svo/client/level_raycast.hpp"
+#include "svo/client/raycast.hpp"
 #include "svo/store/codec.hpp"
 #include "svo/store/format.hpp"
 #include "svo/store/level_arrays.hpp"
@@ -110,6 +114,85 @@ TEST(LevelArrays, ManySlicesPerLevelDecodeAsTheirVoxelRecords) {
   EXPECT_GT(b.hierarchy, masks);
   EXPECT_LT(b.hierarchy, masks + 4 * (masks / svo::kChildCountGroup + d.levels.size()));
   EXPECT_GT(b.contours, 4 * contours);
+}
+
+// Rays through the octree's cube [1, 2]^3: from eyes outside and inside it, in random directions, along the
+// axes and grazing the faces of the voxel grid, with and without a level-of-detail footprint.
+std::vector<svo::OctreeRay> testRays() {
+  std::vector<svo::OctreeRay> rays;
+  std::mt19937 rng(29);
+  std::uniform_real_distribution<float> unit(-1.0f, 1.0f);
+  for (const glm::vec3 eye :
+       {glm::vec3(2.7f, 2.4f, 3.1f), glm::vec3(0.2f, 1.6f, 1.3f), glm::vec3(1.45f, 1.5f, 1.55f)})
+    for (int i = 0; i < 3000; ++i) {
+      svo::OctreeRay r;
+      r.origin = eye;
+      r.direction = glm::vec3(1.5f) - eye + 0.6f * glm::vec3(unit(rng), unit(rng), unit(rng));
+      // Footprints that stop at coarser voxels further away: about a level-4 voxel (1/16) at t = 1, and
+      // one a tenth of that.
+      r.footprintSlope = i % 3 == 0 ? 0.0f : i % 3 == 1 ? 0.06f : 0.006f;
+      rays.push_back(r);
+    }
+  for (int axis = 0; axis < 3; ++axis)
+    for (int i = 0; i < 400; ++i) {
+      svo::OctreeRay r;  // along an axis, on the grid's planes (k / 64) and between them
+      r.origin =
+          glm::vec3(1.0f + float(i % 20) / 19.0f, 1.0f + float(i / 20) / 19.0f, 1.0f + float(i % 7) / 64.0f);
+      r.origin[axis] = i % 2 ? 2.5f : 0.5f;
+      r.direction = glm::vec3(0.0f);
+      r.direction[axis] = i % 2 ? -1.0f : 1.0f;
+      rays.push_back(r);
+      r.direction[(axis + 1) % 3] = 1e-4f;  // grazing
+      rays.push_back(r);
+    }
+  return rays;
+}
+
+TEST(LevelArrays, CastRaysAsTheBlockDoes) {
+  const svotest::TempFile store("svo_level_cast", ".svo");
+  svotest::writeSphereAndBoxStore(store.path, 4096);
+  for (const fs::path& path : {fs::path(SVO_TEST_DATA) / "fixtures" / "sphere-v5.svo",
+                               fs::path(SVO_TEST_DATA) / "fixtures" / "runs-v5.svo",
+                               fs::path(SVO_TEST_DATA) / "fixtures" / "shaded-v5.svo", store.path}) {
+    SCOPED_TRACE(path.string());
+    const svo::StoreReader reader(path);
+    const svo::LevelOctree levels(decodeBoth(reader).levels);
+    const svo::Octree octree = svo::readOctree(reader);
+    std::size_t hits = 0, lodStops = 0;
+    for (const bool contours : {true, false}) {
+      svo::CastOptions options;
+      options.contours = contours;
+      for (const svo::OctreeRay& ray : testRays()) {
+        const svo::CastHit a = svo::castRay(octree.block.view(), ray, options);
+        const svo::LevelCastHit b = svo::castRay(levels, ray, options);
+        ASSERT_EQ(a.hit, b.hit);
+        EXPECT_EQ(a.iterations, b.iterations);
+        if (!a.hit) continue;
+        ++hits, lodStops += !a.leaf;
+        EXPECT_EQ(a.leaf, b.leaf);
+        EXPECT_EQ(std::bit_cast<std::uint32_t>(a.t), std::bit_cast<std::uint32_t>(b.t));
+        EXPECT_EQ(a.scale, b.scale);
+        EXPECT_EQ(a.childSlot, b.childSlot);
+        EXPECT_EQ(a.cubeMin, b.cubeMin);
+        EXPECT_EQ(a.position, b.position);
+      }
+    }
+    EXPECT_GT(hits, 1000u);
+    EXPECT_GT(lodStops, 50u);
+  }
+}
+
+TEST(LevelArrays, LevelsThatAreNoOctreeAreRefused) {
+  const svo::StoreReader reader(fs::path(SVO_TEST_DATA) / "fixtures" / "sphere-v5.svo");
+  const std::vector<svo::OctreeLevel> good = decodeBoth(reader).levels;
+  EXPECT_NO_THROW(svo::LevelOctree{good});
+  EXPECT_THROW(svo::LevelOctree{std::vector<svo::OctreeLevel>{}}, std::invalid_argument);
+  std::vector<svo::OctreeLevel> shortLevel = good;  // a level missing the children its parents count
+  shortLevel[2].voxels -= 1;
+  EXPECT_THROW(svo::LevelOctree{shortLevel}, std::invalid_argument);
+  std::vector<svo::OctreeLevel> cut = good;  // the deepest level's parents still have children
+  cut.pop_back();
+  EXPECT_THROW(svo::LevelOctree{cut}, std::invalid_argument);
 }
 
 TEST(LevelArrays, BadSlicesThrow) {

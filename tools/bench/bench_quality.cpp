@@ -86,14 +86,19 @@ std::vector<int> parseLevels(const std::string& text) {
 std::vector<Setting> settingsOf(int levels, float cut, bool firstCut, const LevelScene& level,
                                 const std::vector<float>& filterRadii) {
   std::vector<Setting> settings;
+  const auto setting = [&](float contourCut, float lod, bool contours, int beam) {
+    Setting s;  // the knobs' members keep their defaults (off)
+    s.levels = levels, s.contourCut = contourCut, s.lod = lod, s.contours = contours, s.beam = beam;
+    return s;
+  };
   for (const bool contours : {true, false}) {
     if (!contours && !firstCut) continue;
     for (const float lod : kLodSweep)
       for (const int beam : kBeamSweep)
-        settings.push_back({levels, contours ? cut : 0.0f, lod, contours, beam});
+        settings.push_back(setting(contours ? cut : 0.0f, lod, contours, beam));
   }
   for (const float lod : kLodSweep) {
-    const Setting plain{levels, cut, lod, true, kBeamSweep[0]};
+    const Setting plain = setting(cut, lod, true, kBeamSweep[0]);
     for (const auto& [degrees, scene] : level.compressed) {
       Setting compressed = plain;
       compressed.attributes = {AttributeLayout::Compressed, degrees};

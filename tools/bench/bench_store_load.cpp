@@ -16,6 +16,9 @@
 #include <zstd.h>
 
 #include "bench_common.hpp"
+#include "svo/client/level_raycast.hpp"
+#include "svo/client/raycast.hpp"
+#include "svo/client/render.hpp"
 #include "svo/store/block.hpp"
 #include "svo/store/format.hpp"
 #include "svo/store/level_arrays.hpp"
@@ -33,6 +36,11 @@ constexpr std::uint64_t kLoadSampleVoxels = std::uint64_t(2) << 20;
 // What a pager load may spend per voxel added to the pool: 100 M voxels a second on one core, so that a core
 // or two keep up with a disk that reads slices at 1-2 GB/s (2-3 B a voxel on the generated terrains).
 constexpr double kLoadGoalNanoseconds = 10.0;
+// The view both casters are timed on: a square image of the sampled levels' cube, from the default view's
+// direction (svo render) at this many cube sizes from its centre, with this field of view.
+constexpr int kCastImageSize = 256;
+constexpr float kCastEyeDistance = 1.8f;
+constexpr float kCastFieldOfView = 0.6f;  // the image plane's width at unit distance
 // The stored blocks' zstd levels: zstd's default and its strongest.
 constexpr int kStoredBlockZstdLevels[] = {3, 19};
 
@@ -125,6 +133,48 @@ void checkLevelArrays(const LevelOrderTree& tree, const std::vector<OctreeLevel>
   }
 }
 
+// Primary rays of a pinhole view of the cube [1, 2]^3 (octree units), row by row.
+std::vector<OctreeRay> viewRays() {
+  const glm::vec3 back = -glm::normalize(glm::vec3(kDefaultViewDirection));
+  const glm::vec3 eye = glm::vec3(1.5f) + kCastEyeDistance * back;
+  const glm::vec3 right = glm::normalize(glm::cross(-back, glm::vec3(0.0f, 1.0f, 0.0f)));
+  const glm::vec3 up = glm::cross(right, -back);
+  std::vector<OctreeRay> rays;
+  for (int y = 0; y < kCastImageSize; ++y)
+    for (int x = 0; x < kCastImageSize; ++x) {
+      const float u = (float(x) + 0.5f) / kCastImageSize - 0.5f,
+                  v = (float(y) + 0.5f) / kCastImageSize - 0.5f;
+      rays.push_back({.origin = eye, .direction = -back + kCastFieldOfView * (u * right + v * up)});
+    }
+  return rays;
+}
+
+// Both casters over the same rays, timed; throws std::logic_error where a hit differs.
+LoadCosts::Casting measureCasting(const Block& block, const LevelOctree& levels, int runs) {
+  const std::vector<OctreeRay> rays = viewRays();
+  std::vector<CastHit> blockHits(rays.size());
+  std::vector<LevelCastHit> levelHits(rays.size());
+  CastOptions options;
+  options.recordPath = false;  // depth alone: the level caster records no path
+  const auto summaries = timeInterleaved(
+      runs,
+      [&] {
+        for (std::size_t i = 0; i < rays.size(); ++i) blockHits[i] = castRay(block.view(), rays[i], options);
+      },
+      [&] {
+        for (std::size_t i = 0; i < rays.size(); ++i) levelHits[i] = castRay(levels, rays[i], options);
+      });
+  LoadCosts::Casting out{summaries[0], summaries[1], rays.size(), 0};
+  for (std::size_t i = 0; i < rays.size(); ++i) {
+    const CastHit& a = blockHits[i];
+    const LevelCastHit& b = levelHits[i];
+    if (a.hit != b.hit || (a.hit && (a.t != b.t || a.scale != b.scale || a.childSlot != b.childSlot)))
+      throw std::logic_error(fmt::format("level arrays: ray {} hits otherwise than the block's", i));
+    out.hits += a.hit;
+  }
+  return out;
+}
+
 // The block in slice-sized chunks, each compressed alone as a slice is.
 std::vector<std::vector<char>> compressChunks(const AlignedBytes& block, std::size_t chunk, int level) {
   std::vector<std::vector<char>> out;
@@ -212,6 +262,8 @@ LoadCosts measureLoadCosts(const StoreReader& reader, int runs) {
   costs.levelArrays.decode = summaries[4];
   costs.levelArrays.bytes = bytesOf(levels, index.header());
   checkLevelArrays(tree, levels);
+  spdlog::info("load costs: casting rays through the block and the level arrays ...");
+  costs.casting = measureCasting(rawBlock, LevelOctree(levels), runs);
   costs.leaves = std::uint64_t(std::count_if(tree.voxels.begin(), tree.voxels.end(),
                                              [](const SliceVoxel& v) { return v.childMask == 0; }));
   const std::size_t chunk = std::max<std::size_t>(index.header().sliceBytes, kPageBytes);
@@ -293,12 +345,23 @@ void printLoadCosts(const LoadCosts& costs) {
                   perLeaf(s.normalBytes), perLeaf(s.totalBytes)});
   }
   pools.print();
+  const LoadCosts::Casting& c = costs.casting;
+  Table casting({"caster (castRay, one thread)", "per ray", "vs the block's"});
+  const auto perRay = [&](double seconds) {
+    return fmt::format("{:.0f} ns", seconds * 1e9 / double(c.rays));
+  };
+  casting.addRow({"the raw block", perRay(c.block.median), "1.00x"});
+  casting.addRow({"the level arrays", perRay(c.levels.median),
+                  fmt::format("{:.2f}x", c.levels.median / c.block.median)});
+  casting.print();
   fmt::print(
       "level arrays: a voxel's children follow those the child masks before it count (a 32-bit count per {} "
       "voxels), and\na present contour, color or normal those the presence bits before it count (a 32-bit "
-      "count per {} voxels). No\ncaster reads them yet: they are measured as the layout a pool could hold. "
-      "Checked against decodeSlice's tree\n",
-      kChildCountGroup, kPresenceCountGroup);
+      "count per {} voxels).\nMeasured as the layout a pool could hold: checked against decodeSlice's tree, "
+      "and cast (depth only, no\nattributes) through a {} x {} view of their cube, {} of its rays hitting as "
+      "in "
+      "the block, bit for bit\n",
+      kChildCountGroup, kPresenceCountGroup, kCastImageSize, kCastImageSize, formatCount(c.hits));
 }
 
 }  // namespace svo::tools::bench

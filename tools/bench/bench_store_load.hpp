@@ -37,6 +37,11 @@ struct LoadCosts {
     LevelArrayBytes bytes;
   } levelArrays;
   LayoutStats blockStats[2];
+  // castRay through the raw block and through the level arrays, over the same rays.
+  struct Casting {
+    Summary block, levels;
+    std::uint64_t rays = 0, hits = 0;
+  } casting;
 };
 
 // Levels 1 down to the deepest whose voxels, with those above, stay within kLoadSampleVoxels (at least level

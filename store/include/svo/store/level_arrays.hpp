@@ -22,6 +22,7 @@ class PresenceBits {
   void append(const std::byte* bits, std::size_t count);
   bool operator[](std::size_t i) const { return (words_[i / 64] >> (i % 64)) & 1u; }
   std::size_t size() const { return size_; }
+  std::span<const std::uint64_t> words() const { return words_; }  // bits past size() are 0
   void clear() { words_.clear(), size_ = 0; }
 
  private:
