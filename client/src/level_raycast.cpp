@@ -102,21 +102,7 @@ LevelOctree::LevelOctree(const std::vector<OctreeLevel>& levels) {
 
 LevelCastHit castRay(const LevelOctree& octree, const OctreeRay& ray, const CastOptions& options) {
   LevelCastHit hit;
-  MirroredRay m;
-  if (!mirrorRay(ray, m) || octree.levels() < 2) return hit;
-  RayStackEntryOf<LevelDescent::Node> stack[kScaleMax + 1];
-  RayStateOf<LevelDescent::Node> s{.parent = 0,
-                                   .pos = m.pos,
-                                   .scale_exp2 = 0.5f,
-                                   .t_min = m.t_min,
-                                   .t_max = m.t_max,
-                                   .idx = m.idx,
-                                   .scale = kScaleMax - 1,
-                                   .iterations = 0};
-  const bool found =
-      continueRay(m, ray.footprintSlope, ray.footprintOrigin, options, s, stack, hit, LevelDescent{&octree});
-  hit.iterations = s.iterations;
-  if (found) completeHit(ray, m.octant_mask, s.pos, s.scale_exp2, s.scale, s.t_min, s.parent, s.idx, hit);
+  if (octree.levels() >= 2) castFromRoot(0u, ray, options, hit, LevelDescent{&octree});
   return hit;
 }
 

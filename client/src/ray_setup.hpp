@@ -299,4 +299,25 @@ template <class Descent = BlockDescent, class Hit>
   return found;
 }
 
+// castRay: the ray from the root (node `root`, its children at scale kScaleMax - 1) until it hits or leaves,
+// and the hit completed.
+template <class Descent = BlockDescent, class Hit>
+void castFromRoot(typename Descent::Node root, const OctreeRay& ray, const CastOptions& options, Hit& hit,
+                  const Descent& descent = {}) {
+  MirroredRay m;
+  if (!mirrorRay(ray, m)) return;
+  RayStackEntryOf<typename Descent::Node> stack[kScaleMax + 1];
+  RayStateOf<typename Descent::Node> s{.parent = root,
+                                       .pos = m.pos,
+                                       .scale_exp2 = 0.5f,
+                                       .t_min = m.t_min,
+                                       .t_max = m.t_max,
+                                       .idx = m.idx,
+                                       .scale = kScaleMax - 1,
+                                       .iterations = 0};
+  const bool found = continueRay(m, ray.footprintSlope, ray.footprintOrigin, options, s, stack, hit, descent);
+  hit.iterations = s.iterations;
+  if (found) completeHit(ray, m.octant_mask, s.pos, s.scale_exp2, s.scale, s.t_min, s.parent, s.idx, hit);
+}
+
 }  // namespace svo::ray_setup

@@ -17,22 +17,7 @@ using namespace ray_setup;
 
 CastHit castRay(const BlockView& block, const OctreeRay& ray, const CastOptions& options) {
   CastHit hit;
-  MirroredRay m;
-  if (!mirrorRay(ray, m)) return hit;
-  RayStackEntry stack[kScaleMax + 1];
-  RayState s{.parent = block.root(),
-             .pos = m.pos,
-             .scale_exp2 = 0.5f,
-             .t_min = m.t_min,
-             .t_max = m.t_max,
-             .idx = m.idx,
-             .scale = kScaleMax - 1,
-             .iterations = 0};
-  const bool found = continueRay(m, ray.footprintSlope, ray.footprintOrigin, options, s, stack, hit);
-  hit.iterations = s.iterations;
-  if (!found) return hit;
-
-  completeHit(ray, m.octant_mask, s.pos, s.scale_exp2, s.scale, s.t_min, s.parent, s.idx, hit);
+  castFromRoot(block.root(), ray, options, hit);
   return hit;
 }
 
