@@ -156,7 +156,7 @@ TEST(LevelArrays, CastRaysAsTheBlockDoes) {
                                fs::path(SVO_TEST_DATA) / "fixtures" / "shaded-v5.svo", store.path}) {
     SCOPED_TRACE(path.string());
     const svo::StoreReader reader(path);
-    const svo::LevelOctree levels(decodeBoth(reader).levels);
+    const svo::LevelOctree levels(decodeBoth(reader).levels, reader.header());
     const svo::Octree octree = svo::readOctree(reader);
     std::size_t hits = 0, lodStops = 0;
     for (const bool contours : {true, false}) {
@@ -175,6 +175,9 @@ TEST(LevelArrays, CastRaysAsTheBlockDoes) {
         EXPECT_EQ(a.childSlot, b.childSlot);
         EXPECT_EQ(a.cubeMin, b.cubeMin);
         EXPECT_EQ(a.position, b.position);
+        // What the voxel shows, its own value or an ancestor's (the block inherits equal values only).
+        for (const svo::AttachmentType type : {svo::AttachmentType::Color, svo::AttachmentType::Normal})
+          EXPECT_EQ(svo::hitAttribute(octree.block.view(), a, type), svo::hitAttribute(levels, b, type));
       }
     }
     EXPECT_GT(hits, 1000u);
@@ -184,15 +187,20 @@ TEST(LevelArrays, CastRaysAsTheBlockDoes) {
 
 TEST(LevelArrays, LevelsThatAreNoOctreeAreRefused) {
   const svo::StoreReader reader(fs::path(SVO_TEST_DATA) / "fixtures" / "sphere-v5.svo");
+  const svo::StoreHeader& header = reader.header();
   const std::vector<svo::OctreeLevel> good = decodeBoth(reader).levels;
-  EXPECT_NO_THROW(svo::LevelOctree{good});
-  EXPECT_THROW(svo::LevelOctree{std::vector<svo::OctreeLevel>{}}, std::invalid_argument);
+  EXPECT_NO_THROW(svo::LevelOctree(good, header));
+  EXPECT_THROW(svo::LevelOctree({}, header), std::invalid_argument);
   std::vector<svo::OctreeLevel> shortLevel = good;  // a level missing the children its parents count
   shortLevel[2].voxels -= 1;
-  EXPECT_THROW(svo::LevelOctree{shortLevel}, std::invalid_argument);
+  EXPECT_THROW(svo::LevelOctree(shortLevel, header), std::invalid_argument);
   std::vector<svo::OctreeLevel> cut = good;  // the deepest level's parents still have children
   cut.pop_back();
-  EXPECT_THROW(svo::LevelOctree{cut}, std::invalid_argument);
+  EXPECT_THROW(svo::LevelOctree(cut, header), std::invalid_argument);
+  std::vector<svo::OctreeLevel> lostNormal = good;  // a normal code short of the presence bits
+  ASSERT_TRUE(header.hasNormals);
+  lostNormal[2].normalCodes.pop_back();
+  EXPECT_THROW(svo::LevelOctree(lostNormal, header), std::invalid_argument);
 }
 
 TEST(LevelArrays, BadSlicesThrow) {

@@ -263,7 +263,7 @@ LoadCosts measureLoadCosts(const StoreReader& reader, int runs) {
   costs.levelArrays.bytes = bytesOf(levels, index.header());
   checkLevelArrays(tree, levels);
   spdlog::info("load costs: casting rays through the block and the level arrays ...");
-  costs.casting = measureCasting(rawBlock, LevelOctree(levels), runs);
+  costs.casting = measureCasting(rawBlock, LevelOctree(levels, index.header()), runs);
   costs.leaves = std::uint64_t(std::count_if(tree.voxels.begin(), tree.voxels.end(),
                                              [](const SliceVoxel& v) { return v.childMask == 0; }));
   const std::size_t chunk = std::max<std::size_t>(index.header().sliceBytes, kPageBytes);
@@ -355,12 +355,14 @@ void printLoadCosts(const LoadCosts& costs) {
                   fmt::format("{:.2f}x", c.levels.median / c.block.median)});
   casting.print();
   fmt::print(
-      "level arrays: a voxel's children follow those the child masks before it count (a 32-bit count per {} "
-      "voxels), and\na present contour, color or normal those the presence bits before it count (a 32-bit "
-      "count per {} voxels).\nMeasured as the layout a pool could hold: checked against decodeSlice's tree, "
-      "and cast (depth only, no\nattributes) through a {} x {} view of their cube, {} of its rays hitting as "
-      "in "
-      "the block, bit for bit\n",
+      "level arrays: a voxel's children follow those the child masks before it count "
+      "(a 32-bit count per {} voxels), and\n"
+      "a present contour, color or normal those the presence bits before it count "
+      "(a 32-bit count per {} voxels).\n"
+      "Measured as the layout a pool could hold: checked against decodeSlice's tree, "
+      "and cast (depth only, one ray\n"
+      "at a time) through a {} x {} view of their cube, {} of its rays hitting as in the block, "
+      "bit for bit\n",
       kChildCountGroup, kPresenceCountGroup, kCastImageSize, kCastImageSize, formatCount(c.hits));
 }
 
