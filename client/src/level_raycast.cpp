@@ -69,7 +69,7 @@ template struct PresentValues<std::uint32_t>;
 template struct PresentValues<std::uint16_t>;
 
 static_assert(kChildCountGroup == 8, "firstChild loads a group's masks as one 64-bit word");
-static_assert(kPresenceCountGroup == 64, "contour() counts within one 64-bit presence word");
+static_assert(kPresenceCountGroup == 64, "PresentValues::find counts within one 64-bit presence word");
 
 LevelOctree::LevelOctree(const std::vector<OctreeLevel>& levels, const StoreHeader& header)
     : hasColors_(header.hasColors), hasNormals_(header.hasNormals) {

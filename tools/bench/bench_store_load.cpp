@@ -1,7 +1,8 @@
 // `svo bench store`'s load costs: a pager load's stages timed apart on one thread with the slices' bytes in
 // memory (no disk and no frames beside them, so the numbers hold still between runs), per voxel against the
-// 10 ns a worker may spend to keep up with a disk; and the one design that skips decoding and layout, the
-// pool's laid-out block bytes stored as they are, with what it costs on disk and to decompress.
+// 10 ns a worker may spend to keep up with a disk; and the designs that skip the layout: the pool's laid-out
+// block bytes stored as they are, with what that costs on disk and to decompress, and the slices decoded
+// straight into arrays per level, with what they take in memory and cost the caster.
 #include "bench_store_load.hpp"
 
 #include <algorithm>
@@ -155,7 +156,7 @@ LoadCosts::Casting measureCasting(const Block& block, const LevelOctree& levels,
   std::vector<CastHit> blockHits(rays.size());
   std::vector<LevelCastHit> levelHits(rays.size());
   CastOptions options;
-  options.recordPath = false;  // depth alone: the level caster records no path
+  options.recordPath = false;  // depth alone: neither records the ancestors that attribute look-ups walk
   const auto summaries = timeInterleaved(
       runs,
       [&] {

@@ -1,6 +1,6 @@
 // `svo bench store`'s load costs (bench_store_load.cpp): what bringing a store's voxels into the block pool
-// costs per voxel on one thread, stage by stage, and what storing the pool's own block bytes instead would
-// cost on disk and to decompress.
+// costs per voxel on one thread, stage by stage; what storing the pool's own block bytes instead would cost
+// on disk and to decompress; and what arrays per level instead of blocks would cost to decode, hold and cast.
 #pragma once
 
 #include <cstdint>
