@@ -200,9 +200,6 @@ class PresentValues {
     return std::to_integer<std::uint8_t>(values_[plane * count_ + k]);
   }
   std::uint32_t word(std::uint32_t k) const { return wordAt(values_, k); }
-  static std::size_t bytes(std::uint32_t voxelCount, std::uint32_t count, std::size_t valueBytes) {
-    return bitBytes(voxelCount) + valueBytes * std::size_t(count);
-  }
 
  private:
   const std::byte* bits_;
@@ -216,17 +213,13 @@ class PresentValues {
 void decodeSections(const SliceHead& head, const std::byte* cursor, const StoreHeader& header,
                     std::span<SliceVoxel> parents, std::vector<SliceVoxel>& children,
                     const std::function<void()>& pause) {
-  const std::byte* splitBits = cursor;
-  const std::byte* masks = splitBits + bitBytes(head.parentCount);
-  const std::byte* sections = masks + head.splitCount;
-  PresentValues contours(sections, head.voxelCount, head.contourCount);
-  sections += PresentValues::bytes(head.voxelCount, head.contourCount, kContourBytes);
+  const SectionStarts at = sectionStarts(cursor, head, header);
+  const std::byte* const splitBits = at.split;
+  const std::byte* const masks = at.masks;
+  PresentValues contours(at.contours, head.voxelCount, head.contourCount);
   std::optional<PresentValues> colors, normals;
-  if (header.hasColors) {
-    colors.emplace(sections, head.voxelCount, head.colorCount);
-    sections += PresentValues::bytes(head.voxelCount, head.colorCount, kColorBytes);
-  }
-  if (header.hasNormals) normals.emplace(sections, head.voxelCount, head.normalCount);
+  if (at.colors) colors.emplace(at.colors, head.voxelCount, head.colorCount);
+  if (at.normals) normals.emplace(at.normals, head.voxelCount, head.normalCount);
   const std::uint32_t* const lattice = latticeNormalTable();
   const std::uint32_t* const contourNormals = contourNormalPredictionTable();
   const bool parentContourPredicts = (head.attachments & kParentContourPrediction) != 0;

@@ -102,6 +102,34 @@ inline std::uint32_t wordAt(const std::byte* words, std::size_t i) {
   return w;
 }
 
+// Bits [i, i + 64) of a bit section of `count` bits (LSB first), those from `count` on cleared; i a multiple
+// of 64. Reads no byte past the section.
+inline std::uint64_t sectionWord(const std::byte* bits, std::size_t i, std::size_t count) {
+  std::uint64_t word = 0;
+  std::memcpy(&word, bits + i / 8, std::min<std::size_t>(8, bitBytes(count - i)));
+  return count - i < 64 ? word & ((std::uint64_t(1) << (count - i)) - 1) : word;
+}
+
+// Where a slice's sections start behind its head (codec.hpp): the split bits, the valid masks, and each
+// part's presence bits (its values follow them); null for a part the store does not have.
+struct SectionStarts {
+  const std::byte *split, *masks, *contours, *colors = nullptr, *normals = nullptr;
+};
+inline SectionStarts sectionStarts(const std::byte* cursor, const SliceHead& head,
+                                   const StoreHeader& header) {
+  SectionStarts at;
+  at.split = cursor;
+  at.masks = at.split + bitBytes(head.parentCount);
+  at.contours = at.masks + head.splitCount;
+  const std::byte* next = at.contours + bitBytes(head.voxelCount) + kContourBytes * head.contourCount;
+  if (header.hasColors) {
+    at.colors = next;
+    next += bitBytes(head.voxelCount) + kColorBytes * head.colorCount;
+  }
+  if (header.hasNormals) at.normals = next;
+  return at;
+}
+
 // The slice's head, checked against its directory entry, the store's attachments and its size.
 inline SliceHead checkedHead(std::span<const std::byte> raw, const SliceInfo& s, const StoreHeader& header,
                              std::size_t parents) {

@@ -17,12 +17,7 @@ namespace {
 // Bits set among the first `count` bits at `bits` (LSB first).
 std::size_t countSet(const std::byte* bits, std::size_t count) {
   std::size_t set = 0;
-  for (std::size_t i = 0; i < count; i += 64) {
-    std::uint64_t word = 0;
-    std::memcpy(&word, bits + i / 8, std::min<std::size_t>(8, bitBytes(count - i)));
-    if (count - i < 64) word &= (std::uint64_t(1) << (count - i)) - 1;
-    set += std::size_t(std::popcount(word));
-  }
+  for (std::size_t i = 0; i < count; i += 64) set += std::size_t(std::popcount(sectionWord(bits, i, count)));
   return set;
 }
 
@@ -37,27 +32,21 @@ T* grow(std::vector<T>& values, std::size_t count) {
 // A slice's sections after its head (codec.hpp), with the counts the hierarchy must agree with checked up
 // front, so that the decoding loop reads in bounds without a check per voxel.
 struct Sections {
-  const std::byte *split, *masks, *contourBits, *colorBits = nullptr, *colors = nullptr,
-                                                *normalBits = nullptr;
-  const std::uint8_t *contours, *normals = nullptr;  // byte planes
+  const std::byte *split, *masks, *contourBits;
+  const std::uint8_t* contours;  // byte planes
+  const std::byte *colorBits = nullptr, *normalBits = nullptr;
+  const std::uint8_t *colors = nullptr, *normals = nullptr;  // ABGR words; byte planes
 };
 
 Sections checkedSections(std::span<const std::byte> raw, const SliceHead& head, const StoreHeader& header) {
-  Sections s;
-  s.split = raw.data() + sizeof head;
-  s.masks = s.split + bitBytes(head.parentCount);
-  s.contourBits = s.masks + head.splitCount;
-  s.contours = reinterpret_cast<const std::uint8_t*>(s.contourBits + bitBytes(head.voxelCount));
-  const std::byte* next = s.contourBits + bitBytes(head.voxelCount) + kContourBytes * head.contourCount;
-  if (header.hasColors) {
-    s.colorBits = next;
-    s.colors = next + bitBytes(head.voxelCount);
-    next = s.colors + kColorBytes * head.colorCount;
-  }
-  if (header.hasNormals) {
-    s.normalBits = next;
-    s.normals = reinterpret_cast<const std::uint8_t*>(next + bitBytes(head.voxelCount));
-  }
+  const SectionStarts at = sectionStarts(raw.data() + sizeof head, head, header);
+  const auto values = [&](const std::byte* bits) {
+    return reinterpret_cast<const std::uint8_t*>(bits + bitBytes(head.voxelCount));
+  };
+  Sections s{
+      .split = at.split, .masks = at.masks, .contourBits = at.contours, .contours = values(at.contours)};
+  if (at.colors) s.colorBits = at.colors, s.colors = values(at.colors);
+  if (at.normals) s.normalBits = at.normals, s.normals = values(at.normals);
   if (countSet(s.split, head.parentCount) != head.splitCount)
     throw SliceDecodeError("split bits do not match the valid masks");
   std::size_t children = 0;
@@ -83,9 +72,7 @@ void PresenceBits::append(const std::byte* bits, std::size_t count) {
   std::size_t word = size_ / 64;
   words_.resize((size_ + count + 63) / 64, 0);
   for (std::size_t i = 0; i < count; i += 64, ++word) {
-    std::uint64_t w = 0;
-    std::memcpy(&w, bits + i / 8, std::min<std::size_t>(8, bitBytes(count - i)));
-    if (count - i < 64) w &= (std::uint64_t(1) << (count - i)) - 1;
+    const std::uint64_t w = sectionWord(bits, i, count);
     words_[word] |= w << shift;
     if (shift != 0 && word + 1 < words_.size()) words_[word + 1] |= w >> (64 - shift);
   }
