@@ -1,5 +1,6 @@
 #include "svo/client/level_raycast.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cstring>
 #include <stdexcept>
@@ -13,39 +14,61 @@ using namespace ray_setup;
 
 namespace {
 
-// continueRay's reading of level arrays: a parent is its index in its level (kScaleMax - 1 - scale), and
-// its children are the level below's from firstChild on, in slot order.
+// continueRay's reading of level arrays: a parent is its region and its index in its level (kScaleMax - 1 -
+// scale), and its children are the level below's from firstChild on, in slot order. A child on its region's
+// deepest level where another region is linked is that region's base voxel, whose children are there.
 struct LevelDescent {
-  const LevelOctree* octree;
-  using Node = std::uint32_t;
+  using Node = LevelNode;
   struct Parent {
     std::uint8_t validMask;
     std::uint32_t firstChild;
   };
-  Parent read(Node parent, int scale) const {
-    const LevelOctree::Level& level = octree->level(kScaleMax - 1 - scale);
-    return {level.childMasks[parent], level.firstChild(parent)};
+  static const IndexedLevel& levelOf(const LevelRegion& region, int scale) {
+    return region.levels[std::size_t(kScaleMax - 1 - scale - region.baseLevel)];
+  }
+  static Parent read(Node parent, int scale) {
+    const IndexedLevel& level = levelOf(*parent.region, scale);
+    return {level.childMasks[parent.index], level.firstChild(parent.index)};
   }
   static std::uint32_t childOf(const Parent& p, int slot) {
     return p.firstChild + std::uint32_t(childRank(p.validMask, slot));
   }
-  bool contour(Node, const Parent& p, int slot, int scale, Contour& c) const {
+  static bool contour(Node parent, const Parent& p, int slot, int scale, Contour& c) {
     std::uint32_t bits;
-    if (!octree->level(kScaleMax - scale).contours.find(childOf(p, slot), bits)) return false;
+    if (!levelOf(*parent.region, scale - 1).contours.find(childOf(p, slot), bits)) return false;
     c = decodeContour(bits);
     return true;
   }
   // A child without children of its own is the hit.
-  bool child(Node, const Parent& p, int slot, int scale, Node& child) const {
-    child = childOf(p, slot);
-    return octree->level(kScaleMax - scale).childMasks[child] != 0;
+  static bool child(Node parent, const Parent& p, int slot, int scale, Node& child) {
+    const LevelRegion& region = *parent.region;
+    child = {&region, childOf(p, slot)};
+    if (levelOf(region, scale - 1).childMasks[child.index] != 0) return true;
+    if (region.links.empty() || kScaleMax - scale != region.deepestLevel()) return false;
+    const LevelRegion::Link* link = region.linkAt(child.index);
+    if (!link) return false;
+    child = {link->region, child.index - link->first};
+    return link->region->levels[0].childMasks[child.index] != 0;
   }
   static void recordPath(LevelCastHit& hit, int scale, Node parent, int) { hit.pathParent[scale] = parent; }
 };
 
+// The children of the voxels before each group of kChildCountGroup, and all of them.
+std::uint64_t countChildren(const std::vector<std::uint8_t>& masks, std::size_t voxels,
+                            std::vector<std::uint32_t>& counts) {
+  counts.clear();
+  counts.reserve(voxels / kChildCountGroup + 1);
+  std::uint64_t children = 0;
+  for (std::size_t i = 0; i < voxels; ++i) {
+    if (i % kChildCountGroup == 0) counts.push_back(std::uint32_t(children));
+    children += std::uint32_t(std::popcount(unsigned(masks[i])));
+  }
+  return children;
+}
+
 }  // namespace
 
-std::uint32_t LevelOctree::Level::firstChild(std::uint32_t i) const {
+std::uint32_t IndexedLevel::firstChild(std::uint32_t i) const {
   const std::uint32_t group = i / kChildCountGroup * kChildCountGroup;
   std::uint64_t masks;
   std::memcpy(&masks, childMasks.data() + group, sizeof masks);
@@ -55,8 +78,8 @@ std::uint32_t LevelOctree::Level::firstChild(std::uint32_t i) const {
 }
 
 template <class Value>
-PresentValues<Value>::PresentValues(const PresenceBits& bits, const std::vector<Value>& present)
-    : words(bits.words().begin(), bits.words().end()), values(present) {
+PresentValues<Value>::PresentValues(const PresenceBits& bits, std::vector<Value>&& present)
+    : words(bits.words().begin(), bits.words().end()), values(std::move(present)) {
   words.push_back(0);  // a word past the last voxel's, so that find() may look at any voxel's
   std::uint32_t count = 0;
   for (const std::uint64_t w : words) {
@@ -71,6 +94,47 @@ template struct PresentValues<std::uint16_t>;
 static_assert(kChildCountGroup == 8, "firstChild loads a group's masks as one 64-bit word");
 static_assert(kPresenceCountGroup == 64, "PresentValues::find counts within one 64-bit presence word");
 
+IndexedLevel::IndexedLevel(OctreeLevel&& level) {
+  const auto perVoxel = [&](const PresenceBits& bits) { return bits.size() == level.voxels; };
+  if (level.childMasks.size() != level.voxels || !perVoxel(level.contourBits))
+    throw std::invalid_argument("its arrays do not hold a value per voxel");
+  contours = PresentValues<std::uint32_t>(level.contourBits, std::move(level.contours));
+  if (perVoxel(level.colorBits))
+    colors = PresentValues<std::uint32_t>(level.colorBits, std::move(level.colors));
+  if (perVoxel(level.normalBits))
+    normals = PresentValues<std::uint16_t>(level.normalBits, std::move(level.normalCodes));
+  setChildMasks(std::move(level.childMasks));
+}
+
+std::uint64_t IndexedLevel::setChildMasks(std::vector<std::uint8_t>&& masks) {
+  const std::size_t voxels = masks.size();
+  childMasks = std::move(masks);
+  childMasks.resize(voxels + kChildCountGroup, 0);
+  return countChildren(childMasks, voxels, childCounts);
+}
+
+std::size_t IndexedLevel::bytes() const {
+  const auto part = [](const auto& p) {
+    return p.words.size() * sizeof p.words[0] + p.counts.size() * sizeof p.counts[0] +
+           p.values.size() * sizeof p.values[0];
+  };
+  return childMasks.size() + childCounts.size() * sizeof childCounts[0] + part(contours) + part(colors) +
+         part(normals);
+}
+
+const LevelRegion::Link* LevelRegion::linkAt(std::uint32_t i) const {
+  const auto after = std::upper_bound(links.begin(), links.end(), i,
+                                      [](std::uint32_t v, const Link& link) { return v < link.first; });
+  if (after == links.begin() || i >= std::prev(after)->end) return nullptr;
+  return &*std::prev(after);
+}
+
+std::size_t LevelRegion::bytes() const {
+  std::size_t total = links.size() * sizeof(Link);
+  for (const IndexedLevel& level : levels) total += level.bytes();
+  return total;
+}
+
 LevelOctree::LevelOctree(const std::vector<OctreeLevel>& levels, const StoreHeader& header)
     : hasColors_(header.hasColors), hasNormals_(header.hasNormals) {
   const auto fail = [](std::size_t l, const std::string& what) {
@@ -80,64 +144,53 @@ LevelOctree::LevelOctree(const std::vector<OctreeLevel>& levels, const StoreHead
   if (levels.size() > std::size_t(kMaxLevels) + 1) fail(levels.size() - 1, "deeper than the octree's levels");
   std::uint64_t expected = 1;  // voxels the level above's masks count
   for (std::size_t l = 0; l < levels.size(); ++l) {
-    const OctreeLevel& in = levels[l];
+    OctreeLevel in = levels[l];
     if (in.voxels != expected) fail(l, "its voxels are not the children the level above counts");
-    const auto perVoxel = [&](const PresenceBits& bits, bool kept) {
-      return !kept || bits.size() == in.voxels;
-    };
-    if (in.childMasks.size() != in.voxels || !perVoxel(in.contourBits, true) ||
-        !perVoxel(in.colorBits, hasColors_) || !perVoxel(in.normalBits, hasNormals_))
+    const auto kept = [&](const PresenceBits& bits, bool has) { return !has || bits.size() == in.voxels; };
+    if (!kept(in.colorBits, hasColors_) || !kept(in.normalBits, hasNormals_))
       fail(l, "its arrays do not hold a value per voxel");
-    Level& out = levels_.emplace_back();
-    out.childMasks = in.childMasks;
-    out.childMasks.resize(in.voxels + kChildCountGroup, 0);
-    std::uint32_t children = 0;
-    for (std::size_t i = 0; i < in.voxels; ++i) {
-      if (i % kChildCountGroup == 0) out.childCounts.push_back(children);
-      children += std::uint32_t(std::popcount(unsigned(in.childMasks[i])));
-    }
-    if (l + 1 == levels.size() && children != 0) fail(l, "the deepest level has children");
-    expected = children;
     try {
-      out.contours = PresentValues<std::uint32_t>(in.contourBits, in.contours);
-      if (hasColors_) out.colors = PresentValues<std::uint32_t>(in.colorBits, in.colors);
-      if (hasNormals_) out.normals = PresentValues<std::uint16_t>(in.normalBits, in.normalCodes);
+      region_.levels.emplace_back(std::move(in));
     } catch (const std::invalid_argument& e) {
       fail(l, e.what());
     }
+    expected = 0;
+    for (const std::uint8_t mask : levels[l].childMasks) expected += std::uint64_t(std::popcount(mask));
+    if (l + 1 == levels.size() && expected != 0) fail(l, "the deepest level has children");
   }
-  if ((hasColors_ && levels_[0].colors.values.size() != 1) ||
-      (hasNormals_ && levels_[0].normals.values.size() != 1))
+  const Level& root = region_.levels[0];
+  if ((hasColors_ && root.colors.values.size() != 1) || (hasNormals_ && root.normals.values.size() != 1))
     fail(0, "the root has no value of its own");
 }
 
-LevelCastHit castRay(const LevelOctree& octree, const OctreeRay& ray, const CastOptions& options) {
+LevelCastHit castRay(const LevelRegion& root, const OctreeRay& ray, const CastOptions& options) {
   LevelCastHit hit;
-  if (octree.levels() >= 2) castFromRoot(0u, ray, options, hit, LevelDescent{&octree});
+  if (root.levels.size() >= 2) castFromRoot(LevelNode{&root, 0}, ray, options, hit, LevelDescent{});
   return hit;
 }
 
-std::uint32_t hitAttribute(const LevelOctree& octree, const LevelCastHit& hit, AttachmentType type) {
+std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type) {
   const bool color = type == AttachmentType::Color;
-  if (!hit.hit || (color ? !octree.hasColors() : type != AttachmentType::Normal || !octree.hasNormals()))
-    return 0;
-  // The hit voxel, then its ancestors up to the root, each by its level and its index there.
-  const auto valueOf = [&](int level, std::uint32_t i, std::uint32_t& value) {
-    const LevelOctree::Level& l = octree.level(level);
+  if (!hit.hit || (!color && type != AttachmentType::Normal)) return 0;
+  // The hit voxel, then its ancestors up to the root, each by its level and its index there; a region's
+  // base voxel's values are its parent region's.
+  const auto valueOf = [&](int level, LevelNode node, std::uint32_t& value) {
+    if (level == node.region->baseLevel && node.region->parent)
+      node = {node.region->parent, node.region->baseStart + node.index};
+    const IndexedLevel& l = node.region->levels[std::size_t(level - node.region->baseLevel)];
     std::uint16_t code;
-    if (color) return l.colors.find(i, value);
-    if (!l.normals.find(i, code)) return false;
+    if (color) return !l.colors.words.empty() && l.colors.find(node.index, value);
+    if (l.normals.words.empty() || !l.normals.find(node.index, code)) return false;
     value = latticeNormalBits(code);
     return true;
   };
   const int parentLevel = kScaleMax - 1 - hit.scale;
-  const LevelOctree::Level& parent = octree.level(parentLevel);
-  const std::uint8_t mask = parent.childMasks[hit.parent];
+  const IndexedLevel& parent = LevelDescent::levelOf(*hit.parent.region, hit.scale);
+  const std::uint8_t mask = parent.childMasks[hit.parent.index];
+  const LevelNode child{hit.parent.region,
+                        parent.firstChild(hit.parent.index) + std::uint32_t(childRank(mask, hit.childSlot))};
   std::uint32_t value = 0;
-  if (valueOf(parentLevel + 1, parent.firstChild(hit.parent) + std::uint32_t(childRank(mask, hit.childSlot)),
-              value) ||
-      valueOf(parentLevel, hit.parent, value))
-    return value;
+  if (valueOf(parentLevel + 1, child, value) || valueOf(parentLevel, hit.parent, value)) return value;
   for (int scale = hit.scale + 1; scale < kScaleMax; ++scale)
     if (valueOf(kScaleMax - 1 - scale, hit.pathParent[scale], value)) return value;
   return value;  // the root keeps its own value: the walk ends there

@@ -10,9 +10,12 @@
 #include <random>
 #include <vector>
 
+#include "paging/level_pool.hpp"
+#include "paging/regions.hpp"
 #include "reference.hpp"
 #include "svo/client/level_raycast.hpp"
 #include "svo/client/raycast.hpp"
+#include "svo/store/block.hpp"
 #include "svo/store/codec.hpp"
 #include "svo/store/format.hpp"
 #include "svo/store/level_arrays.hpp"
@@ -182,6 +185,89 @@ TEST(LevelArrays, CastRaysAsTheBlockDoes) {
     }
     EXPECT_GT(hits, 1000u);
     EXPECT_GT(lodStops, 50u);
+  }
+}
+
+// Regions of level arrays as a pager loads, deepens and evicts them, in random order: rays cast through them
+// hit as the block of the whole octree cut to the resident slices does.
+TEST(LevelArrays, PagedRegionsCastAsTheWholeOctreeCutToThem) {
+  const svotest::TempFile store("svo_level_pool", ".svo");
+  svotest::writeSphereAndBoxStore(store.path, 2048);
+  for (const fs::path& path : {fs::path(SVO_TEST_DATA) / "fixtures" / "runs-v5.svo", store.path}) {
+    SCOPED_TRACE(path.string());
+    const svo::StoreReader reader(path);
+    svo::paging::RegionTable table(reader.slices(), std::size_t(1) << 20, path.string());
+    svo::paging::LevelPool pool(table, reader.index());
+    std::mt19937 rng(7);
+    // Loads up to `count` of the region's next slices; a chain of several sometimes ends in a truncated
+    // slice, which ends the growth at the slice before it.
+    std::size_t cutShort = 0;
+    const auto load = [&](std::uint32_t r, std::uint32_t count) {
+      svo::paging::Region& region = table[r];
+      std::vector<svo::SliceBytes> raw;
+      for (std::uint32_t k = region.resident;
+           k < std::min(region.resident + count, std::uint32_t(region.slices.size())); ++k)
+        raw.push_back(reader.readSlice(region.slices[k]));
+      const bool truncate = raw.size() >= 2 && rng() % 3 == 0;
+      if (truncate) raw.back().resize(raw.back().size() / 2);
+      svo::paging::LevelGrowth growth = pool.decode(r, region.resident, raw);
+      ASSERT_EQ(growth.added, raw.size() - truncate) << growth.error;
+      ASSERT_EQ(growth.error.empty(), !truncate);
+      cutShort += truncate;
+      region.resident += growth.added;
+      pool.install(std::move(growth));
+    };
+    load(0, 2);
+    std::size_t checks = 0, crossings = 0;
+    for (int step = 0; step < 40; ++step) {
+      // Deepen a resident region, or load a region whose parent is complete, or evict a leaf region.
+      std::vector<std::uint32_t> loadable, evictable;
+      for (std::uint32_t r = 0; r < table.size(); ++r) {
+        const svo::paging::Region& region = table[r];
+        const bool parentComplete = region.parent < 0 || table[std::uint32_t(region.parent)].complete();
+        if (!region.complete() && parentComplete &&
+            (region.resident > 0 || table[std::uint32_t(region.parent)].resident))
+          loadable.push_back(r);
+        if (r != 0 && region.resident &&
+            std::none_of(region.children.begin(), region.children.end(),
+                         [&](std::uint32_t c) { return table[c].resident != 0; }))
+          evictable.push_back(r);
+      }
+      if (loadable.empty() && evictable.empty()) break;
+      if (!evictable.empty() && (loadable.empty() || rng() % 5 == 0)) {
+        const std::uint32_t r = evictable[rng() % evictable.size()];
+        pool.evict(r);
+        table[r].resident = 0;
+      } else {
+        {
+          const std::uint32_t count = 1 + rng() % 3;
+          load(loadable[rng() % loadable.size()], count);
+        }
+      }
+      if (step % 2 == 0) continue;
+      std::vector<std::uint32_t> resident;
+      for (std::uint32_t r = 0; r < table.size(); ++r)
+        for (std::uint32_t k = 0; k < table[r].resident; ++k) resident.push_back(table[r].slices[k]);
+      const svo::Block cut = svo::layoutBlock(svotest::truncatedTree(reader, resident), {});
+      for (const svo::OctreeRay& ray : testRays()) {
+        const svo::CastHit a = svo::castRay(cut.view(), ray);
+        const svo::LevelCastHit b = svo::castRay(*pool.trunk(), ray);
+        ASSERT_EQ(a.hit, b.hit);
+        ASSERT_EQ(a.iterations, b.iterations);
+        if (!a.hit) continue;
+        ++checks, crossings += b.parent.region != pool.trunk();
+        EXPECT_EQ(a.leaf, b.leaf);
+        EXPECT_EQ(std::bit_cast<std::uint32_t>(a.t), std::bit_cast<std::uint32_t>(b.t));
+        EXPECT_EQ(a.scale, b.scale);
+        EXPECT_EQ(a.childSlot, b.childSlot);
+        EXPECT_EQ(a.position, b.position);
+        for (const svo::AttachmentType type : {svo::AttachmentType::Color, svo::AttachmentType::Normal})
+          EXPECT_EQ(svo::hitAttribute(cut.view(), a, type), svo::hitAttribute(b, type));
+      }
+    }
+    EXPECT_GT(checks, 10000u);
+    EXPECT_GT(crossings, 1000u);  // hits in regions other than the trunk
+    EXPECT_GT(cutShort, 0u);
   }
 }
 

@@ -1,8 +1,8 @@
 // ESVO ray casting (raycast.hpp) over an octree held as arrays per level (level_arrays.hpp) instead of a
 // block: the same loop (continueRay), finding a voxel's children by counting the child masks before it and
 // its contour, color and normal by counting presence bits. Its hits, and the values hitAttribute finds for
-// them, are the block's bit for bit on the same octree. One ray at a time: no packets, no beams, no block
-// pool yet.
+// them, are the block's bit for bit on the same octree. The octree may be one region or regions linked at
+// their deepest levels, as a pager holds them. One ray at a time: no packets and no beams yet.
 #pragma once
 
 #include <bit>
@@ -24,7 +24,7 @@ struct PresentValues {
 
   PresentValues() = default;
   // Throws std::invalid_argument when `values` are not as many as the bits that are set.
-  PresentValues(const PresenceBits& bits, const std::vector<Value>& present);
+  PresentValues(const PresenceBits& bits, std::vector<Value>&& present);
   // Voxel i's value, where it has one.
   bool find(std::uint32_t i, Value& value) const {
     const std::uint64_t word = words[i / 64];
@@ -35,31 +35,72 @@ struct PresentValues {
   }
 };
 
-// Level arrays with the counts a descent finds children and values by (level_arrays.hpp's groups).
+// One level's arrays with the counts a descent finds children and values by (level_arrays.hpp's groups).
+struct IndexedLevel {
+  std::vector<std::uint8_t> childMasks;           // per voxel, then a group of zeros (a whole group's load)
+  std::vector<std::uint32_t> childCounts;         // children of the voxels before each kChildCountGroup
+  PresentValues<std::uint32_t> contours, colors;  // colors ABGR
+  PresentValues<std::uint16_t> normals;           // lattice codes (format.hpp)
+
+  IndexedLevel() = default;
+  // A decoded level's arrays, moved in; its parts without presence bits (a store without colors or normals)
+  // stay empty. Throws std::invalid_argument when a part's values are not as many as its presence bits.
+  explicit IndexedLevel(OctreeLevel&& level);
+  std::uint32_t voxels() const { return std::uint32_t(childMasks.size() - kChildCountGroup); }
+  // Sets the child masks (one per voxel, as many as there are) and counts them; returns the children.
+  std::uint64_t setChildMasks(std::vector<std::uint8_t>&& masks);
+  // The level below's index of the first child of voxel i.
+  std::uint32_t firstChild(std::uint32_t i) const;
+  std::size_t bytes() const;  // what its arrays hold
+};
+
+// A part of an octree as level arrays: the levels below a cube (or a run of its sub-cubes) from its *base*,
+// the level its first slice's parents are on, down to the deepest level it holds. The base's voxels are a
+// Morton range of the parent region's deepest level, which holds their values; the base holds their child
+// masks. Regions reached from its deepest level's voxels are linked by voxel range (a block pool's link
+// descriptors, pager.hpp), so a descent sees one octree. A whole octree is one region, based at the root.
+struct LevelRegion {
+  struct Link {
+    std::uint32_t first = 0, end = 0;  // the deepest level's voxels [first, end): the region's base
+    const LevelRegion* region = nullptr;
+  };
+  int baseLevel = 0;                    // the octree level of levels[0]
+  const LevelRegion* parent = nullptr;  // none for the root's region
+  std::uint32_t baseStart = 0;          // levels[0]'s voxel i is the parent's deepest voxel baseStart + i
+  std::vector<IndexedLevel> levels;
+  std::vector<Link> links;  // sorted, disjoint
+
+  int deepestLevel() const { return baseLevel + int(levels.size()) - 1; }
+  // The region entered at deepest-level voxel i, if one is linked there.
+  const Link* linkAt(std::uint32_t i) const;
+  std::size_t bytes() const;
+};
+
+// A whole octree as level arrays: one region.
 class LevelOctree {
  public:
-  struct Level {
-    std::vector<std::uint8_t> childMasks;           // per voxel, then a group of zeros (a whole group's load)
-    std::vector<std::uint32_t> childCounts;         // children of the voxels before each kChildCountGroup
-    PresentValues<std::uint32_t> contours, colors;  // colors ABGR
-    PresentValues<std::uint16_t> normals;           // lattice codes (format.hpp)
-
-    // The level below's index of the first child of voxel i.
-    std::uint32_t firstChild(std::uint32_t i) const;
-  };
+  using Level = IndexedLevel;
 
   // Throws std::invalid_argument when the levels do not make one octree: level 0 not one voxel, a level's
   // voxels not as many as the level above's child masks count, or a part's values not as many as its
   // presence bits.
   LevelOctree(const std::vector<OctreeLevel>& levels, const StoreHeader& header);
-  const Level& level(int l) const { return levels_[std::size_t(l)]; }
-  int levels() const { return int(levels_.size()); }
+  const Level& level(int l) const { return region_.levels[std::size_t(l)]; }
+  int levels() const { return int(region_.levels.size()); }
+  const LevelRegion& region() const { return region_; }
   bool hasColors() const { return hasColors_; }
   bool hasNormals() const { return hasNormals_; }
 
  private:
-  std::vector<Level> levels_;
+  LevelRegion region_;
   bool hasColors_ = false, hasNormals_ = false;
+};
+
+// A voxel of level arrays: its region, and its index in its level there.
+struct LevelNode {
+  const LevelRegion* region = nullptr;
+  std::uint32_t index = 0;
+  bool operator==(const LevelNode&) const = default;
 };
 
 struct LevelCastHit {
@@ -69,20 +110,28 @@ struct LevelCastHit {
   int scale = 0;  // voxel size is 2^(scale - 23) octree units, its level kMaxLevels - 1 - scale
   int childSlot = 0;
   int iterations = 0;
-  std::uint32_t parent = 0;  // the hit voxel's parent: its index in its level
+  LevelNode parent;          // the hit voxel's parent
   glm::vec3 position{0.0f};  // clamped into the hit voxel's cube, as CastHit's
   glm::vec3 cubeMin{0.0f};
   // The ancestors' indices by scale, where CastOptions::recordPath: the one at scale s (in (scale, 22]) is
   // the parent of the one at scale s - 1, and pathParent[scale + 1] is `parent`'s.
-  std::uint32_t pathParent[kMaxLevels];  // left uninitialized: written by each PUSH
+  LevelNode pathParent[kMaxLevels];  // left uninitialized: written by each PUSH
 };
 
-// castRay on level arrays.
-LevelCastHit castRay(const LevelOctree& octree, const OctreeRay& ray, const CastOptions& options = {});
+// castRay on level arrays: a whole octree, or the regions linked from `root`, the root's region.
+LevelCastHit castRay(const LevelRegion& root, const OctreeRay& ray, const CastOptions& options = {});
+inline LevelCastHit castRay(const LevelOctree& octree, const OctreeRay& ray,
+                            const CastOptions& options = {}) {
+  return castRay(octree.region(), ray, options);
+}
 
 // The color (ABGR) or normal (cube-encoded bits, format.hpp) a hit voxel shows: its own, else its nearest
 // ancestor's (the root's at the last), as hitAttribute gives it on a raw block of the same store. Needs the
 // hit's path (CastOptions::recordPath); 0 for a miss or a type the octree does not have.
-std::uint32_t hitAttribute(const LevelOctree& octree, const LevelCastHit& hit, AttachmentType type);
+std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type);
+inline std::uint32_t hitAttribute(const LevelOctree& octree, const LevelCastHit& hit, AttachmentType type) {
+  return (type == AttachmentType::Color ? octree.hasColors() : octree.hasNormals()) ? hitAttribute(hit, type)
+                                                                                    : 0;
+}
 
 }  // namespace svo

@@ -1,0 +1,246 @@
+#include "paging/level_pool.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <cassert>
+#include <stdexcept>
+#include <utility>
+
+#include "svo/store/codec.hpp"
+#include "svo/store/format.hpp"
+#include "svo/store/level_arrays.hpp"
+
+namespace svo::paging {
+namespace {
+
+static_assert(std::endian::native == std::endian::little,
+              "presence words are handed to PresenceBits::append as their bytes, LSB first");
+
+const IndexedLevel& levelAt(const LevelRegion& region, int level) {
+  return region.levels[std::size_t(level - region.baseLevel)];
+}
+
+// Where the child masks of `node`, a voxel of octree level `level`, are: its region's, or on its region's
+// deepest level the base of the region linked there. False where it has none resident.
+bool toMasks(LevelNode& node, int level) {
+  if (level < node.region->deepestLevel()) return true;
+  const LevelRegion::Link* link = node.region->linkAt(node.index);
+  if (!link) return false;
+  node = {link->region, node.index - link->first};
+  return true;
+}
+
+// One past the index of the last child of voxel i.
+std::uint32_t childEnd(const IndexedLevel& level, std::uint32_t i) {
+  return level.firstChild(i) + std::uint32_t(std::popcount(unsigned(level.childMasks[i])));
+}
+
+// A range of voxels of one level, in one region.
+struct VoxelRange {
+  const LevelRegion* region;
+  std::uint32_t first, end;
+};
+
+// The resident voxels of octree level `target` inside a cube's sub-cubes [firstSlot, lastSlot] (all eight:
+// the whole cube), found from the root's region down. Throws std::logic_error where the cube's voxels are
+// not resident down to `target` in one region.
+VoxelRange voxelsWithin(const LevelRegion& root, int cubeLevel, glm::ivec3 cube, int firstSlot, int lastSlot,
+                        int target) {
+  LevelNode node{&root, 0};
+  for (int level = 0; level < cubeLevel; ++level) {
+    const int slot = childSlot(cube >> (cubeLevel - level - 1));
+    const IndexedLevel* l = toMasks(node, level) ? &levelAt(*node.region, level) : nullptr;
+    if (!l || !(l->childMasks[node.index] >> slot & 1))
+      throw std::logic_error("pager: a region's cube is not resident in its parent");
+    node.index = l->firstChild(node.index) + std::uint32_t(childRank(l->childMasks[node.index], slot));
+  }
+  if (!toMasks(node, cubeLevel)) throw std::logic_error("pager: a region's cube has no resident children");
+  const IndexedLevel& cubeVoxel = levelAt(*node.region, cubeLevel);
+  const std::uint8_t mask = cubeVoxel.childMasks[node.index];
+  const std::uint32_t firstChild = cubeVoxel.firstChild(node.index);
+  VoxelRange range{node.region, firstChild + std::uint32_t(childRank(mask, firstSlot)),
+                   firstChild + std::uint32_t(childRank(mask, lastSlot + 1))};
+  for (int level = cubeLevel + 1; level < target && range.first < range.end; ++level) {
+    if (level == range.region->deepestLevel()) {
+      const LevelRegion::Link* link = range.region->linkAt(range.first);
+      if (!link || range.end > link->end)
+        throw std::logic_error("pager: a region's cube spans regions that are not resident");
+      range = {link->region, range.first - link->first, range.end - link->first};
+    }
+    const IndexedLevel& l = levelAt(*range.region, level);
+    range = {range.region, l.firstChild(range.first), childEnd(l, range.end - 1)};
+  }
+  return range;
+}
+
+// The normal codes the voxels of `region`'s deepest level show, its own or its nearest ancestor's, from
+// those its base shows.
+std::vector<std::uint16_t> shownNormals(const LevelRegion& region, std::vector<std::uint16_t> shown) {
+  std::vector<std::uint16_t> below;
+  for (std::size_t l = 0; l + 1 < region.levels.size(); ++l) {
+    const IndexedLevel& parents = region.levels[l];
+    const PresentValues<std::uint16_t>& own = region.levels[l + 1].normals;
+    below.resize(region.levels[l + 1].voxels());
+    std::uint32_t child = 0, present = 0;
+    for (std::uint32_t i = 0; i < parents.voxels(); ++i)
+      for (int n = std::popcount(unsigned(parents.childMasks[i])); n > 0; --n, ++child)
+        below[child] = !own.words.empty() && (own.words[child / 64] >> (child % 64) & 1)
+                           ? own.values[present++]
+                           : shown[i];
+    std::swap(shown, below);
+  }
+  return shown;
+}
+
+// Voxels [first, end) of a level as the decoder's parents (level_arrays.hpp): their contours and the
+// normals they show, `shown`; their child masks are left for the decoder to write.
+OctreeLevel parentsOf(const PresentValues<std::uint32_t>& contours, std::uint32_t first, std::uint32_t end,
+                      std::vector<std::uint16_t> shown) {
+  OctreeLevel level;
+  level.voxels = end - first;
+  std::vector<std::uint64_t> bits((end - first + 63) / 64 + 1, 0);
+  for (std::uint32_t i = first; i < end; ++i)
+    bits[(i - first) / 64] |= std::uint64_t(contours.words[i / 64] >> (i % 64) & 1) << ((i - first) % 64);
+  level.contourBits.append(reinterpret_cast<const std::byte*>(bits.data()), level.voxels);
+  level.shownContours.resize(level.voxels, 0);
+  for (std::uint32_t i = first; i < end; ++i) contours.find(i, level.shownContours[i - first]);
+  level.shownNormalCodes = std::move(shown);
+  return level;
+}
+
+}  // namespace
+
+std::size_t LevelGrowth::bytes() const {
+  std::size_t total = deepestMasks.size() + baseShownNormals.size() * sizeof(std::uint16_t);
+  for (const IndexedLevel& l : levels) total += l.bytes();
+  return total;
+}
+
+LevelPool::LevelPool(const RegionTable& regions, const StoreIndex& index)
+    : table_(regions), index_(index), regions_(regions.size()), baseShownNormals_(regions.size()) {}
+
+std::size_t LevelPool::bytes(std::uint32_t region) const {
+  return regions_[region]
+             ? regions_[region]->bytes() + baseShownNormals_[region].size() * sizeof(std::uint16_t)
+             : 0;
+}
+
+OctreeLevel LevelPool::residentParents(std::uint32_t index) const {
+  const LevelRegion& region = *regions_[index];
+  return parentsOf(region.levels.back().contours, 0, region.levels.back().voxels(),
+                   shownNormals(region, baseShownNormals_[index]));
+}
+
+OctreeLevel LevelPool::baseParents(std::uint32_t index, LevelGrowth& growth) const {
+  const Region& r = table_[index];
+  const std::uint32_t parentIndex = std::uint32_t(r.parent);
+  const LevelRegion& parent = *regions_[parentIndex];
+  const int target = index_.slices()[r.slices.front()].voxelLevel - 1;
+  if (parent.deepestLevel() != target)
+    throw std::logic_error("pager: a region's parent does not end above its first slice");
+  const VoxelRange range =
+      voxelsWithin(*regions_[0], r.cubeLevel, r.cubeCoord, r.firstSlot, r.lastSlot, target);
+  if (range.first < range.end && range.region != &parent)
+    throw std::logic_error("pager: a region's base is not on its parent's deepest level");
+  growth.baseStart = range.first;
+  const std::vector<std::uint16_t> shown = shownNormals(parent, baseShownNormals_[parentIndex]);
+  growth.baseShownNormals.assign(shown.begin() + range.first, shown.begin() + range.end);
+  return parentsOf(parent.levels.back().contours, range.first, range.end, growth.baseShownNormals);
+}
+
+LevelGrowth LevelPool::decode(std::uint32_t index, std::uint32_t first, std::span<const SliceBytes> raw,
+                              const std::function<void()>& pause) const {
+  const Region& r = table_[index];
+  assert(first == (regions_[index] ? regions_[index]->levels.size() - 1 : 0));
+  LevelGrowth growth;
+  growth.region = index;
+  const StoreHeader& header = index_.header();
+  // The level the next slice decodes onto; its child masks, written by that slice, go to its place when done.
+  OctreeLevel above;
+  if (first > 0) {
+    above = residentParents(index);
+  } else if (index == 0) {
+    above = rootLevel(header);  // the trunk's base is the root, with its own values
+    growth.baseShownNormals = above.shownNormalCodes;
+  } else {
+    above = baseParents(index, growth);
+  }
+  // The first level finished is the one the first slice decoded onto: the resident deepest level, whose
+  // masks go to the region's, or a new region's base, masks only (its values are its parent's).
+  bool firstFinished = false;
+  const auto finish = [&](OctreeLevel& level) {
+    level.childMasks.resize(level.voxels, 0);
+    if (!std::exchange(firstFinished, true) && (first > 0 || index != 0)) {
+      if (first > 0)
+        growth.deepestMasks = std::move(level.childMasks);
+      else
+        growth.levels.emplace_back().setChildMasks(std::move(level.childMasks));
+      return;
+    }
+    level.shownContours = {}, level.shownNormalCodes = {};
+    growth.levels.emplace_back(std::move(level));
+  };
+  for (std::size_t k = 0; k < raw.size(); ++k) {
+    const std::uint32_t slice = r.slices[first + k];
+    const SliceInfo& info = index_.slices()[slice];
+    OctreeLevel below;
+    try {
+      if (info.parentCount != above.voxels)
+        throw SliceDecodeError("its parents are not the " + std::to_string(above.voxels) +
+                               " resident voxels of its cube");
+      decodeSliceLevel(raw[k], info, header, above, 0, below);
+    } catch (const std::exception& e) {
+      above.childMasks.clear();  // the slice's partial masks go: the level above stays the deepest
+      growth.failedSlice = slice;
+      growth.error = e.what();
+      break;
+    }
+    finish(above);
+    above = std::move(below);
+    ++growth.added;
+    pause();
+  }
+  if (growth.added > 0) finish(above);
+  return growth;
+}
+
+void LevelPool::install(LevelGrowth&& growth) {
+  const std::uint32_t index = growth.region;
+  const Region& r = table_[index];
+  std::unique_ptr<LevelRegion>& region = regions_[index];
+  residentBytes_ -= bytes(index);
+  if (!region) {
+    region = std::make_unique<LevelRegion>();
+    region->baseLevel = index_.slices()[r.slices.front()].voxelLevel - 1;
+    baseShownNormals_[index] = std::move(growth.baseShownNormals);
+    if (r.parent >= 0) {
+      LevelRegion& parent = *regions_[std::size_t(r.parent)];
+      region->parent = &parent;
+      region->baseStart = growth.baseStart;
+      const LevelRegion::Link link{growth.baseStart, growth.baseStart + growth.levels.front().voxels(),
+                                   region.get()};
+      parent.links.insert(std::upper_bound(parent.links.begin(), parent.links.end(), link,
+                                           [](const auto& a, const auto& b) { return a.first < b.first; }),
+                          link);
+    }
+  } else {
+    region->levels.back().setChildMasks(std::move(growth.deepestMasks));
+  }
+  for (IndexedLevel& level : growth.levels) region->levels.push_back(std::move(level));
+  residentBytes_ += bytes(index);
+}
+
+void LevelPool::evict(std::uint32_t index) {
+  LevelRegion* region = regions_[index].get();
+  assert(index != 0 && region && region->links.empty());
+  residentBytes_ -= bytes(index);
+  std::vector<LevelRegion::Link>& links = regions_[std::size_t(table_[index].parent)]->links;
+  const auto link =
+      std::find_if(links.begin(), links.end(), [&](const auto& l) { return l.region == region; });
+  assert(link != links.end());
+  links.erase(link);
+  regions_[index].reset();
+  baseShownNormals_[index] = {};
+}
+
+}  // namespace svo::paging
