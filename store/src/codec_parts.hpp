@@ -37,13 +37,21 @@ class ContourPositionPredictor {
     twicePosition_ = 62 * f.position;
   }
   std::uint32_t operator()(int slot) const {
-    if (!has_) return 0;
+    return has_ ? bitsOf(numerator(normal_, twicePosition_, slot)) : 0;
+  }
+  // 31 x the prediction from the parent's fields, normal n and 62 p. A parent contour of 0 gives 0, as does
+  // a parent without one.
+  static constexpr int numerator(const int (&normal)[3], int twicePosition, int slot) {
     int reach = 0;  // sum of +-n_i, the sign from which half of the parent the child is in
-    for (int k = 0; k < 3; ++k) reach += (slot >> k & 1) ? normal_[k] : -normal_[k];
-    const int numerator = twicePosition_ - 21 * reach;  // 31 x the prediction
-    const int rounded = (numerator >= 0 ? numerator + 15 : numerator - 15) / 31;
+    for (int k = 0; k < 3; ++k) reach += (slot >> k & 1) ? normal[k] : -normal[k];
+    return twicePosition - 21 * reach;
+  }
+  static constexpr std::uint32_t bitsOf(int numerator) {
+    const int rounded = (numerator >= 0 ? numerator + 15 : numerator - 15) / 31;  // half away from zero
     return std::uint32_t(std::clamp(rounded, -64, 63) & 127) << 7;
   }
+  // The largest |numerator|: |p| <= 64, |reach| <= 3 x 32.
+  static constexpr int kNumeratorBound = 62 * 64 + 21 * 96;
 
  private:
   bool has_;
@@ -81,9 +89,13 @@ inline ContourResidual contourResidual(std::uint32_t contour, std::uint32_t pred
   r[3] = std::uint8_t((c.position - p.position) & 127), r[4] = std::uint8_t(c.thickness);
   return r;
 }
+// Adds every field at once: the sums of the fields without their top bits carry at most into those top bits,
+// which the exclusive or then sets, so that no field carries into the next.
 inline std::uint32_t contourOf(const ContourResidual& r, std::uint32_t predicted) {
-  const ContourFields p = contourFields(predicted);
-  return packContourBits(r[0] + p.normal[0], r[1] + p.normal[1], r[2] + p.normal[2], r[3] + p.position, r[4]);
+  constexpr std::uint32_t kTopBits = packContourBits(32, 32, 32, 64, 64);  // each field's top bit
+  const std::uint32_t residual = packContourBits(r[0], r[1], r[2], r[3], r[4]);
+  const std::uint32_t p = predicted & ~std::uint32_t(127);  // the thickness is the residual's alone
+  return ((residual & ~kTopBits) + (p & ~kTopBits)) ^ ((residual ^ p) & kTopBits);
 }
 inline NormalResidual normalResidual(std::uint16_t code, std::uint16_t parentCode) {
   return {std::uint8_t((code >> 8) - (parentCode >> 8)), std::uint8_t(code - parentCode)};
