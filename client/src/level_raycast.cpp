@@ -19,33 +19,36 @@ namespace {
 // deepest level where another region is linked is that region's base voxel, whose children are there.
 struct LevelDescent {
   using Node = LevelNode;
-  struct Parent {
+  struct Parent {  // read once per PUSH or POP
     std::uint8_t validMask;
     std::uint32_t firstChild;
+    const IndexedLevel* children;  // the level the children are on
+    bool linkedBelow;              // the children are on their region's deepest level, and it has links
   };
   static const IndexedLevel& levelOf(const LevelRegion& region, int scale) {
     return region.levels[std::size_t(kScaleMax - 1 - scale - region.baseLevel)];
   }
   static Parent read(Node parent, int scale) {
-    const IndexedLevel& level = levelOf(*parent.region, scale);
-    return {level.childMasks[parent.index], level.firstChild(parent.index)};
+    const LevelRegion& region = *parent.region;
+    const IndexedLevel* level = &levelOf(region, scale);
+    return {level->childMasks[parent.index], level->firstChild(parent.index), level + 1,
+            !region.links.empty() && level + 2 == region.levels.data() + region.levels.size()};
   }
   static std::uint32_t childOf(const Parent& p, int slot) {
     return p.firstChild + std::uint32_t(childRank(p.validMask, slot));
   }
-  static bool contour(Node parent, const Parent& p, int slot, int scale, Contour& c) {
+  static bool contour(Node, const Parent& p, int slot, int, Contour& c) {
     std::uint32_t bits;
-    if (!levelOf(*parent.region, scale - 1).contours.find(childOf(p, slot), bits)) return false;
+    if (!p.children->contours.find(childOf(p, slot), bits)) return false;
     c = decodeContour(bits);
     return true;
   }
   // A child without children of its own is the hit.
-  static bool child(Node parent, const Parent& p, int slot, int scale, Node& child) {
-    const LevelRegion& region = *parent.region;
-    child = {&region, childOf(p, slot)};
-    if (levelOf(region, scale - 1).childMasks[child.index] != 0) return true;
-    if (region.links.empty() || kScaleMax - scale != region.deepestLevel()) return false;
-    const LevelRegion::Link* link = region.linkAt(child.index);
+  static bool child(Node parent, const Parent& p, int slot, int, Node& child) {
+    child = {parent.region, childOf(p, slot)};
+    if (p.children->childMasks[child.index] != 0) return true;
+    if (!p.linkedBelow) return false;
+    const LevelRegion::Link* link = parent.region->linkAt(child.index);
     if (!link) return false;
     child = {link->region, child.index - link->first};
     return link->region->levels[0].childMasks[child.index] != 0;
@@ -79,8 +82,12 @@ std::uint32_t IndexedLevel::firstChild(std::uint32_t i) const {
 
 template <class Value>
 PresentValues<Value>::PresentValues(const PresenceBits& bits, std::vector<Value>&& present)
-    : words(bits.words().begin(), bits.words().end()), values(std::move(present)) {
+    : values(std::move(present)) {
+  // Sized exactly: a pool counts what its arrays hold.
+  words.reserve(bits.words().size() + 1);
+  words.assign(bits.words().begin(), bits.words().end());
   words.push_back(0);  // a word past the last voxel's, so that find() may look at any voxel's
+  counts.reserve(words.size());
   std::uint32_t count = 0;
   for (const std::uint64_t w : words) {
     counts.push_back(count);
@@ -109,17 +116,18 @@ IndexedLevel::IndexedLevel(OctreeLevel&& level) {
 std::uint64_t IndexedLevel::setChildMasks(std::vector<std::uint8_t>&& masks) {
   const std::size_t voxels = masks.size();
   childMasks = std::move(masks);
+  childMasks.reserve(voxels + kChildCountGroup);  // exactly: a pool counts what its arrays hold
   childMasks.resize(voxels + kChildCountGroup, 0);
   return countChildren(childMasks, voxels, childCounts);
 }
 
 std::size_t IndexedLevel::bytes() const {
   const auto part = [](const auto& p) {
-    return p.words.size() * sizeof p.words[0] + p.counts.size() * sizeof p.counts[0] +
-           p.values.size() * sizeof p.values[0];
+    return p.words.capacity() * sizeof p.words[0] + p.counts.capacity() * sizeof p.counts[0] +
+           p.values.capacity() * sizeof p.values[0];
   };
-  return childMasks.size() + childCounts.size() * sizeof childCounts[0] + part(contours) + part(colors) +
-         part(normals);
+  return childMasks.capacity() + childCounts.capacity() * sizeof childCounts[0] + part(contours) +
+         part(colors) + part(normals);
 }
 
 const LevelRegion::Link* LevelRegion::linkAt(std::uint32_t i) const {
@@ -130,7 +138,7 @@ const LevelRegion::Link* LevelRegion::linkAt(std::uint32_t i) const {
 }
 
 std::size_t LevelRegion::bytes() const {
-  std::size_t total = links.size() * sizeof(Link);
+  std::size_t total = links.capacity() * sizeof(Link);
   for (const IndexedLevel& level : levels) total += level.bytes();
   return total;
 }

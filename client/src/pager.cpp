@@ -8,6 +8,7 @@
 
 #include <glm/geometric.hpp>
 
+#include "paging/level_pool.hpp"
 #include "paging/load_workers.hpp"
 #include "paging/region_loader.hpp"
 #include "paging/regions.hpp"
@@ -43,11 +44,17 @@ PagerOptions checked(PagerOptions options) {
     throw std::runtime_error("pager: decoders during frames must be >= 0, got " +
                              std::to_string(options.decodersDuringFrames) + " (still), " +
                              std::to_string(options.decodersDuringMovingFrames) + " (moving)");
+  if (options.layout == PoolLayout::Levels && options.attributes.compressed())
+    throw std::runtime_error("pager: a pool of level arrays holds raw attributes only");
   options.maxInFlight = std::max(options.maxInFlight, options.fetchThreads + options.decodeThreads);
   return options;
 }
 
 }  // namespace
+
+const char* nameOf(PoolLayout layout) {
+  return layout == PoolLayout::Levels ? "levels" : "blocks";
+}
 
 ViewQuery viewOf(const SceneTransform& scene, const Camera& camera, double lodPixels) {
   ViewQuery view;
@@ -72,7 +79,9 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
     : source_(std::move(source)), options_(checked(options)) {
   const std::vector<SliceInfo>& slices = index().slices();
   const std::string& name = index().name();
-  regions_ = std::make_unique<paging::RegionTable>(slices, options_.budgetBytes, name);
+  regions_ = std::make_unique<paging::RegionTable>(
+      slices, options_.budgetBytes, name,
+      options_.layout == PoolLayout::Levels ? &index().header() : nullptr);
   scheduler_ = std::make_unique<paging::Scheduler>(
       slices, *regions_, paging::RetryBackoff{options_.sourceRetrySeconds, options_.sourceRetryMaxSeconds});
   loader_ = std::make_unique<paging::RegionLoader>(*source_, *regions_, poolMutex_, options_.attributes);
@@ -82,9 +91,9 @@ Pager::Pager(std::shared_ptr<const SliceSource> source, const PagerOptions& opti
   const paging::LoadRequest request{trunk.front(), std::uint32_t(trunk.size()), 1.0};
   paging::BuiltBlock built = loader_->build(request, loader_->fetch(request), {[] {}, {}});
   if (!built.error.empty()) throw std::runtime_error(built.error);
-  const std::size_t needed = built.block.bytes().size();
-  if (needed > regions_->pool().capacityBytes())
-    throw std::runtime_error("budget: " + std::to_string(regions_->pool().capacityBytes()) +
+  const std::size_t needed = roomOf(built).first;
+  if (needed > regions_->capacityBytes())
+    throw std::runtime_error("budget: " + std::to_string(regions_->capacityBytes()) +
                              " bytes cannot hold the trunk (levels 1-" +
                              std::to_string(slices[trunk.back()].voxelLevel) + ") of " + name +
                              ", which needs " + std::to_string(needed) + " bytes");
@@ -116,11 +125,29 @@ Pager::FrameScope::~FrameScope() {
 }
 
 BlockView Pager::trunk() const {
+  if (regions_->levels()) throw std::logic_error("pager: the pool holds level arrays, not blocks");
   return regions_->view((*regions_)[0]);
+}
+
+const LevelRegion* Pager::levelTrunk() const {
+  return regions_->levels() ? regions_->levels()->trunk() : nullptr;
+}
+
+Frame render(const Pager& pager, const Camera& camera, const RenderOptions& options) {
+  if (const LevelRegion* trunk = pager.levelTrunk())
+    return render(*trunk, pager.index().header(), pager.transform(), camera, options);
+  return render(pager.trunk(), pager.transform(), camera, options);
 }
 
 // ---------------------------------------------------------------------------------------------------------
 // Commits (render thread, exclusive lock).
+
+std::pair<std::size_t, std::size_t> Pager::roomOf(const paging::BuiltBlock& built) const {
+  // Level arrays grow in place by what the load adds; a block replaces its region's old one, in whole pages.
+  if (regions_->levels()) return {built.growth.bytes(), 0};
+  return {std::size_t(BlockPool::pagesFor(built.block.bytes().size())) * kPageBytes,
+          regions_->heldBytes(built.region)};
+}
 
 bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
   paging::RegionTable& regions = *regions_;
@@ -138,15 +165,14 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
   }
   if (built.added == 0 || region.version != built.version || region.resident != first)
     return false;  // nothing to add, or stale: the region changed while the worker read it
-  BlockPool& pool = regions.pool();
-  const std::size_t needed = std::size_t(BlockPool::pagesFor(built.block.bytes().size())) * kPageBytes;
-  const std::size_t freed = region.resident ? pool.size(region.block) : 0;
+  const auto [needed, freed] = roomOf(built);
   {
     double raw = 0.0;
     for (std::uint32_t k = 0; k < built.added; ++k)
       raw += index().slices()[region.slices[first + k]].rawBytes;
-    scheduler_->learnBlockGrowth(
-        raw, double(built.block.bytes().size()) - double(region.resident ? region.blockBytes : 0));
+    scheduler_->learnBlockGrowth(raw, regions.levels() ? double(needed)
+                                                       : double(built.block.bytes().size()) -
+                                                             double(region.resident ? region.blockBytes : 0));
   }
   if (region.parent >= 0 && !regions[std::uint32_t(region.parent)].complete()) return false;
   // Room is made by the view's own ranking, without ray feedback: a slice's feedback stops once it is
@@ -156,7 +182,7 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
     ++stats.cancelled;  // the view moved on while it was read
     return false;
   }
-  if (needed > pool.freeBytes() + freed) {
+  if (needed > regions.freeBytes() + freed) {
     // Make room: leaf regions less wanted than this slice, least wanted first. Never the region itself or
     // its ancestors (the new block is built on them), never the trunk.
     std::vector<std::uint8_t> keep(regions.size(), 0);
@@ -169,9 +195,9 @@ bool Pager::commit(paging::BuiltBlock& built, PagerStats& stats) {
               [&](std::uint32_t a, std::uint32_t b) { return regions[a].priority < regions[b].priority; });
     std::size_t reclaimable = 0;
     std::size_t take = 0;
-    while (take < candidates.size() && needed > pool.freeBytes() + freed + reclaimable)
-      reclaimable += pool.size(regions[candidates[take++]].block);
-    if (needed > pool.freeBytes() + freed + reclaimable) {
+    while (take < candidates.size() && needed > regions.freeBytes() + freed + reclaimable)
+      reclaimable += regions.heldBytes(candidates[take++]);
+    if (needed > regions.freeBytes() + freed + reclaimable) {
       // Detail is dropped, never memory added. The chain's last slice is marked, so a shorter chain can
       // still load.
       scheduler_->markDenied(region.slices[first + built.added - 1], needed - freed);
@@ -243,7 +269,7 @@ PagerStats Pager::update(const ViewQuery& view) {
   lastViewPending_ = candidates.viewPending;
   lastDeferred_ = candidates.deferred;
   stats.wanted = candidates.missing;
-  stats.residentBytes = regions_->pool().usedBytes();
+  stats.residentBytes = regions_->usedBytes();
   return stats;
 }
 
@@ -293,6 +319,7 @@ std::vector<PixelDetail> Pager::detailMap(const Frame& frame, const Camera& came
 }
 
 Pager::PoolChanges Pager::takePoolChanges() {
+  if (regions_->levels()) throw std::logic_error("pager: a pool of level arrays has no GPU mirror yet");
   BlockPool& pool = regions_->pool();
   if (!mirrored_) pool.trackWrittenPages(), mirrored_ = true;
   PoolChanges changes;
@@ -316,11 +343,11 @@ bool Pager::viewConverged() const {
 }
 
 std::size_t Pager::residentBytes() const {
-  return regions_->pool().usedBytes();
+  return regions_->usedBytes();
 }
 
 std::size_t Pager::budgetBytes() const {
-  return regions_->pool().capacityBytes();
+  return regions_->capacityBytes();
 }
 
 std::uint64_t Pager::bytesRead() const {

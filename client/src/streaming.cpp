@@ -52,8 +52,7 @@ StreamedFrame streamFrame(Pager& pager, const Camera& camera, const RenderOption
   out.updateSeconds = secondsSince(start);
   {
     const Pager::FrameScope rendering(pager);
-    out.frame = renderer ? renderer(pager, camera, options)
-                         : render(pager.trunk(), pager.transform(), camera, options);
+    out.frame = renderer ? renderer(pager, camera, options) : render(pager, camera, options);
   }
   pager.feedback(out.frame, camera, options.lodPixels);
   return out;
@@ -115,6 +114,10 @@ bool loadEverything(Pager& pager, double timeoutSeconds) {
     pager.waitForWork(0.05);
   }
   return pager.residentSlices().size() == pager.index().slices().size();
+}
+
+TrunkBlock::TrunkBlock(const Pager& pager) : pager_(pager) {
+  if (pager.layout() == PoolLayout::Levels) blocks_ = std::make_unique<Pager>(pager.source());
 }
 
 }  // namespace svo

@@ -7,7 +7,9 @@
 #include <bit>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "paging/level_pool.hpp"
@@ -197,7 +199,7 @@ TEST(LevelArrays, PagedRegionsCastAsTheWholeOctreeCutToThem) {
     SCOPED_TRACE(path.string());
     const svo::StoreReader reader(path);
     svo::paging::RegionTable table(reader.slices(), std::size_t(1) << 20, path.string());
-    svo::paging::LevelPool pool(table, reader.index());
+    svo::paging::LevelPool pool(table, reader.slices(), reader.header());
     std::mt19937 rng(7);
     // Loads up to `count` of the region's next slices; a chain of several sometimes ends in a truncated
     // slice, which ends the growth at the slice before it.
@@ -210,12 +212,13 @@ TEST(LevelArrays, PagedRegionsCastAsTheWholeOctreeCutToThem) {
         raw.push_back(reader.readSlice(region.slices[k]));
       const bool truncate = raw.size() >= 2 && rng() % 3 == 0;
       if (truncate) raw.back().resize(raw.back().size() / 2);
-      svo::paging::LevelGrowth growth = pool.decode(r, region.resident, raw);
-      ASSERT_EQ(growth.added, raw.size() - truncate) << growth.error;
-      ASSERT_EQ(growth.error.empty(), !truncate);
+      std::optional<std::string> error;
+      svo::paging::LevelGrowth growth = pool.grow(r, region.resident, raw, &error);
+      ASSERT_EQ(growth.added, raw.size() - truncate) << error.value_or("");
+      ASSERT_EQ(error.has_value(), truncate);
       cutShort += truncate;
       region.resident += growth.added;
-      pool.install(std::move(growth));
+      pool.install(r, std::move(growth));
     };
     load(0, 2);
     std::size_t checks = 0, crossings = 0;

@@ -54,7 +54,8 @@ void expectSameAsReference(svo::Pager& pager, const svo::Camera& camera, float l
   svo::RenderOptions options;
   options.lodPixels = lodPixels;
   options.threads = 1;
-  const svo::Frame paged = svo::render(pager.trunk(), pager.transform(), camera, options);
+  if (pager.layout() == svo::PoolLayout::Levels) options.beamTile = 0;  // level arrays have no beam pass
+  const svo::Frame paged = svo::render(pager, camera, options);
   svo::LayoutOptions layout;
   layout.attributes = attributes;
   const svo::Block block =
@@ -348,6 +349,35 @@ TEST(Pager, ViewConvergedMeansTheFrustumIsCompleteAndTheFrameFinal) {
   pager.checkInvariants();
 }
 
+// Teleports between close-ups and whole-scene views, at random levels of detail, `steps` of them (seeded by
+// `seed`), with a few updates each: the budget and the invariants hold after every update, and every
+// `compareEvery`-th view's frame equals the cut octree's.
+struct RandomViews {
+  std::uint64_t loaded = 0, evicted = 0;
+};
+RandomViews runRandomViews(svo::Pager& pager, unsigned seed, int steps, int compareEvery,
+                           svo::AttributeLayout attributes) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  RandomViews out;
+  for (int step = 0; step < steps; ++step) {
+    const glm::dvec3 target(0.8 * u(rng), 0.8 * u(rng), 0.8 * u(rng));
+    const glm::dvec3 offset = glm::normalize(glm::dvec3(u(rng), u(rng), u(rng)) + 1e-3);
+    const svo::Camera camera = cameraAt(target + offset * (step % 3 == 0 ? 4.0 : 1.2), target, 96);
+    const float lod = step % 2 ? 1.0f : 3.0f;
+    const svo::ViewQuery view = svo::viewOf(pager.transform(), camera, lod);
+    for (int k = 0; k < 5; ++k) {
+      const svo::PagerStats stats = pager.update(view);
+      out.evicted += stats.evicted, out.loaded += stats.loaded;
+      EXPECT_LE(stats.residentBytes, pager.budgetBytes());
+      EXPECT_NO_THROW(pager.checkInvariants());
+      pager.waitForWork(0.01);
+    }
+    if (step % compareEvery == 0) expectSameAsReference(pager, camera, lod, nullptr, attributes);
+  }
+  return out;
+}
+
 class PagerLayouts : public ::testing::TestWithParam<svo::AttributeLayout> {};
 
 // In either attribute layout: with compressed units the pool carries each region's units as they are and
@@ -359,27 +389,9 @@ TEST_P(PagerLayouts, RandomViewsUnderATightBudgetStayExactAndWithinBudget) {
   options.budgetBytes = wholeStoreBytes(store.path) / 6;
   options.maxInFlight = 4;
   svo::Pager pager(store.path, options);
-  std::mt19937 rng(11);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  std::uint64_t evicted = 0, loaded = 0;
-  for (int step = 0; step < 60; ++step) {
-    // Teleports between close-ups and whole-scene views, at random levels of detail.
-    const glm::dvec3 target(0.8 * u(rng), 0.8 * u(rng), 0.8 * u(rng));
-    const glm::dvec3 offset = glm::normalize(glm::dvec3(u(rng), u(rng), u(rng)) + 1e-3);
-    const svo::Camera camera = cameraAt(target + offset * (step % 3 == 0 ? 4.0 : 1.2), target, 96);
-    const float lod = step % 2 ? 1.0f : 3.0f;
-    const svo::ViewQuery view = svo::viewOf(pager.transform(), camera, lod);
-    for (int k = 0; k < 5; ++k) {
-      const svo::PagerStats stats = pager.update(view);
-      evicted += stats.evicted, loaded += stats.loaded;
-      ASSERT_LE(stats.residentBytes, options.budgetBytes);
-      ASSERT_NO_THROW(pager.checkInvariants());
-      pager.waitForWork(0.01);
-    }
-    if (step % 6 == 0) expectSameAsReference(pager, camera, lod, nullptr, GetParam());
-  }
-  EXPECT_GT(loaded, 0u);
-  EXPECT_GT(evicted, 0u);  // the budget forced evictions, and the frames stayed exact
+  const RandomViews views = runRandomViews(pager, 11, 60, 6, GetParam());
+  EXPECT_GT(views.loaded, 0u);
+  EXPECT_GT(views.evicted, 0u);  // the budget forced evictions, and the frames stayed exact
   // And with every slice resident, the paged frame equals the store read whole in the same layout.
   svo::ViewQuery everything = svo::viewOf(pager.transform(), cameraAt({0, 0, 4}, {0, 0, 0}, 64), 1e-9);
   everything.frustum.clear();
@@ -399,6 +411,26 @@ TEST_P(PagerLayouts, RandomViewsUnderATightBudgetStayExactAndWithinBudget) {
   if (GetParam() == svo::AttributeLayout::Compressed)
     EXPECT_GT(svotest::exactNormalUnits(octree.block.view()), 0u);
 }
+
+// A pool of level arrays: regions that loads deepen in place, evicted under a tight budget, render the frames
+// of the whole octree cut to the resident slices, bit for bit.
+TEST(Pager, LevelArraysStayExactAndWithinBudget) {
+  const TempStore& store = sphereStore();
+  svo::PagerOptions options;
+  options.layout = svo::PoolLayout::Levels;
+  options.budgetBytes = wholeStoreBytes(store.path) / 12;
+  options.maxInFlight = 4;
+  svo::Pager pager(store.path, options);
+  EXPECT_THROW(pager.trunk(), std::logic_error);
+  const RandomViews views = runRandomViews(pager, 5, 40, 4, svo::AttributeLayout::Raw);
+  EXPECT_GT(views.loaded, 0u);
+  EXPECT_GT(views.evicted, 0u);
+  EXPECT_TRUE(pager.takeErrors().empty());
+  svo::PagerOptions compressed = options;
+  compressed.attributes = svo::AttributeLayout::Compressed;
+  EXPECT_THROW(svo::Pager(store.path, compressed), std::runtime_error);
+}
+
 // Slices of 256 bytes: many regions start with a slice of their cube voxel's children alone, the cube voxel
 // at its parent region's deepest level, whose exact values the slice decodes on while the parent's units
 // show a decoded value. Which pairs of a region's block hold units follows what each parent shows, so with

@@ -162,7 +162,7 @@ std::vector<double> measureFirstImage(const StreamArgs& args, const PagerOptions
     const auto start = std::chrono::steady_clock::now();
     Pager pager(openSliceSource(args.input, remoteOptions(args.token, args.rangeOnly)), pagerOptions);
     const Camera framing = Camera::framing(pager.transform(), kDefaultViewDirection, args.size, args.size);
-    render(pager.trunk(), pager.transform(), framing, options);
+    render(pager, framing, options);
     firstImage.push_back(since(start));
   }
   return firstImage;
@@ -191,7 +191,7 @@ CloseUp measureCloseUp(const StreamArgs& args, const PagerOptions& pagerOptions,
     const std::shared_ptr<const ByteSource> bytes = openByteSource(args.input, remote);
     const std::shared_ptr<const SliceSource> source = sliceSourceOver(bytes, args.input, remote);
     Pager pager(source, pagerOptions);
-    const Camera camera = closeUp(pager.trunk(), pager.transform(), args.size, kCloseUpDistance);
+    const Camera camera = closeUp(TrunkBlock(pager).view(), pager.transform(), args.size, kCloseUpDistance);
     std::vector<std::pair<double, Frame>> frames;
     const Convergence c =
         convergeView(pager, camera, options, args.timeout, nullptr, [&](double t, StreamedFrame& step) {
@@ -467,6 +467,7 @@ void addStreamBench(CLI::App& bench) {
       ->capture_default_str();
   addPagerThreadFlags(*cmd, args->pager);
   addAttributeLayoutFlag(*cmd, args->pager.attributes);
+  addPoolLayoutFlag(*cmd, args->pager.layout);
   cmd->add_option("--background-load", args->backgroundLoad,
                   "busy threads at normal priority running beside the bench: streaming with other programs "
                   "on the cores")

@@ -80,6 +80,14 @@ void addAttributeLayoutFlag(CLI::App& cmd, AttributeOptions& attributes) {
       ->capture_default_str();
 }
 
+void addPoolLayoutFlag(CLI::App& cmd, PoolLayout& layout) {
+  addNamedOption(
+      cmd, "--pool", layout,
+      {{nameOf(PoolLayout::Blocks), PoolLayout::Blocks}, {nameOf(PoolLayout::Levels), PoolLayout::Levels}},
+      "how the pool holds the resident octree: blocks (laid out again by every load; packets, beams, "
+      "GPU) or levels (arrays per level that a load appends to; raw attributes, one ray at a time)");
+}
+
 void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd) {
   addNamedOption(
       cmd, "--simd", simd,

@@ -22,6 +22,8 @@ int resolvedFetchThreads(int flag, const std::string& locator);
 // Adds --attributes raw|compressed and --exact-normals DEGREES: how the octree's blocks (the pool's, or the
 // one block of a store read whole) hold colors and normals.
 void addAttributeLayoutFlag(CLI::App& cmd, AttributeOptions& attributes);
+// Adds --pool blocks|levels: how the pager's pool holds the resident octree (PoolLayout).
+void addPoolLayoutFlag(CLI::App& cmd, PoolLayout& layout);
 // Adds --simd widest|avx512|avx2|none: the ray caster's packet loop (CastOptions::simd).
 void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd);
 

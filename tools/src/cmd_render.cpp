@@ -57,6 +57,11 @@ Camera cameraOf(const RenderArgs& args, const BlockView& root, const SceneTransf
   return cameraOf(args.camera, root, scene, index);
 }
 
+// How --pool holds the stream, after its size in the messages.
+const char* poolName(const RenderArgs& args) {
+  return args.pager.layout == PoolLayout::Levels ? " pool of level arrays" : " block pool";
+}
+
 PagerOptions pagerOptions(std::size_t budget, const RenderArgs& args) {
   PagerOptions options = args.pager;
   options.budgetBytes = budget;
@@ -70,11 +75,10 @@ void renderConverged(const RenderArgs& args, std::shared_ptr<const SliceSource> 
   const std::filesystem::path out = args.out;
   const auto start = std::chrono::steady_clock::now();
   Pager pager(std::move(source), pagerOptions(budget, args));
-  const Camera camera = cameraOf(args, pager.trunk(), pager.transform(), pager.index());
+  const Camera camera = cameraOf(args, TrunkBlock(pager).view(), pager.transform(), pager.index());
   options.cast.contours = options.cast.contours && pager.index().header().parameters.contours;
   const PoolRenderer renderer = poolRendererOf(args, pager);
-  const Frame first =
-      renderer ? renderer(pager, camera, options) : render(pager.trunk(), pager.transform(), camera, options);
+  const Frame first = renderer ? renderer(pager, camera, options) : render(pager, camera, options);
   const double firstSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   StreamedFrame last;
   const Convergence c = convergeView(pager, camera, options, args.timeout, &last, nullptr, renderer);
@@ -230,7 +234,7 @@ void renderDefault(const RenderArgs& args) {
   std::size_t budget = std::size_t(std::min<std::uint64_t>({share, storeBudget, kMaxBudgetBytes}));
   if (args.gpu) budget = std::min(budget, args.gpu->caster().maxBufferBytes());  // the pool is one buffer
   renderStreaming(args, sliceSourceOver(bytes, args.in, remote), budget,
-                  "streamed through a " + formatBytes(budget) + " block pool (default: " + why +
+                  "streamed through a " + formatBytes(budget) + poolName(args) + " (default: " + why +
                       "; --budget sets the pool)");
 }
 
@@ -263,6 +267,7 @@ void addRenderCommand(CLI::App& app) {
       ->capture_default_str();
   addPagerThreadFlags(*cmd, args->pager);
   addAttributeLayoutFlag(*cmd, args->pager.attributes);
+  addPoolLayoutFlag(*cmd, args->pager.layout);
   cmd->add_option("--timeout", args->timeout, "when streaming: seconds a view may take to converge")
       ->check(finitePositive())
       ->capture_default_str();
@@ -274,6 +279,8 @@ void addRenderCommand(CLI::App& app) {
   cmd->callback([args, cmd] {
     if (args->pathFile.empty()) checkImageOutput(*args);
     applyDeviceBeamDefault(*cmd, args->device, args->options);
+    if (args->pager.layout == PoolLayout::Levels && args->device == "gpu")
+      throw UsageError("--pool levels: a pool of level arrays renders on the CPU only (--device cpu)");
     if (args->device == "gpu") {
       try {
         args->gpu = std::make_shared<gpu::HeadlessGpu>();
@@ -283,7 +290,7 @@ void addRenderCommand(CLI::App& app) {
     }
     if (args->budget == 0) return renderDefault(*args);
     renderStreaming(*args, openSliceSource(args->in, remoteOptions(args->token, args->rangeOnly)),
-                    args->budget, "streamed through a " + formatBytes(args->budget) + " block pool");
+                    args->budget, "streamed through a " + formatBytes(args->budget) + poolName(*args));
   });
 }
 

@@ -45,6 +45,7 @@ struct StressArgs {
   double timeout = 120.0;
   double minutes = 0.0;  // soak: repeat the sequences this long
   AttributeOptions attributes;
+  PoolLayout layout = PoolLayout::Blocks;
 };
 
 // Field of view of the stress cameras, degrees.
@@ -89,7 +90,7 @@ std::vector<SurfacePoint> surfacePoints(Pager& pager, std::mt19937& rng) {
         glm::normalize(glm::dvec3(gaussian(rng), gaussian(rng), gaussian(rng)) + 1e-9);
     const Camera camera =
         Camera::framing(pager.transform(), direction, kSurfaceViewPixels, kSurfaceViewPixels);
-    const Frame frame = render(pager.trunk(), pager.transform(), camera, options);
+    const Frame frame = render(pager, camera, options);
     const Camera::Basis basis = camera.basis();
     for (int y = 0; y < frame.height; ++y)
       for (int x = 0; x < frame.width; ++x) {
@@ -260,6 +261,7 @@ PagerOptions pagerOptionsFor(std::size_t budget, const StressArgs& args) {
   options.budgetBytes = budget;
   options.fetchThreads = fetchThreadsFor(args.input);
   options.attributes = args.attributes;
+  options.layout = args.layout;
   return options;
 }
 
@@ -417,6 +419,7 @@ void addStressCommand(CLI::App& app) {
                   "soak: repeat the sequences this long, recording the resident set (must stay flat)")
       ->check(finitePositive());
   addAttributeLayoutFlag(*cmd, args->attributes);
+  addPoolLayoutFlag(*cmd, args->layout);
   cmd->add_option("-o,--output", args->output, "with --minutes: folder for soak.csv and soak_rss.png")
       ->capture_default_str();
   cmd->callback([args] { args->minutes > 0.0 ? runSoak(*args) : runStress(*args); });

@@ -111,13 +111,20 @@ OctreeLevel parentsOf(const PresentValues<std::uint32_t>& contours, std::uint32_
 }  // namespace
 
 std::size_t LevelGrowth::bytes() const {
-  std::size_t total = deepestMasks.size() + baseShownNormals.size() * sizeof(std::uint16_t);
+  // A resident region's deepest masks take the place of its zeros; a new region adds a link to its parent.
+  std::size_t total = baseShownNormals.capacity() * sizeof(std::uint16_t) +
+                      (deepestMasks.empty() ? sizeof(LevelRegion::Link) : 0);
   for (const IndexedLevel& l : levels) total += l.bytes();
   return total;
 }
 
-LevelPool::LevelPool(const RegionTable& regions, const StoreIndex& index)
-    : table_(regions), index_(index), regions_(regions.size()), baseShownNormals_(regions.size()) {}
+LevelPool::LevelPool(const RegionTable& regions, const std::vector<SliceInfo>& slices,
+                     const StoreHeader& header)
+    : table_(regions),
+      slices_(slices),
+      header_(header),
+      regions_(regions.size()),
+      baseShownNormals_(regions.size()) {}
 
 std::size_t LevelPool::bytes(std::uint32_t region) const {
   return regions_[region]
@@ -125,17 +132,11 @@ std::size_t LevelPool::bytes(std::uint32_t region) const {
              : 0;
 }
 
-OctreeLevel LevelPool::residentParents(std::uint32_t index) const {
-  const LevelRegion& region = *regions_[index];
-  return parentsOf(region.levels.back().contours, 0, region.levels.back().voxels(),
-                   shownNormals(region, baseShownNormals_[index]));
-}
-
 OctreeLevel LevelPool::baseParents(std::uint32_t index, LevelGrowth& growth) const {
   const Region& r = table_[index];
   const std::uint32_t parentIndex = std::uint32_t(r.parent);
   const LevelRegion& parent = *regions_[parentIndex];
-  const int target = index_.slices()[r.slices.front()].voxelLevel - 1;
+  const int target = slices_[r.slices.front()].voxelLevel - 1;
   if (parent.deepestLevel() != target)
     throw std::logic_error("pager: a region's parent does not end above its first slice");
   const VoxelRange range =
@@ -148,25 +149,27 @@ OctreeLevel LevelPool::baseParents(std::uint32_t index, LevelGrowth& growth) con
   return parentsOf(parent.levels.back().contours, range.first, range.end, growth.baseShownNormals);
 }
 
-LevelGrowth LevelPool::decode(std::uint32_t index, std::uint32_t first, std::span<const SliceBytes> raw,
-                              const std::function<void()>& pause) const {
-  const Region& r = table_[index];
+OctreeLevel LevelPool::startGrowth(std::uint32_t index, std::uint32_t first, LevelGrowth& growth) const {
   assert(first == (regions_[index] ? regions_[index]->levels.size() - 1 : 0));
-  LevelGrowth growth;
-  growth.region = index;
-  const StoreHeader& header = index_.header();
-  // The level the next slice decodes onto; its child masks, written by that slice, go to its place when done.
-  OctreeLevel above;
   if (first > 0) {
-    above = residentParents(index);
-  } else if (index == 0) {
-    above = rootLevel(header);  // the trunk's base is the root, with its own values
-    growth.baseShownNormals = above.shownNormalCodes;
-  } else {
-    above = baseParents(index, growth);
+    const LevelRegion& region = *regions_[index];
+    return parentsOf(region.levels.back().contours, 0, region.levels.back().voxels(),
+                     shownNormals(region, baseShownNormals_[index]));
   }
-  // The first level finished is the one the first slice decoded onto: the resident deepest level, whose
-  // masks go to the region's, or a new region's base, masks only (its values are its parent's).
+  if (index != 0) return baseParents(index, growth);
+  OctreeLevel root = rootLevel(header_);  // the trunk's base is the root, with its own values
+  growth.baseShownNormals = root.shownNormalCodes;
+  return root;
+}
+
+std::optional<std::string> LevelPool::decode(std::uint32_t index, std::uint32_t first,
+                                             std::span<const SliceBytes> raw, OctreeLevel&& parents,
+                                             LevelGrowth& growth, const std::function<void()>& pause) const {
+  const Region& r = table_[index];
+  // The level the next slice decodes onto; its child masks, written by that slice, go to their place when
+  // done. The first level finished is the one the first slice decoded onto: the resident deepest level,
+  // whose masks go to the region's, or a new region's base, masks only (its values are its parent's).
+  OctreeLevel above = std::move(parents);
   bool firstFinished = false;
   const auto finish = [&](OctreeLevel& level) {
     level.childMasks.resize(level.voxels, 0);
@@ -180,19 +183,18 @@ LevelGrowth LevelPool::decode(std::uint32_t index, std::uint32_t first, std::spa
     level.shownContours = {}, level.shownNormalCodes = {};
     growth.levels.emplace_back(std::move(level));
   };
+  std::optional<std::string> error;
   for (std::size_t k = 0; k < raw.size(); ++k) {
-    const std::uint32_t slice = r.slices[first + k];
-    const SliceInfo& info = index_.slices()[slice];
+    const SliceInfo& info = slices_[r.slices[first + k]];
     OctreeLevel below;
     try {
       if (info.parentCount != above.voxels)
         throw SliceDecodeError("its parents are not the " + std::to_string(above.voxels) +
                                " resident voxels of its cube");
-      decodeSliceLevel(raw[k], info, header, above, 0, below);
+      decodeSliceLevel(raw[k], info, header_, above, 0, below);
     } catch (const std::exception& e) {
       above.childMasks.clear();  // the slice's partial masks go: the level above stays the deepest
-      growth.failedSlice = slice;
-      growth.error = e.what();
+      error = e.what();
       break;
     }
     finish(above);
@@ -201,17 +203,27 @@ LevelGrowth LevelPool::decode(std::uint32_t index, std::uint32_t first, std::spa
     pause();
   }
   if (growth.added > 0) finish(above);
+  return error;
+}
+
+LevelGrowth LevelPool::grow(std::uint32_t index, std::uint32_t first, std::span<const SliceBytes> raw,
+                            std::optional<std::string>* error) const {
+  LevelGrowth growth;
+  OctreeLevel parents = startGrowth(index, first, growth);
+  std::optional<std::string> failed = decode(index, first, raw, std::move(parents), growth, [] {});
+  if (error) *error = std::move(failed);
   return growth;
 }
 
-void LevelPool::install(LevelGrowth&& growth) {
-  const std::uint32_t index = growth.region;
+void LevelPool::install(std::uint32_t index, LevelGrowth&& growth) {
   const Region& r = table_[index];
   std::unique_ptr<LevelRegion>& region = regions_[index];
-  residentBytes_ -= bytes(index);
+  // Its bytes and its parent's (whose links a new region joins) are counted again.
+  const std::uint32_t parentIndex = r.parent >= 0 ? std::uint32_t(r.parent) : index;
+  residentBytes_ -= bytes(index) + (parentIndex != index ? bytes(parentIndex) : 0);
   if (!region) {
     region = std::make_unique<LevelRegion>();
-    region->baseLevel = index_.slices()[r.slices.front()].voxelLevel - 1;
+    region->baseLevel = slices_[r.slices.front()].voxelLevel - 1;
     baseShownNormals_[index] = std::move(growth.baseShownNormals);
     if (r.parent >= 0) {
       LevelRegion& parent = *regions_[std::size_t(r.parent)];
@@ -219,6 +231,7 @@ void LevelPool::install(LevelGrowth&& growth) {
       region->baseStart = growth.baseStart;
       const LevelRegion::Link link{growth.baseStart, growth.baseStart + growth.levels.front().voxels(),
                                    region.get()};
+      parent.links.reserve(parent.links.size() + 1);  // exactly: the room asked for is one link
       parent.links.insert(std::upper_bound(parent.links.begin(), parent.links.end(), link,
                                            [](const auto& a, const auto& b) { return a.first < b.first; }),
                           link);
@@ -227,20 +240,57 @@ void LevelPool::install(LevelGrowth&& growth) {
     region->levels.back().setChildMasks(std::move(growth.deepestMasks));
   }
   for (IndexedLevel& level : growth.levels) region->levels.push_back(std::move(level));
-  residentBytes_ += bytes(index);
+  residentBytes_ += bytes(index) + (parentIndex != index ? bytes(parentIndex) : 0);
 }
 
 void LevelPool::evict(std::uint32_t index) {
   LevelRegion* region = regions_[index].get();
   assert(index != 0 && region && region->links.empty());
-  residentBytes_ -= bytes(index);
-  std::vector<LevelRegion::Link>& links = regions_[std::size_t(table_[index].parent)]->links;
+  const std::uint32_t parentIndex = std::uint32_t(table_[index].parent);
+  residentBytes_ -= bytes(index) + bytes(parentIndex);
+  std::vector<LevelRegion::Link>& links = regions_[parentIndex]->links;
   const auto link =
       std::find_if(links.begin(), links.end(), [&](const auto& l) { return l.region == region; });
   assert(link != links.end());
   links.erase(link);
   regions_[index].reset();
   baseShownNormals_[index] = {};
+  residentBytes_ += bytes(parentIndex);
+}
+
+void LevelPool::checkInvariants() const {
+  const auto fail = [](std::uint32_t r, const std::string& what) {
+    throw std::logic_error("pager invariant: region " + std::to_string(r) + " " + what);
+  };
+  std::size_t held = 0;
+  for (std::uint32_t r = 0; r < regions_.size(); ++r) {
+    const LevelRegion* region = regions_[r].get();
+    const Region& info = table_[r];
+    if (!region != !info.resident) fail(r, "is resident in the table and not in the pool, or the reverse");
+    if (!region) continue;
+    held += bytes(r);
+    if (region->levels.size() != info.resident + 1) fail(r, "holds a level per slice and its base");
+    if (region->baseLevel != slices_[info.slices.front()].voxelLevel - 1)
+      fail(r, "is based on a wrong level");
+    for (std::size_t l = 1; l < region->levels.size(); ++l) {
+      const IndexedLevel& above = region->levels[l - 1];
+      const std::uint32_t last = above.voxels() - 1;
+      if (above.voxels() == 0 || childEnd(above, last) != region->levels[l].voxels())
+        fail(r, "has a level whose voxels are not the children the level above counts");
+    }
+    for (std::size_t k = 1; k < region->links.size(); ++k)
+      if (region->links[k].first < region->links[k - 1].end) fail(r, "has links that overlap");
+    if (r == 0) continue;
+    const LevelRegion* parent = regions_[std::size_t(info.parent)].get();
+    if (region->parent != parent || !parent) fail(r, "is not below its parent region");
+    const LevelRegion::Link* link = parent->linkAt(region->baseStart);
+    if (region->levels[0].voxels() && (!link || link->region != region || link->first != region->baseStart ||
+                                       link->end != region->baseStart + region->levels[0].voxels()))
+      fail(r, "is not linked from its parent at its base");
+  }
+  if (held != residentBytes_)
+    fail(0, "and the others hold " + std::to_string(held) + " bytes; the pool counts " +
+                std::to_string(residentBytes_));
 }
 
 }  // namespace svo::paging

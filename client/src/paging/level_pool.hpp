@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -19,38 +20,28 @@
 #include "paging/regions.hpp"
 #include "svo/client/level_raycast.hpp"
 #include "svo/store/level_arrays.hpp"
-#include "svo/store/store_index.hpp"
 
 namespace svo::paging {
 
-// What a worker decoded for a region, for install() to add.
-struct LevelGrowth {
-  std::uint32_t region = 0;
-  std::uint32_t added = 0;  // slices decoded, a prefix of those asked for
-  // A resident region: its deepest level's child masks, now that the level below is decoded. A new region:
-  // empty, and levels[0] is its base.
-  std::vector<std::uint8_t> deepestMasks;
-  std::vector<IndexedLevel> levels;  // in order down from the region's deepest (or base) level
-  std::uint32_t baseStart = 0;       // a new region's base: its first voxel on the parent's deepest level
-  std::vector<std::uint16_t> baseShownNormals;  // a new region's base: the normal codes its voxels show
-  std::uint32_t failedSlice = SliceInfo::kNoSlice;
-  std::string error;  // why failedSlice could not be decoded
-  std::size_t bytes() const;
-};
-
 class LevelPool {
  public:
-  LevelPool(const RegionTable& regions, const StoreIndex& index);
+  LevelPool(const RegionTable& regions, const std::vector<SliceInfo>& slices, const StoreHeader& header);
 
-  // The region's slices from `first` on (their decompressed bytes, as many as given) decoded onto what is
-  // resident; `first` must be the region's resident slices, and a new region's parent must be complete. A
-  // slice that fails to decode ends the growth, which holds the ones before it. `pause` is called between
-  // slices.
-  LevelGrowth decode(
-      std::uint32_t region, std::uint32_t first, std::span<const SliceBytes> raw,
-      const std::function<void()>& pause = [] {}) const;
+  // The level the region's next slice decodes onto (its deepest resident level, or a new region's base),
+  // with what the decoder reads of it; a new region's base's place goes to `growth`. `first` must be the
+  // region's resident slices, and a new region's parent must be complete. Reads the pool.
+  OctreeLevel startGrowth(std::uint32_t region, std::uint32_t first, LevelGrowth& growth) const;
+  // The region's slices from `first` on (their decompressed bytes, as many as given) decoded onto
+  // `parents`, startGrowth's, into `growth`. A slice that fails to decode ends the growth, which holds the
+  // ones before it; its error is returned. `pause` is called between slices. Does not read the pool.
+  std::optional<std::string> decode(std::uint32_t region, std::uint32_t first,
+                                    std::span<const SliceBytes> raw, OctreeLevel&& parents,
+                                    LevelGrowth& growth, const std::function<void()>& pause) const;
+  // Both, for a caller that keeps the pool still meanwhile.
+  LevelGrowth grow(std::uint32_t region, std::uint32_t first, std::span<const SliceBytes> raw,
+                   std::optional<std::string>* error = nullptr) const;
   // Adds the growth to its region (creating and linking a new region to its parent).
-  void install(LevelGrowth&& growth);
+  void install(std::uint32_t region, LevelGrowth&& growth);
   // Drops a resident region that no resident region hangs from, and its link in its parent.
   void evict(std::uint32_t region);
 
@@ -59,14 +50,18 @@ class LevelPool {
   const LevelRegion* trunk() const { return regions_[0].get(); }
   std::size_t bytes(std::uint32_t region) const;
   std::size_t residentBytes() const { return residentBytes_; }
+  bool hasColors() const { return header_.hasColors; }
+  bool hasNormals() const { return header_.hasNormals; }
+  // Every resident region's levels as its slices make them, linked from its parent at its base, and the
+  // bytes counted. Throws std::logic_error.
+  void checkInvariants() const;
 
  private:
-  // The level the region's next slice decodes onto: its deepest level, or a new region's base.
-  OctreeLevel residentParents(std::uint32_t region) const;
   OctreeLevel baseParents(std::uint32_t region, LevelGrowth& growth) const;
 
   const RegionTable& table_;
-  const StoreIndex& index_;
+  const std::vector<SliceInfo>& slices_;
+  const StoreHeader& header_;
   std::vector<std::unique_ptr<LevelRegion>> regions_;
   std::vector<std::vector<std::uint16_t>> baseShownNormals_;  // per region: the normal codes its base shows
   std::size_t residentBytes_ = 0;

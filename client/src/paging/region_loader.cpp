@@ -14,34 +14,6 @@
 namespace svo::paging {
 namespace {
 
-// Charges the calling thread's CPU time to one stage counter at a time: enter() closes the current stage and
-// opens the next, the destructor closes the last (early returns included).
-class StageClock {
- public:
-  explicit StageClock(std::atomic<std::uint64_t>& first) : stage_(&first), start_(now()) {}
-  ~StageClock() { close(); }
-  StageClock(const StageClock&) = delete;
-  StageClock& operator=(const StageClock&) = delete;
-  void enter(std::atomic<std::uint64_t>& next) {
-    close();
-    stage_ = &next;
-  }
-
- private:
-  static std::uint64_t now() {
-    timespec t{};
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-    return std::uint64_t(t.tv_sec) * 1'000'000'000u + std::uint64_t(t.tv_nsec);
-  }
-  void close() {
-    const std::uint64_t t = now();
-    stage_->fetch_add(t - start_, std::memory_order_relaxed);
-    start_ = t;
-  }
-  std::atomic<std::uint64_t>* stage_;
-  std::uint64_t start_;
-};
-
 int slotToward(const glm::ivec3& coord, int shift) {
   return childSlot(coord >> shift);
 }
@@ -389,6 +361,35 @@ void RegionLoader::layOut(const Region& region, RegionVoxels& voxels, CarriedLev
     for (const auto& [coord, record] : records) out.childSlots[child].push_back({coord, slotOf[record]});
 }
 
+void RegionLoader::buildLevels(const LevelPool& levels, BuiltBlock& out, std::uint32_t first,
+                               std::span<const SliceBytes> raw, std::shared_lock<std::shared_mutex>& lock,
+                               StageClock& clock, const Pauses& pauses) {
+  OctreeLevel parents;
+  try {
+    parents = levels.startGrowth(out.region, first, out.growth);
+  } catch (const std::exception& e) {
+    out.failedSlice = regions_[out.region].slices[first];
+    out.error = index_.name() + ": slice " + std::to_string(out.failedSlice) + ": " + e.what();
+    out.transient = false;
+    return;
+  }
+  // The pool is read; the decoding needs only the parents' copy, so commits need not wait for it.
+  lock.unlock();
+  clock.enter(cpu_.decode);
+  const std::optional<std::string> error =
+      levels.decode(out.region, first, raw, std::move(parents), out.growth, pauses.betweenStages);
+  out.added = out.growth.added;
+  std::uint64_t voxels = 0;
+  for (std::uint32_t k = 0; k < out.added; ++k)
+    voxels += index_.slices()[regions_[out.region].slices[first + k]].voxelCount;
+  cpu_.voxelsDecoded.fetch_add(voxels, std::memory_order_relaxed);
+  if (error) {
+    out.failedSlice = regions_[out.region].slices[first + out.added];
+    out.error = index_.name() + ": slice " + std::to_string(out.failedSlice) + ": " + *error;
+    out.transient = false;
+  }
+}
+
 BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetched, const Pauses& pauses) {
   BuiltBlock out;
   out.slice = request.slice;
@@ -432,6 +433,10 @@ BuiltBlock RegionLoader::build(const LoadRequest& request, FetchedChain&& fetche
   if (resident != first) return out;  // stale: the commit drops it
   if (region.resident == 0 && region.parent >= 0 && !regions_[std::uint32_t(region.parent)].complete())
     return out;  // stale
+  if (const LevelPool* levels = regions_.levels()) {
+    buildLevels(*levels, out, first, raw, lock, clock, pauses);
+    return out;
+  }
   // The voxels the request's slices add (fewer where one fails), and with the resident ones and the cube's
   // voxel (in no slice), what the region's array is to hold.
   const std::size_t decodedAtMost = voxelsOfSlices(region, first, first + std::uint32_t(raw.size()));

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <ctime>
 #include <functional>
 #include <optional>
 #include <shared_mutex>
@@ -12,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "paging/level_pool.hpp"
 #include "paging/regions.hpp"
 #include "paging/scheduler.hpp"
 #include "svo/client/pager.hpp"
@@ -32,6 +34,34 @@ struct StageCounters {
   std::atomic<std::uint64_t> read{0}, assemble{0}, decode{0}, layout{0}, poolPages{0};
   std::atomic<std::uint64_t> voxelsDecoded{0}, voxelsLaidOut{0};
   WorkerCpu seconds() const;
+};
+
+// Charges the calling thread's CPU time to one stage counter at a time: enter() closes the current stage and
+// opens the next, the destructor closes the last (early returns included).
+class StageClock {
+ public:
+  explicit StageClock(std::atomic<std::uint64_t>& first) : stage_(&first), start_(now()) {}
+  ~StageClock() { close(); }
+  StageClock(const StageClock&) = delete;
+  StageClock& operator=(const StageClock&) = delete;
+  void enter(std::atomic<std::uint64_t>& next) {
+    close();
+    stage_ = &next;
+  }
+
+ private:
+  static std::uint64_t now() {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return std::uint64_t(t.tv_sec) * 1'000'000'000u + std::uint64_t(t.tv_nsec);
+  }
+  void close() {
+    const std::uint64_t t = now();
+    stage_->fetch_add(t - start_, std::memory_order_relaxed);
+    start_ = t;
+  }
+  std::atomic<std::uint64_t>* stage_;
+  std::uint64_t start_;
 };
 
 // The compressed layout's units of the descriptors read back from a block, to lay them out again unchanged:
@@ -109,6 +139,11 @@ class RegionLoader {
               const std::function<void()>& pause, BuiltBlock& out);
   // The compressed layout: the units carried from the pool, and the exact values of the deepest level (and
   // where each child region's begin) while another slice may be decoded on them.
+  // build() where the pool holds level arrays: the slices decoded onto the region's resident levels, read
+  // under `lock`, which it releases once it has them.
+  void buildLevels(const LevelPool& levels, BuiltBlock& out, std::uint32_t first,
+                   std::span<const SliceBytes> raw, std::shared_lock<std::shared_mutex>& lock,
+                   StageClock& clock, const Pauses& pauses);
   void keepForDeepening(const Region& region, RegionVoxels& voxels, CarriedLevels&& carried,
                         std::uint32_t residentAfter, BuiltBlock& out) const;
 

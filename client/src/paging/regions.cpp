@@ -1,9 +1,12 @@
 #include "paging/regions.hpp"
 
+#include "paging/level_pool.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <tuple>
+#include <utility>
 
 #include <glm/common.hpp>
 
@@ -30,7 +33,7 @@ std::pair<std::vector<glm::ivec3>, int> entryVoxels(int cubeLevel, glm::ivec3 cu
 }
 
 RegionTable::RegionTable(const std::vector<SliceInfo>& slices, std::size_t budgetBytes,
-                         const std::string& store)
+                         const std::string& store, const StoreHeader* levelArraysOf)
     : pool_(budgetBytes) {
   const std::size_t n = slices.size();
   regionOf_.assign(n, 0), indexInRegion_.assign(n, 0);
@@ -77,6 +80,18 @@ RegionTable::RegionTable(const std::vector<SliceInfo>& slices, std::size_t budge
     }
   }
   if (regions_.empty()) throw std::runtime_error(store + ": the store has no slices");
+  if (levelArraysOf) levels_ = std::make_unique<LevelPool>(*this, slices, *levelArraysOf);
+}
+
+RegionTable::~RegionTable() = default;
+
+std::size_t RegionTable::heldBytes(std::uint32_t region) const {
+  if (levels_) return levels_->bytes(region);
+  return regions_[region].resident ? pool_.size(regions_[region].block) : 0;
+}
+
+std::size_t RegionTable::usedBytes() const {
+  return levels_ ? levels_->residentBytes() : pool_.usedBytes();
 }
 
 BlockView RegionTable::view(const Region& region) const {
@@ -127,6 +142,11 @@ void RegionTable::relinkAll() {
 
 std::uint32_t RegionTable::evict(std::uint32_t index) {
   Region& region = regions_[index];
+  if (levels_) {
+    levels_->evict(index);
+    ++region.version;
+    return std::exchange(region.resident, 0);
+  }
   Region& parent = regions_[std::size_t(region.parent)];
   for (const auto& [coord, slot] : region.entries) {
     const std::uint32_t parentSlot = parentSlotOf(parent, index, coord);
@@ -144,6 +164,12 @@ std::uint32_t RegionTable::evict(std::uint32_t index) {
 
 void RegionTable::install(BuiltBlock& built) {
   Region& region = regions_[built.region];
+  if (levels_) {
+    levels_->install(built.region, std::move(built.growth));
+    region.resident += built.added;
+    ++region.version;
+    return;
+  }
   if (region.resident) pool_.erase(region.block);
   bool moved = false;
   const auto id =
@@ -187,6 +213,11 @@ std::optional<std::uint32_t> RegionTable::sliceAt(int voxelLevel, glm::dvec3 p) 
 
 void RegionTable::checkInvariants() const {
   const auto fail = [](const std::string& what) { throw std::logic_error("pager invariant: " + what); };
+  if (levels_) {
+    if (usedBytes() > capacityBytes()) fail("resident bytes exceed the budget");
+    if (!regions_[0].resident) fail("the trunk is not resident");
+    return levels_->checkInvariants();
+  }
   pool_.check();
   if (pool_.usedBytes() > pool_.capacityBytes()) fail("resident bytes exceed the budget");
   if (!regions_[0].resident) fail("the trunk is not resident");

@@ -7,6 +7,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <unordered_map>
@@ -15,6 +16,7 @@
 
 #include <glm/vec3.hpp>
 
+#include "svo/client/level_raycast.hpp"
 #include "svo/client/pool.hpp"
 #include "svo/store/store_types.hpp"
 
@@ -45,6 +47,18 @@ struct Region {
   bool complete() const { return resident == slices.size(); }
 };
 
+// What a worker decoded for a region held as level arrays (level_pool.hpp), for the pool to add.
+struct LevelGrowth {
+  std::uint32_t added = 0;  // slices decoded, a prefix of those asked for
+  // A resident region: its deepest level's child masks, now that the level below is decoded. A new region:
+  // empty, and levels[0] is its base.
+  std::vector<std::uint8_t> deepestMasks;
+  std::vector<IndexedLevel> levels;  // in order down from the region's deepest (or base) level
+  std::uint32_t baseStart = 0;       // a new region's base: its first voxel on the parent's deepest level
+  std::vector<std::uint16_t> baseShownNormals;  // a new region's base: the normal codes its voxels show
+  std::size_t bytes() const;                    // what it adds to the pool
+};
+
 // A region's new block as a worker built it (region_loader.hpp), or the error that stopped it.
 struct BuiltBlock {
   std::uint32_t slice = 0, region = 0;
@@ -56,6 +70,7 @@ struct BuiltBlock {
   EntrySlots entries;
   std::map<std::uint32_t, EntrySlots> childSlots;
   std::map<std::uint32_t, std::uint32_t> childFrontier;
+  LevelGrowth growth;  // instead of the block, where the pool holds level arrays
   std::uint32_t failedSlice = SliceInfo::kNoSlice;
   std::string error;
   bool transient = false;  // failedSlice's source failed for a reason that may pass: ask again later
@@ -66,12 +81,16 @@ struct BuiltBlock {
 std::pair<std::vector<glm::ivec3>, int> entryVoxels(int cubeLevel, glm::ivec3 cube, std::uint8_t firstSlot,
                                                     std::uint8_t lastSlot);
 
+class LevelPool;
+
 class RegionTable {
  public:
   // The regions of the store's slices, checked: one root region (the trunk), every slice after its parent
   // slice, continuing its region's previous slice one level down. Throws std::runtime_error naming `store`
-  // and the slice.
-  RegionTable(const std::vector<SliceInfo>& slices, std::size_t budgetBytes, const std::string& store);
+  // and the slice. With `header`, the regions are held as level arrays (LevelPool) instead of blocks.
+  RegionTable(const std::vector<SliceInfo>& slices, std::size_t budgetBytes, const std::string& store,
+              const StoreHeader* levelArraysOf = nullptr);
+  ~RegionTable();
 
   std::uint32_t size() const { return std::uint32_t(regions_.size()); }
   Region& operator[](std::uint32_t region) { return regions_[region]; }
@@ -81,6 +100,14 @@ class RegionTable {
   std::uint32_t indexInRegion(std::uint32_t slice) const { return indexInRegion_[slice]; }
   BlockPool& pool() { return pool_; }
   const BlockPool& pool() const { return pool_; }
+  // The regions as level arrays, where they are held so (else nullptr).
+  const LevelPool* levels() const { return levels_.get(); }
+  // The pool's bytes whichever way it holds the regions: what a region holds, what is free, in use, the
+  // budget.
+  std::size_t heldBytes(std::uint32_t region) const;
+  std::size_t freeBytes() const { return capacityBytes() - usedBytes(); }
+  std::size_t usedBytes() const;
+  std::size_t capacityBytes() const { return pool_.capacityBytes(); }
 
   // A resident region's block.
   BlockView view(const Region& region) const;
@@ -109,6 +136,7 @@ class RegionTable {
   void relinkAll();
 
   BlockPool pool_;
+  std::unique_ptr<LevelPool> levels_;
   std::vector<Region> regions_;
   std::vector<std::uint32_t> regionOf_, indexInRegion_;
   // Feedback lookup: (voxel level, cube level, cube) -> slice (a run's slices under each of its sub-cubes);

@@ -89,7 +89,7 @@ void Scheduler::indexRoom() {
   evictableRoom_.clear();
   for (std::uint32_t r = 1; r < regions_.size(); ++r)
     if (regions_.evictable(r, INFINITY))
-      evictableRoom_.push_back({regions_[r].priority, regions_.pool().size(regions_[r].block)});
+      evictableRoom_.push_back({regions_[r].priority, regions_.heldBytes(r)});
   std::sort(evictableRoom_.begin(), evictableRoom_.end());
   for (std::size_t i = 1; i < evictableRoom_.size(); ++i)
     evictableRoom_[i].second += evictableRoom_[i - 1].second;
@@ -100,10 +100,9 @@ void Scheduler::indexRoom() {
 bool Scheduler::roomFor(std::size_t bytes, double priority, std::uint32_t region) const {
   const auto less = std::lower_bound(evictableRoom_.begin(), evictableRoom_.end(),
                                      std::pair<double, std::size_t>(priority, 0));
-  std::size_t room =
-      regions_.pool().freeBytes() + (less == evictableRoom_.begin() ? 0 : std::prev(less)->second);
+  std::size_t room = regions_.freeBytes() + (less == evictableRoom_.begin() ? 0 : std::prev(less)->second);
   const auto kept = [&](std::uint32_t r) {
-    if (regions_.evictable(r, priority)) room -= std::min(room, regions_.pool().size(regions_[r].block));
+    if (regions_.evictable(r, priority)) room -= std::min(room, regions_.heldBytes(r));
   };
   kept(region);
   if (regions_[region].parent >= 0) kept(std::uint32_t(regions_[region].parent));
@@ -120,11 +119,13 @@ double Scheduler::leastBlockBytesPerRawByte() const {
 // that much room is not made: reading, decoding and laying out a block that is then dropped takes the
 // cores from the frames and delays convergence.
 std::size_t Scheduler::leastBlockGrowth(std::uint32_t slice) const {
-  const Region& region = regions_[regions_.regionOf(slice)];
-  const std::size_t bytes = (region.resident ? region.blockBytes : 0) +
-                            std::size_t(leastBlockBytesPerRawByte() * double(slices_[slice].rawBytes));
-  const std::size_t pages = std::size_t(BlockPool::pagesFor(bytes)) * kPageBytes;
-  const std::size_t held = region.resident ? regions_.pool().size(region.block) : 0;
+  const std::uint32_t r = regions_.regionOf(slice);
+  const Region& region = regions_[r];
+  const std::size_t grown = std::size_t(leastBlockBytesPerRawByte() * double(slices_[slice].rawBytes));
+  if (regions_.levels()) return std::max(denied_[slice], grown);  // level arrays grow in place
+  const std::size_t pages =
+      std::size_t(BlockPool::pagesFor((region.resident ? region.blockBytes : 0) + grown)) * kPageBytes;
+  const std::size_t held = regions_.heldBytes(r);
   return std::max(denied_[slice], pages > held ? pages - held : 0);
 }
 
@@ -132,9 +133,11 @@ std::size_t Scheduler::leastBlockGrowth(std::uint32_t slice) const {
 // wants them and the grown block would still fit the free pages (a chain never evicts to make room for its
 // tail).
 std::uint32_t Scheduler::chainLength(std::uint32_t slice) const {
-  const Region& region = regions_[regions_.regionOf(slice)];
-  const std::size_t free = regions_.pool().freeBytes();
-  double estimate = (region.resident ? double(regions_.pool().size(region.block)) : 0.0) +
+  const std::uint32_t r = regions_.regionOf(slice);
+  const Region& region = regions_[r];
+  const std::size_t free = regions_.freeBytes();
+  // A new block needs room beside the old one; level arrays only for what they add.
+  double estimate = (regions_.levels() ? 0.0 : double(regions_.heldBytes(r))) +
                     kBlockBytesPerRawByte * slices_[slice].rawBytes;
   std::uint32_t count = 1;
   for (std::uint32_t i = regions_.indexInRegion(slice) + 1; i < region.slices.size(); ++i, ++count) {

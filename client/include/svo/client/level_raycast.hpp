@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "svo/client/raycast.hpp"
+#include "svo/client/render.hpp"
 #include "svo/store/level_arrays.hpp"
 
 namespace svo {
@@ -116,6 +117,8 @@ struct LevelCastHit {
   // The ancestors' indices by scale, where CastOptions::recordPath: the one at scale s (in (scale, 22]) is
   // the parent of the one at scale s - 1, and pathParent[scale + 1] is `parent`'s.
   LevelNode pathParent[kMaxLevels];  // left uninitialized: written by each PUSH
+
+  float voxelSize() const { return std::bit_cast<float>(std::uint32_t(scale - kMaxLevels + 127) << 23); }
 };
 
 // castRay on level arrays: a whole octree, or the regions linked from `root`, the root's region.
@@ -133,5 +136,11 @@ inline std::uint32_t hitAttribute(const LevelOctree& octree, const LevelCastHit&
   return (type == AttachmentType::Color ? octree.hasColors() : octree.hasNormals()) ? hitAttribute(hit, type)
                                                                                     : 0;
 }
+
+// A frame of the octree below `root` (render.hpp's render, without packets or beams): castRay per pixel,
+// shaded as a block's frame is, so that it equals the frame of a block holding the same octree rendered
+// with RenderOptions::beamTile 0.
+Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTransform& scene,
+             const Camera& camera, const RenderOptions& options);
 
 }  // namespace svo

@@ -27,6 +27,7 @@
 #include <utility>
 #include <vector>
 
+#include "svo/client/level_raycast.hpp"
 #include "svo/client/pool.hpp"
 #include "svo/client/render.hpp"
 #include "svo/client/slice_source.hpp"
@@ -34,6 +35,13 @@
 #include "svo/store/store_reader.hpp"
 
 namespace svo {
+
+// How the pool holds the resident regions: as laid-out blocks (block.hpp) that every load lays out again, or
+// as arrays per level (level_raycast.hpp's LevelRegion) that a load appends its levels to. Level arrays take
+// raw attributes and are cast one ray at a time (render(const Pager&, ...)): no packets, beams, GPU mirror
+// or compressed attributes yet.
+enum class PoolLayout { Blocks, Levels };
+const char* nameOf(PoolLayout layout);  // "blocks", "levels"
 
 // The largest pool: a link's slot offset is an int32, so the arena may span at most 2^31 slots.
 inline constexpr std::size_t kMaxBudgetBytes = std::size_t(1) << 34;
@@ -70,6 +78,7 @@ struct PagerOptions {
   // How the pool's blocks hold colors and normals (block.hpp): compressed units take about a third of the
   // bytes of uncompressed values on colored scenes, and cost encoding time as slices load.
   AttributeOptions attributes;
+  PoolLayout layout = PoolLayout::Blocks;
 };
 
 // What one update() did. Counts are slices.
@@ -131,11 +140,16 @@ class Pager {
   Pager(const Pager&) = delete;
   Pager& operator=(const Pager&) = delete;
 
-  // The store's header and directory.
+  // The store's header and directory, and where its slices come from.
   const StoreIndex& index() const { return source_->index(); }
+  const std::shared_ptr<const SliceSource>& source() const { return source_; }
   const SceneTransform& transform() const { return index().header().transform; }
-  // The resident octree for the next frame (valid until the next update()).
+  // The resident octree for the next frame (valid until the next update()), where the pool holds blocks;
+  // throws std::logic_error where it holds level arrays.
   BlockView trunk() const;
+  // The same where the pool holds level arrays (nullptr where it holds blocks).
+  const LevelRegion* levelTrunk() const;
+  PoolLayout layout() const { return options_.layout; }
 
   // Between frames, on the render thread: commits finished loads (evicting the least wanted leaf regions to
   // make room), then re-prioritizes and cancels requests for `view`.
@@ -199,6 +213,8 @@ class Pager {
   void checkInvariants() const;
 
  private:
+  // The pool bytes a built block needs, and those its region's old block frees when it commits.
+  std::pair<std::size_t, std::size_t> roomOf(const paging::BuiltBlock& built) const;
   bool commit(paging::BuiltBlock& built, PagerStats& stats);
   // The slice that refines the voxel pixel (x, y) of `frame` stopped at, when wider than `lodPixels` and the
   // store has one.
@@ -222,5 +238,8 @@ class Pager {
   bool viewMoving_ = false;            // the last update's view differs from the one before it
   std::uint32_t lastRequestable_ = 0, lastInFlight_ = 0, lastViewPending_ = 0, lastDeferred_ = 0;
 };
+
+// A frame from what the pager holds resident, whichever its pool layout (render.hpp's render for blocks).
+Frame render(const Pager& pager, const Camera& camera, const RenderOptions& options);
 
 }  // namespace svo

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <vector>
 
 #include "svo/client/pager.hpp"
@@ -68,5 +69,18 @@ Convergence convergeView(Pager& pager, const Camera& camera, const RenderOptions
 // measurements that compare all depths of a store beyond one block. Returns whether all of them are
 // resident.
 bool loadEverything(Pager& pager, double timeoutSeconds);
+
+// The trunk as a block, for what frames a view from it (occupiedBox, close-ups): the pager's own, or where
+// its pool holds level arrays, that of a pager of blocks over the same source, kept for as long as this
+// lives.
+class TrunkBlock {
+ public:
+  explicit TrunkBlock(const Pager& pager);
+  BlockView view() const { return blocks_ ? blocks_->trunk() : pager_.trunk(); }
+
+ private:
+  const Pager& pager_;
+  std::unique_ptr<Pager> blocks_;
+};
 
 }  // namespace svo

@@ -1,0 +1,79 @@
+// Frames from level arrays (level_raycast.hpp): castRay per pixel over the renderer's tiles, shaded as a
+// block's frame is (frame_shading.hpp), so that the same hits give the same pixels.
+#include <atomic>
+#include <chrono>
+
+#include "frame_shading.hpp"
+#include "svo/client/level_raycast.hpp"
+#include "svo/client/render.hpp"
+
+namespace svo {
+
+using namespace frame_shading;
+
+namespace {
+
+// The contour bits of the voxel `hit` stopped at, where it has one.
+std::optional<std::uint32_t> hitContour(const LevelCastHit& hit) {
+  const LevelRegion& region = *hit.parent.region;
+  const std::size_t level = std::size_t(kMaxLevels - 1 - hit.scale - region.baseLevel);
+  const IndexedLevel& parents = region.levels[level];
+  const std::uint8_t mask = parents.childMasks[hit.parent.index];
+  std::uint32_t bits;
+  if (region.levels[level + 1].contours.find(
+          parents.firstChild(hit.parent.index) + std::uint32_t(childRank(mask, hit.childSlot)), bits))
+    return bits;
+  return std::nullopt;
+}
+
+}  // namespace
+
+Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTransform& scene,
+             const Camera& camera, const RenderOptions& options) {
+  Frame frame;
+  prepareFrame(camera, options, frame);
+  const Shading shading{glm::normalize(options.lightDirection), header.hasColors, header.hasNormals,
+                        options.cast.contours};
+  const double pixelAngle = camera.pixelAngle();
+  const PixelRays rays(scene, camera, options.lodPixels);
+  std::atomic<std::uint64_t> iterations{0};
+  const auto start = std::chrono::steady_clock::now();
+  inArena(options.threads, [&] {
+    clearFrame(frame, glm::vec4(options.background, 0.0f));
+    forEachTile(camera.width, camera.height, renderTileSize(options), 0, [&](const PixelTile& tile) {
+      ShadingBatch batch(frame, shading, scene.size, pixelAngle, shading.hasColor, shading.hasNormal);
+      std::uint64_t tileIterations = 0;
+      for (int y = tile.y0; y < tile.y1; ++y)
+        for (int x = tile.x0; x < tile.x1; ++x) {
+          const double across = rays.across(x), down = rays.down(y);
+          OctreeRay ray;
+          rays.packet(&across, &down, 1, 0.0f, &ray);  // the ray castTile casts for the pixel
+          const LevelCastHit hit = castRay(root, ray, options.cast);
+          tileIterations += std::uint64_t(hit.iterations);
+          const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+          if (!frame.iterations.empty())
+            frame.iterations[i] = std::uint16_t(std::min(hit.iterations, 0xFFFF));
+          if (!hit.hit) continue;
+          if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
+          const int k = batch.add(i, ray.direction, hit.t, hit.voxelSize());
+          if (shading.hasColor)
+            batch.setColor(k, hitAttribute(hit, AttachmentType::Color));
+          else
+            batch.setColor(k, glm::vec3(kNeutralGreyAlbedo));
+          if (shading.hasNormal)
+            batch.setNormal(k, hitAttribute(hit, AttachmentType::Normal));
+          else
+            batch.setNormal(k, estimateNormal(hit.position, hit.cubeMin, hit.voxelSize(),
+                                              shading.contours ? hitContour(hit) : std::nullopt));
+        }
+      batch.flush();
+      iterations.fetch_add(tileIterations, std::memory_order_relaxed);
+    });
+  });
+  if (options.filter) applyFilter(frame, options);
+  frame.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  frame.meanIterations = double(iterations.load()) / double(frame.depth.size());
+  return frame;
+}
+
+}  // namespace svo
