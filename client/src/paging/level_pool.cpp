@@ -128,7 +128,7 @@ LevelPool::LevelPool(const RegionTable& regions, const std::vector<SliceInfo>& s
 
 std::size_t LevelPool::bytes(std::uint32_t region) const {
   return regions_[region]
-             ? regions_[region]->bytes() + baseShownNormals_[region].size() * sizeof(std::uint16_t)
+             ? regions_[region]->bytes() + baseShownNormals_[region].capacity() * sizeof(std::uint16_t)
              : 0;
 }
 

@@ -1,7 +1,8 @@
 // The pager's regions (pager.hpp): the cubes and runs of sub-cubes of the store's slice hierarchy, each a
 // chain of slices, and the block pool that holds one block per resident region. A region's block is reached
 // from its parent region's block through link descriptors at its entry voxels, so the ray caster sees one
-// octree. The render thread owns this table; workers read resident blocks under the pager's shared lock.
+// octree (or, with PoolLayout::Levels, a LevelPool holds each resident region as level arrays instead). The
+// render thread owns this table; workers read resident regions under the pager's shared lock.
 #pragma once
 
 #include <cstddef>
@@ -87,7 +88,8 @@ class RegionTable {
  public:
   // The regions of the store's slices, checked: one root region (the trunk), every slice after its parent
   // slice, continuing its region's previous slice one level down. Throws std::runtime_error naming `store`
-  // and the slice. With `header`, the regions are held as level arrays (LevelPool) instead of blocks.
+  // and the slice. Given `levelArraysOf` (the store's header), the regions are held as level arrays
+  // (LevelPool) instead of blocks.
   RegionTable(const std::vector<SliceInfo>& slices, std::size_t budgetBytes, const std::string& store,
               const StoreHeader* levelArraysOf = nullptr);
   ~RegionTable();
