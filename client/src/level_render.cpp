@@ -43,29 +43,41 @@ Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTran
     forEachTile(camera.width, camera.height, renderTileSize(options), 0, [&](const PixelTile& tile) {
       ShadingBatch batch(frame, shading, scene.size, pixelAngle, shading.hasColor, shading.hasNormal);
       std::uint64_t tileIterations = 0;
-      for (int y = tile.y0; y < tile.y1; ++y)
-        for (int x = tile.x0; x < tile.x1; ++x) {
-          const double across = rays.across(x), down = rays.down(y);
-          OctreeRay ray;
-          rays.packet(&across, &down, 1, 0.0f, &ray);  // the ray castTile casts for the pixel
+      // Rays a packet's lanes at a time, as castTile makes them (PixelRays::packet computes every lane).
+      double across[kPacketLanes], down[kPacketLanes];
+      int xs[kPacketLanes], ys[kPacketLanes];
+      OctreeRay packet[kPacketLanes];
+      int count = 0;
+      const auto castPacket = [&] {
+        rays.packet(across, down, count, 0.0f, packet);
+        for (int k = 0; k < count; ++k) {
+          const OctreeRay& ray = packet[k];
           const LevelCastHit hit = castRay(root, ray, options.cast);
           tileIterations += std::uint64_t(hit.iterations);
-          const std::size_t i = std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
+          const std::size_t i = std::size_t(ys[k]) * std::size_t(camera.width) + std::size_t(xs[k]);
           if (!frame.iterations.empty())
             frame.iterations[i] = std::uint16_t(std::min(hit.iterations, 0xFFFF));
           if (!hit.hit) continue;
           if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
-          const int k = batch.add(i, ray.direction, hit.t, hit.voxelSize());
+          const int b = batch.add(i, ray.direction, hit.t, hit.voxelSize());
           if (shading.hasColor)
-            batch.setColor(k, hitAttribute(hit, AttachmentType::Color));
+            batch.setColor(b, hitAttribute(hit, AttachmentType::Color));
           else
-            batch.setColor(k, glm::vec3(kNeutralGreyAlbedo));
+            batch.setColor(b, glm::vec3(kNeutralGreyAlbedo));
           if (shading.hasNormal)
-            batch.setNormal(k, hitAttribute(hit, AttachmentType::Normal));
+            batch.setNormal(b, hitAttribute(hit, AttachmentType::Normal));
           else
-            batch.setNormal(k, estimateNormal(hit.position, hit.cubeMin, hit.voxelSize(),
+            batch.setNormal(b, estimateNormal(hit.position, hit.cubeMin, hit.voxelSize(),
                                               shading.contours ? hitContour(hit) : std::nullopt));
         }
+        count = 0;
+      };
+      for (int y = tile.y0; y < tile.y1; ++y)
+        for (int x = tile.x0; x < tile.x1; ++x) {
+          across[count] = rays.across(x), down[count] = rays.down(y), xs[count] = x, ys[count] = y;
+          if (++count == kPacketLanes) castPacket();
+        }
+      if (count > 0) castPacket();
       batch.flush();
       iterations.fetch_add(tileIterations, std::memory_order_relaxed);
     });
