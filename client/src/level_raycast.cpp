@@ -113,6 +113,11 @@ IndexedLevel::IndexedLevel(OctreeLevel&& level) {
   setChildMasks(std::move(level.childMasks));
 }
 
+std::uint32_t IndexedLevel::children() const {
+  const std::uint32_t n = voxels();
+  return n ? firstChild(n - 1) + std::uint32_t(std::popcount(unsigned(childMasks[n - 1]))) : 0;
+}
+
 std::uint64_t IndexedLevel::setChildMasks(std::vector<std::uint8_t>&& masks) {
   const std::size_t voxels = masks.size();
   childMasks = std::move(masks);
@@ -162,8 +167,7 @@ LevelOctree::LevelOctree(const std::vector<OctreeLevel>& levels, const StoreHead
     } catch (const std::invalid_argument& e) {
       fail(l, e.what());
     }
-    expected = 0;
-    for (const std::uint8_t mask : levels[l].childMasks) expected += std::uint64_t(std::popcount(mask));
+    expected = region_.levels.back().children();
     if (l + 1 == levels.size() && expected != 0) fail(l, "the deepest level has children");
   }
   const Level& root = region_.levels[0];
@@ -175,6 +179,13 @@ LevelCastHit castRay(const LevelRegion& root, const OctreeRay& ray, const CastOp
   LevelCastHit hit;
   if (root.levels.size() >= 2) castFromRoot(LevelNode{&root, 0}, ray, options, hit, LevelDescent{});
   return hit;
+}
+
+LevelNode hitVoxel(const LevelCastHit& hit) {
+  const IndexedLevel& parent = LevelDescent::levelOf(*hit.parent.region, hit.scale);
+  const std::uint8_t mask = parent.childMasks[hit.parent.index];
+  return {hit.parent.region,
+          parent.firstChild(hit.parent.index) + std::uint32_t(childRank(mask, hit.childSlot))};
 }
 
 std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type) {
@@ -193,12 +204,8 @@ std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type) {
     return true;
   };
   const int parentLevel = kScaleMax - 1 - hit.scale;
-  const IndexedLevel& parent = LevelDescent::levelOf(*hit.parent.region, hit.scale);
-  const std::uint8_t mask = parent.childMasks[hit.parent.index];
-  const LevelNode child{hit.parent.region,
-                        parent.firstChild(hit.parent.index) + std::uint32_t(childRank(mask, hit.childSlot))};
   std::uint32_t value = 0;
-  if (valueOf(parentLevel + 1, child, value) || valueOf(parentLevel, hit.parent, value)) return value;
+  if (valueOf(parentLevel + 1, hitVoxel(hit), value) || valueOf(parentLevel, hit.parent, value)) return value;
   for (int scale = hit.scale + 1; scale < kScaleMax; ++scale)
     if (valueOf(kScaleMax - 1 - scale, hit.pathParent[scale], value)) return value;
   return value;  // the root keeps its own value: the walk ends there

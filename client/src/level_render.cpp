@@ -15,13 +15,10 @@ namespace {
 
 // The contour bits of the voxel `hit` stopped at, where it has one.
 std::optional<std::uint32_t> hitContour(const LevelCastHit& hit) {
-  const LevelRegion& region = *hit.parent.region;
-  const std::size_t level = std::size_t(kMaxLevels - 1 - hit.scale - region.baseLevel);
-  const IndexedLevel& parents = region.levels[level];
-  const std::uint8_t mask = parents.childMasks[hit.parent.index];
+  const LevelNode voxel = hitVoxel(hit);
+  const LevelRegion& region = *voxel.region;
   std::uint32_t bits;
-  if (region.levels[level + 1].contours.find(
-          parents.firstChild(hit.parent.index) + std::uint32_t(childRank(mask, hit.childSlot)), bits))
+  if (region.levels[std::size_t(kMaxLevels - hit.scale - region.baseLevel)].contours.find(voxel.index, bits))
     return bits;
   return std::nullopt;
 }

@@ -274,8 +274,7 @@ void LevelPool::checkInvariants() const {
       fail(r, "is based on a wrong level");
     for (std::size_t l = 1; l < region->levels.size(); ++l) {
       const IndexedLevel& above = region->levels[l - 1];
-      const std::uint32_t last = above.voxels() - 1;
-      if (above.voxels() == 0 || childEnd(above, last) != region->levels[l].voxels())
+      if (above.voxels() == 0 || above.children() != region->levels[l].voxels())
         fail(r, "has a level whose voxels are not the children the level above counts");
     }
     for (std::size_t k = 1; k < region->links.size(); ++k)

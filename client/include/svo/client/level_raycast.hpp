@@ -50,8 +50,9 @@ struct IndexedLevel {
   std::uint32_t voxels() const { return std::uint32_t(childMasks.size() - kChildCountGroup); }
   // Sets the child masks (one per voxel, as many as there are) and counts them; returns the children.
   std::uint64_t setChildMasks(std::vector<std::uint8_t>&& masks);
-  // The level below's index of the first child of voxel i.
+  // The level below's index of the first child of voxel i, and all the children its masks count.
   std::uint32_t firstChild(std::uint32_t i) const;
+  std::uint32_t children() const;
   std::size_t bytes() const;  // what its arrays hold
 };
 
@@ -132,6 +133,9 @@ inline LevelCastHit castRay(const LevelOctree& octree, const OctreeRay& ray,
 // ancestor's (the root's at the last), as hitAttribute gives it on a raw block of the same store. Needs the
 // hit's path (CastOptions::recordPath); 0 for a miss or a type the octree does not have.
 std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type);
+// The voxel a hit stopped at, in its parent's region (whose deepest level holds a linked region's base
+// voxels' values).
+LevelNode hitVoxel(const LevelCastHit& hit);
 inline std::uint32_t hitAttribute(const LevelOctree& octree, const LevelCastHit& hit, AttachmentType type) {
   return (type == AttachmentType::Color ? octree.hasColors() : octree.hasNormals()) ? hitAttribute(hit, type)
                                                                                     : 0;
