@@ -11,12 +11,14 @@
 
 #include <glm/geometric.hpp>
 
+#include "level_descent.hpp"
 #include "svo/client/render.hpp"
 
 namespace svo {
 namespace {
 
 using glm::dvec3;
+using namespace ray_setup;
 
 // The beam's edges lie this many pixels outside the tile's outer pixel edges, far more than the float
 // rounding of a fine ray's direction (2^-24 relative, against a pixel of ~1e-3 radians).
@@ -79,13 +81,16 @@ void cubeDistances(const dvec3& eye, const dvec3& lo, double size, double& neare
   furthest = glm::length(glm::max(glm::abs(eye - lo), glm::abs(hi - eye)));
 }
 
-}  // namespace
-
-BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTile& tile) {
+// The walk, reading the octree through `Descent` (ray_setup.hpp): a node's valid mask, and which children
+// have children of their own, as the ray caster reads them, so that it stops where a fine ray would.
+template <class Descent>
+BeamResult walkBeam(typename Descent::Node root, const PixelRays& rays, const PixelTile& tile) {
+  using Node = typename Descent::Node;
   BeamResult result;
   const Beam beam = beamOf(rays, tile);
   struct Entry {
-    const ChildDescriptor* descriptor;
+    Node node;
+    int scale;  // of the node's children (ray_setup's scale: kScaleMax - 1 below the root)
     dvec3 lo;
     double size;
     double nearest;
@@ -104,18 +109,18 @@ BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTi
     }
     double nearest, furthest;
     cubeDistances(beam.eye, lo, size, nearest, furthest);
-    stack[top++] = {block.root(), dvec3(1.0), 1.0, nearest};
+    stack[top++] = {root, kScaleMax - 1, dvec3(1.0), 1.0, nearest};
   }
   while (top > 0) {
     const Entry e = stack[--top];
     if (e.nearest >= best) continue;
-    const ChildDescriptor d = *e.descriptor;
-    const std::uint8_t valid = d.validMask(), nonLeaf = d.nonLeafMask();
+    const typename Descent::Parent words = Descent::read(e.node, e.scale);
+    const std::uint8_t valid = words.validMask;
     const double half = 0.5 * e.size;
     struct Child {
       int slot;
       double nearest;
-      const ChildDescriptor* descriptor;
+      Node node;
     };
     std::array<Child, 8> children;
     int count = 0;
@@ -129,11 +134,11 @@ BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTi
       double nearest, furthest;
       cubeDistances(beam.eye, grownLo, grownSize, nearest, furthest);
       if (nearest >= best) continue;
-      // A leaf (or a stub: a block pool's voxel whose children are not resident), or a voxel as small as
+      // A leaf (or a pool's voxel whose children are not resident), or a voxel as small as
       // the beam (and the fine rays' footprint) at its far side: some fine ray may stop in it, no earlier
       // than its nearest point.
-      const ChildDescriptor* child = (nonLeaf >> slot & 1u) ? BlockView::child(e.descriptor, slot) : nullptr;
-      if (!child || child->isStub() || half <= beam.stopSlope * furthest) {
+      Node child;
+      if (!Descent::child(e.node, words, slot, e.scale, child) || half <= beam.stopSlope * furthest) {
         best = nearest;
         continue;
       }
@@ -148,13 +153,24 @@ BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTi
       const Child& c = children[i];
       if (c.nearest >= best) continue;
       const dvec3 lo = e.lo + half * dvec3(c.slot & 1, c.slot >> 1 & 1, c.slot >> 2 & 1);
-      stack[top++] = {c.descriptor, lo, half, c.nearest};
+      stack[top++] = {c.node, e.scale - 1, lo, half, c.nearest};
     }
   }
   // Octree distance to ray t: the fine rays' direction is the unit world direction / scene size.
   result.tStart = std::isfinite(best) ? float(best * rays.sceneSize() * (1.0 - kStartMargin))
                                       : std::numeric_limits<float>::infinity();
   return result;
+}
+
+}  // namespace
+
+BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTile& tile) {
+  return walkBeam<BlockDescent>(block.root(), rays, tile);
+}
+
+BeamResult castBeam(const LevelRegion& root, const PixelRays& rays, const PixelTile& tile) {
+  if (root.levels.size() < 2) return {.tStart = std::numeric_limits<float>::infinity()};
+  return walkBeam<LevelDescent>(LevelNode{&root, 0}, rays, tile);
 }
 
 }  // namespace svo

@@ -1,9 +1,12 @@
-// Frames from level arrays (level_raycast.hpp): castRay per pixel over the renderer's tiles, shaded as a
-// block's frame is (frame_shading.hpp), so that the same hits give the same pixels.
+// Frames from level arrays (level_raycast.hpp): castRay per pixel over the renderer's tiles, each tile's rays
+// started where its beam pass (beam.hpp) says, and shaded as a block's frame is (frame_shading.hpp), so that
+// the same hits give the same pixels.
 #include <atomic>
 #include <chrono>
+#include <limits>
 
 #include "frame_shading.hpp"
+#include "svo/client/beam.hpp"
 #include "svo/client/level_raycast.hpp"
 #include "svo/client/render.hpp"
 
@@ -38,6 +41,11 @@ Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTran
   inArena(options.threads, [&] {
     clearFrame(frame, glm::vec4(options.background, 0.0f));
     forEachTile(camera.width, camera.height, renderTileSize(options), 0, [&](const PixelTile& tile) {
+      float tStart = 0.0f;
+      if (options.beamTile > 0) {
+        tStart = castBeam(root, rays, tile).tStart;
+        if (!(tStart < std::numeric_limits<float>::infinity())) return;  // no ray of the tile hits
+      }
       ShadingBatch batch(frame, shading, scene.size, pixelAngle, shading.hasColor, shading.hasNormal);
       std::uint64_t tileIterations = 0;
       // Rays a packet's lanes at a time, as castTile makes them (PixelRays::packet computes every lane).
@@ -46,7 +54,7 @@ Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTran
       OctreeRay packet[kPacketLanes];
       int count = 0;
       const auto castPacket = [&] {
-        rays.packet(across, down, count, 0.0f, packet);
+        rays.packet(across, down, count, tStart, packet);
         for (int k = 0; k < count; ++k) {
           const OctreeRay& ray = packet[k];
           const LevelCastHit hit = castRay(root, ray, options.cast);

@@ -15,8 +15,10 @@
 #include "paging/level_pool.hpp"
 #include "paging/regions.hpp"
 #include "reference.hpp"
+#include "svo/client/beam.hpp"
 #include "svo/client/level_raycast.hpp"
 #include "svo/client/raycast.hpp"
+#include "svo/client/render.hpp"
 #include "svo/store/block.hpp"
 #include "svo/store/codec.hpp"
 #include "svo/store/format.hpp"
@@ -187,6 +189,45 @@ TEST(LevelArrays, CastRaysAsTheBlockDoes) {
     }
     EXPECT_GT(hits, 1000u);
     EXPECT_GT(lodStops, 50u);
+  }
+}
+
+// The beam pass (beam.hpp) over level arrays stops where it stops over the block of the same octree: the same
+// start t, bit for bit, after the same cubes (the block's pass is checked against a brute-force reference in
+// test_beam.cpp). Views from outside, grazing, and from inside the scene; tiles of 4, 8 and 13 pixels.
+TEST(LevelArrays, BeamPassesStopWhereTheBlocksDo) {
+  const svotest::TempFile store("svo_level_beam", ".svo");
+  svotest::writeSphereAndBoxStore(store.path, 4096);
+  for (const fs::path& path : {fs::path(SVO_TEST_DATA) / "fixtures" / "sphere-v5.svo",
+                               fs::path(SVO_TEST_DATA) / "fixtures" / "runs-v5.svo", store.path}) {
+    SCOPED_TRACE(path.string());
+    const svo::StoreReader reader(path);
+    const svo::LevelOctree levels(decodeBoth(reader).levels, reader.header());
+    const svo::Octree octree = svo::readOctree(reader);
+    const glm::dvec3 centre = octree.transform.toWorld(glm::dvec3(1.5));
+    std::vector<svo::Camera> cameras = {svo::Camera::framing(octree.transform, {-0.35, -0.25, -1.0}, 61, 47),
+                                        svo::Camera::framing(octree.transform, {0.0, -1.0, 1e-4}, 40, 40)};
+    svo::Camera inside = cameras[0];
+    inside.eye = centre + glm::dvec3(0.05, 0.02, 0.01) * octree.transform.size;
+    inside.target = centre + glm::dvec3(1.0, 0.3, 0.2) * octree.transform.size;
+    inside.fovYDegrees = 100.0;
+    cameras.push_back(inside);
+    std::size_t tiles = 0, emptyTiles = 0;
+    for (const svo::Camera& camera : cameras)
+      for (const float lod : {0.0f, 1.0f, 4.0f}) {
+        const svo::PixelRays rays(octree.transform, camera, lod);
+        for (const int tileSize : {4, 8, 13})
+          svo::forEachTile(camera.width, camera.height, tileSize, 1, [&](const svo::PixelTile& tile) {
+            const svo::BeamResult a = svo::castBeam(octree.block.view(), rays, tile);
+            const svo::BeamResult b = svo::castBeam(levels.region(), rays, tile);
+            ++tiles, emptyTiles += std::isinf(a.tStart);
+            EXPECT_EQ(std::bit_cast<std::uint32_t>(a.tStart), std::bit_cast<std::uint32_t>(b.tStart))
+                << "tile at (" << tile.x0 << ", " << tile.y0 << ")";
+            EXPECT_EQ(a.cubesTested, b.cubesTested);
+          });
+      }
+    EXPECT_GT(emptyTiles, 0u);
+    EXPECT_LT(emptyTiles, tiles);
   }
 }
 

@@ -54,7 +54,6 @@ void expectSameAsReference(svo::Pager& pager, const svo::Camera& camera, float l
   svo::RenderOptions options;
   options.lodPixels = lodPixels;
   options.threads = 1;
-  if (pager.layout() == svo::PoolLayout::Levels) options.beamTile = 0;  // level arrays have no beam pass
   const svo::Frame paged = svo::render(pager, camera, options);
   svo::LayoutOptions layout;
   layout.attributes = attributes;

@@ -85,7 +85,7 @@ void addPoolLayoutFlag(CLI::App& cmd, PoolLayout& layout) {
       cmd, "--pool", layout,
       {{nameOf(PoolLayout::Blocks), PoolLayout::Blocks}, {nameOf(PoolLayout::Levels), PoolLayout::Levels}},
       "how the pool holds the resident octree: blocks (laid out again by every load; packets, beams, "
-      "GPU) or levels (arrays per level that a load appends to; raw attributes, one ray at a time)");
+      "GPU) or levels (arrays per level that a load appends to; raw attributes, beams, one ray at a time)");
 }
 
 void addPacketSimdFlag(CLI::App& cmd, PacketSimd& simd) {

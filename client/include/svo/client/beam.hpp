@@ -12,6 +12,7 @@
 namespace svo {
 
 class PixelRays;
+struct LevelRegion;
 
 // Pixels [x0, x1) x [y0, y1) of the image.
 struct PixelTile {
@@ -26,5 +27,8 @@ struct BeamResult {
 // The coarse pass over `tile`. Cube voxels only (contours can only remove parts of a cube), and it stops
 // at voxels as coarse as the fine rays' own level-of-detail stop, so it never cuts a fine ray short.
 BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTile& tile);
+// The same pass over level arrays (level_raycast.hpp): the regions linked from `root`, the root's region. It
+// reads the octree as their caster does, so its result is the block's on the same octree.
+BeamResult castBeam(const LevelRegion& root, const PixelRays& rays, const PixelTile& tile);
 
 }  // namespace svo

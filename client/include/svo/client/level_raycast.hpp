@@ -2,7 +2,7 @@
 // block: the same loop (continueRay), finding a voxel's children by counting the child masks before it and
 // its contour, color and normal by counting presence bits. Its hits, and the values hitAttribute finds for
 // them, are the block's bit for bit on the same octree. The octree may be one region or regions linked at
-// their deepest levels, as a pager holds them. One ray at a time: no packets and no beams yet.
+// their deepest levels, as a pager holds them. One ray at a time: no packets yet.
 #pragma once
 
 #include <bit>
@@ -141,9 +141,9 @@ inline std::uint32_t hitAttribute(const LevelOctree& octree, const LevelCastHit&
                                                                                     : 0;
 }
 
-// A frame of the octree below `root` (render.hpp's render, without packets or beams): castRay per pixel,
-// shaded as a block's frame is, so that it equals the frame of a block holding the same octree rendered
-// with RenderOptions::beamTile 0.
+// A frame of the octree below `root` (render.hpp's render, without packets): the beam pass per tile and
+// castRay per pixel, shaded as a block's frame is, so that it equals the frame of a block holding the same
+// octree.
 Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTransform& scene,
              const Camera& camera, const RenderOptions& options);
 

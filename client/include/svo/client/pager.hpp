@@ -38,8 +38,8 @@ namespace svo {
 
 // How the pool holds the resident regions: as laid-out blocks (block.hpp) that every load lays out again, or
 // as arrays per level (level_raycast.hpp's LevelRegion) that a load appends its levels to. Level arrays take
-// raw attributes and are cast one ray at a time (render(const Pager&, ...)): no packets, beams, GPU mirror
-// or compressed attributes yet.
+// raw attributes and are cast one ray at a time after each tile's beam pass (render(const Pager&, ...)): no
+// packets, GPU mirror or compressed attributes yet.
 enum class PoolLayout { Blocks, Levels };
 const char* nameOf(PoolLayout layout);  // "blocks", "levels"
 
