@@ -100,9 +100,19 @@ class LevelOctree {
 
 // A voxel of level arrays: its region, and its index in its level there.
 struct LevelNode {
-  const LevelRegion* region = nullptr;
-  std::uint32_t index = 0;
-  bool operator==(const LevelNode&) const = default;
+  const LevelRegion* region;
+  std::uint32_t index;
+
+  LevelNode() = default;  // uninitialized, as a pointer is: a hit's path is written by each PUSH
+  LevelNode(const LevelRegion* r, std::uint32_t i) : region(r), index(i) {}
+  // Member by member: a copy of the whole 16 bytes (padding included) goes through a vector register, whose
+  // load from the two scalar stores that made the node stalls the caster's PUSH (store forwarding).
+  LevelNode(const LevelNode& n) : region(n.region), index(n.index) {}
+  LevelNode& operator=(const LevelNode& n) {
+    region = n.region, index = n.index;
+    return *this;
+  }
+  bool operator==(const LevelNode& n) const { return region == n.region && index == n.index; }
 };
 
 struct LevelCastHit {
@@ -112,7 +122,7 @@ struct LevelCastHit {
   int scale = 0;  // voxel size is 2^(scale - 23) octree units, its level kMaxLevels - 1 - scale
   int childSlot = 0;
   int iterations = 0;
-  LevelNode parent;          // the hit voxel's parent
+  LevelNode parent{nullptr, 0};  // the hit voxel's parent
   glm::vec3 position{0.0f};  // clamped into the hit voxel's cube, as CastHit's
   glm::vec3 cubeMin{0.0f};
   // The ancestors' indices by scale, where CastOptions::recordPath: the one at scale s (in (scale, 22]) is
