@@ -30,6 +30,20 @@ bool toMasks(LevelNode& node, int level) {
   return true;
 }
 
+// The values present before voxel i: find()'s index for a voxel that has one.
+template <class Value>
+std::uint32_t rankOf(const PresentValues<Value>& part, std::uint32_t i) {
+  const std::uint64_t below = (std::uint64_t(1) << (i % 64)) - 1;
+  return part.counts[i / 64] + std::uint32_t(std::popcount(part.words[i / 64] & below));
+}
+
+// The 64 presence bits from bit `at` on (PresentValues keeps a zero word past its last voxel's).
+inline std::uint64_t presenceAt(const std::vector<std::uint64_t>& words, std::uint32_t at) {
+  const unsigned shift = at % 64;
+  const std::uint64_t low = words[at / 64] >> shift;
+  return shift && at / 64 + 1 < words.size() ? low | words[at / 64 + 1] << (64 - shift) : low;
+}
+
 // One past the index of the last child of voxel i.
 std::uint32_t childEnd(const IndexedLevel& level, std::uint32_t i) {
   return level.firstChild(i) + std::uint32_t(std::popcount(unsigned(level.childMasks[i])));
@@ -41,36 +55,49 @@ struct VoxelRange {
   std::uint32_t first, end;
 };
 
-// The resident voxels of octree level `target` inside a cube's sub-cubes [firstSlot, lastSlot] (all eight:
-// the whole cube), found from the root's region down. Throws std::logic_error where the cube's voxels are
+// The resident voxels of each octree level, from the root to `target`, on the way into a cube's sub-cubes
+// [firstSlot, lastSlot] (all eight: the whole cube): down to the cube the one voxel on the path, below it the
+// voxels inside. Each level's are in the region that holds their child masks (on a region's deepest level
+// where another region is linked, that region's base). Throws std::logic_error where the cube's voxels are
 // not resident down to `target` in one region.
-VoxelRange voxelsWithin(const LevelRegion& root, int cubeLevel, glm::ivec3 cube, int firstSlot, int lastSlot,
-                        int target) {
+std::vector<VoxelRange> voxelsDownTo(const LevelRegion& root, int cubeLevel, glm::ivec3 cube, int firstSlot,
+                                     int lastSlot, int target) {
+  assert(cubeLevel < target);
+  std::vector<VoxelRange> path;
+  path.reserve(std::size_t(target) + 1);
   LevelNode node{&root, 0};
-  for (int level = 0; level < cubeLevel; ++level) {
+  for (int level = 0; level <= cubeLevel; ++level) {
+    if (!toMasks(node, level)) throw std::logic_error("pager: a region's cube has no resident children");
+    path.push_back({node.region, node.index, node.index + 1});
+    if (level == cubeLevel) break;
     const int slot = childSlot(cube >> (cubeLevel - level - 1));
-    const IndexedLevel* l = toMasks(node, level) ? &levelAt(*node.region, level) : nullptr;
-    if (!l || !(l->childMasks[node.index] >> slot & 1))
+    const IndexedLevel& l = levelAt(*node.region, level);
+    if (!(l.childMasks[node.index] >> slot & 1))
       throw std::logic_error("pager: a region's cube is not resident in its parent");
-    node.index = l->firstChild(node.index) + std::uint32_t(childRank(l->childMasks[node.index], slot));
+    node.index = l.firstChild(node.index) + std::uint32_t(childRank(l.childMasks[node.index], slot));
   }
-  if (!toMasks(node, cubeLevel)) throw std::logic_error("pager: a region's cube has no resident children");
   const IndexedLevel& cubeVoxel = levelAt(*node.region, cubeLevel);
   const std::uint8_t mask = cubeVoxel.childMasks[node.index];
   const std::uint32_t firstChild = cubeVoxel.firstChild(node.index);
   VoxelRange range{node.region, firstChild + std::uint32_t(childRank(mask, firstSlot)),
                    firstChild + std::uint32_t(childRank(mask, lastSlot + 1))};
-  for (int level = cubeLevel + 1; level < target && range.first < range.end; ++level) {
-    if (level == range.region->deepestLevel()) {
-      const LevelRegion::Link* link = range.region->linkAt(range.first);
-      if (!link || range.end > link->end)
-        throw std::logic_error("pager: a region's cube spans regions that are not resident");
-      range = {link->region, range.first - link->first, range.end - link->first};
+  for (int level = cubeLevel + 1; level < target; ++level) {
+    if (range.first < range.end) {
+      if (level == range.region->deepestLevel()) {
+        const LevelRegion::Link* link = range.region->linkAt(range.first);
+        if (!link || range.end > link->end)
+          throw std::logic_error("pager: a region's cube spans regions that are not resident");
+        range = {link->region, range.first - link->first, range.end - link->first};
+      }
+      path.push_back(range);
+      const IndexedLevel& l = levelAt(*range.region, level);
+      range = {range.region, l.firstChild(range.first), childEnd(l, range.end - 1)};
+    } else {
+      path.push_back(range);
     }
-    const IndexedLevel& l = levelAt(*range.region, level);
-    range = {range.region, l.firstChild(range.first), childEnd(l, range.end - 1)};
   }
-  return range;
+  path.push_back(range);
+  return path;
 }
 
 // The normal codes the voxels of `region`'s deepest level show, its own or its nearest ancestor's, from
@@ -92,6 +119,42 @@ std::vector<std::uint16_t> shownNormals(const LevelRegion& region, std::vector<s
   return shown;
 }
 
+// shownNormals for the voxels of `region`'s deepest level on a path (voxelsDownTo's, by level) alone: from
+// those the path's voxels on its base show, down through the path's voxels of each level.
+std::vector<std::uint16_t> shownNormalsAlong(const LevelRegion& region,
+                                             const std::vector<std::uint16_t>& baseShown,
+                                             const std::vector<VoxelRange>& path) {
+  const auto along = [&](std::size_t l) {
+    const VoxelRange& range = path[std::size_t(region.baseLevel) + l];
+    if (range.first < range.end && range.region != &region)
+      throw std::logic_error("pager: a region's base is not below its parent's");
+    return range;
+  };
+  const VoxelRange base = along(0);
+  std::vector<std::uint16_t> shown(baseShown.begin() + base.first, baseShown.begin() + base.end), below;
+  for (std::size_t l = 0; l + 1 < region.levels.size(); ++l) {
+    const VoxelRange parents = along(l), children = along(l + 1);
+    const IndexedLevel& level = region.levels[l];
+    const PresentValues<std::uint16_t>& own = region.levels[l + 1].normals;
+    below.assign(children.end - children.first, 0);
+    if (parents.first < parents.end) {
+      // The children in range follow one another: their own values too.
+      const bool hasOwn = !own.words.empty();
+      std::uint32_t child = level.firstChild(parents.first),
+                    present = hasOwn ? rankOf(own, children.first) : 0;
+      for (std::uint32_t i = parents.first; i < parents.end; ++i)
+        for (int n = std::popcount(unsigned(level.childMasks[i])); n > 0; --n, ++child) {
+          if (child < children.first || child >= children.end) continue;
+          below[child - children.first] = hasOwn && (own.words[child / 64] >> (child % 64) & 1)
+                                              ? own.values[present++]
+                                              : shown[i - parents.first];
+        }
+    }
+    std::swap(shown, below);
+  }
+  return shown;
+}
+
 // Voxels [first, end) of a level as the decoder's parents (level_arrays.hpp): their contours and the
 // normals they show, `shown`; their child masks are left for the decoder to write.
 OctreeLevel parentsOf(const PresentValues<std::uint32_t>& contours, std::uint32_t first, std::uint32_t end,
@@ -99,11 +162,13 @@ OctreeLevel parentsOf(const PresentValues<std::uint32_t>& contours, std::uint32_
   OctreeLevel level;
   level.voxels = end - first;
   std::vector<std::uint64_t> bits((end - first + 63) / 64 + 1, 0);
-  for (std::uint32_t i = first; i < end; ++i)
-    bits[(i - first) / 64] |= std::uint64_t(contours.words[i / 64] >> (i % 64) & 1) << ((i - first) % 64);
+  for (std::uint32_t k = 0; k * 64 < end - first; ++k) bits[k] = presenceAt(contours.words, first + 64 * k);
+  if ((end - first) % 64) bits[(end - first) / 64] &= (std::uint64_t(1) << ((end - first) % 64)) - 1;
   level.contourBits.append(reinterpret_cast<const std::byte*>(bits.data()), level.voxels);
   level.shownContours.resize(level.voxels, 0);
-  for (std::uint32_t i = first; i < end; ++i) contours.find(i, level.shownContours[i - first]);
+  std::uint32_t present = first < end ? rankOf(contours, first) : 0;
+  for (std::uint32_t i = first; i < end; ++i)
+    if (contours.words[i / 64] >> (i % 64) & 1) level.shownContours[i - first] = contours.values[present++];
   level.shownNormalCodes = std::move(shown);
   return level;
 }
@@ -139,13 +204,14 @@ OctreeLevel LevelPool::baseParents(std::uint32_t index, LevelGrowth& growth) con
   const int target = slices_[r.slices.front()].voxelLevel - 1;
   if (parent.deepestLevel() != target)
     throw std::logic_error("pager: a region's parent does not end above its first slice");
-  const VoxelRange range =
-      voxelsWithin(*regions_[0], r.cubeLevel, r.cubeCoord, r.firstSlot, r.lastSlot, target);
+  const std::vector<VoxelRange> path =
+      voxelsDownTo(*regions_[0], r.cubeLevel, r.cubeCoord, r.firstSlot, r.lastSlot, target);
+  const VoxelRange& range = path.back();
   if (range.first < range.end && range.region != &parent)
     throw std::logic_error("pager: a region's base is not on its parent's deepest level");
   growth.baseStart = range.first;
-  const std::vector<std::uint16_t> shown = shownNormals(parent, baseShownNormals_[parentIndex]);
-  growth.baseShownNormals.assign(shown.begin() + range.first, shown.begin() + range.end);
+  // Along the path alone: a parent region's whole hierarchy would cost each new region the parent's size.
+  growth.baseShownNormals = shownNormalsAlong(parent, baseShownNormals_[parentIndex], path);
   return parentsOf(parent.levels.back().contours, range.first, range.end, growth.baseShownNormals);
 }
 
@@ -286,6 +352,13 @@ void LevelPool::checkInvariants() const {
     if (region->levels[0].voxels() && (!link || link->region != region || link->first != region->baseStart ||
                                        link->end != region->baseStart + region->levels[0].voxels()))
       fail(r, "is not linked from its parent at its base");
+    // The normals its base shows, kept when it was loaded, are those its parent's hierarchy shows there.
+    const std::vector<std::uint16_t> shown =
+        shownNormals(*parent, baseShownNormals_[std::size_t(info.parent)]);
+    const std::vector<std::uint16_t>& kept = baseShownNormals_[r];
+    if (kept.size() != region->levels[0].voxels() || region->baseStart + kept.size() > shown.size() ||
+        !std::equal(kept.begin(), kept.end(), shown.begin() + region->baseStart))
+      fail(r, "keeps normals its base does not show");
   }
   if (held != residentBytes_)
     fail(0, "and the others hold " + std::to_string(held) + " bytes; the pool counts " +
