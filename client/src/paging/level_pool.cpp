@@ -82,19 +82,17 @@ std::vector<VoxelRange> voxelsDownTo(const LevelRegion& root, int cubeLevel, glm
   VoxelRange range{node.region, firstChild + std::uint32_t(childRank(mask, firstSlot)),
                    firstChild + std::uint32_t(childRank(mask, lastSlot + 1))};
   for (int level = cubeLevel + 1; level < target; ++level) {
-    if (range.first < range.end) {
-      if (level == range.region->deepestLevel()) {
-        const LevelRegion::Link* link = range.region->linkAt(range.first);
-        if (!link || range.end > link->end)
-          throw std::logic_error("pager: a region's cube spans regions that are not resident");
-        range = {link->region, range.first - link->first, range.end - link->first};
-      }
-      path.push_back(range);
-      const IndexedLevel& l = levelAt(*range.region, level);
-      range = {range.region, l.firstChild(range.first), childEnd(l, range.end - 1)};
-    } else {
-      path.push_back(range);
+    const bool empty = range.first == range.end;
+    if (!empty && level == range.region->deepestLevel()) {
+      const LevelRegion::Link* link = range.region->linkAt(range.first);
+      if (!link || range.end > link->end)
+        throw std::logic_error("pager: a region's cube spans regions that are not resident");
+      range = {link->region, range.first - link->first, range.end - link->first};
     }
+    path.push_back(range);
+    if (empty) continue;
+    const IndexedLevel& l = levelAt(*range.region, level);
+    range = {range.region, l.firstChild(range.first), childEnd(l, range.end - 1)};
   }
   path.push_back(range);
   return path;
@@ -131,6 +129,7 @@ std::vector<std::uint16_t> shownNormalsAlong(const LevelRegion& region,
     return range;
   };
   const VoxelRange base = along(0);
+  if (base.first == base.end) return {};  // nothing resident below it either
   std::vector<std::uint16_t> shown(baseShown.begin() + base.first, baseShown.begin() + base.end), below;
   for (std::size_t l = 0; l + 1 < region.levels.size(); ++l) {
     const VoxelRange parents = along(l), children = along(l + 1);
