@@ -134,9 +134,9 @@ BeamResult walkBeam(typename Descent::Node root, const PixelRays& rays, const Pi
       double nearest, furthest;
       cubeDistances(beam.eye, grownLo, grownSize, nearest, furthest);
       if (nearest >= best) continue;
-      // A leaf (or a pool's voxel whose children are not resident), or a voxel as small as
-      // the beam (and the fine rays' footprint) at its far side: some fine ray may stop in it, no earlier
-      // than its nearest point.
+      // A leaf (or a pool's voxel whose children are not resident), or a voxel as small as the beam (and
+      // the fine rays' footprint) at its far side: some fine ray may stop in it, no earlier than its nearest
+      // point.
       Node child;
       if (!Descent::child(e.node, words, slot, e.scale, child) || half <= beam.stopSlope * furthest) {
         best = nearest;

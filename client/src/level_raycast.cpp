@@ -14,6 +14,14 @@ using namespace ray_setup;
 
 namespace {
 
+// The level arrays holding the values of voxel `node` of octree level `level`, `node` made its index there: a
+// region's base voxel's values are its parent region's.
+const IndexedLevel& valuesOf(int level, LevelNode& node) {
+  if (level == node.region->baseLevel && node.region->parent)
+    node = {node.region->parent, node.region->baseStart + node.index};
+  return node.region->levels[std::size_t(level - node.region->baseLevel)];
+}
+
 // The children of the voxels before each group of kChildCountGroup, and all of them.
 std::uint64_t countChildren(const std::vector<std::uint8_t>& masks, std::size_t voxels,
                             std::vector<std::uint32_t>& counts) {
@@ -146,27 +154,31 @@ LevelNode hitVoxel(const LevelCastHit& hit) {
           parent.firstChild(hit.parent.index) + std::uint32_t(childRank(mask, hit.childSlot))};
 }
 
-std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type) {
-  const bool color = type == AttachmentType::Color;
-  if (!hit.hit || (!color && type != AttachmentType::Normal)) return 0;
-  // The hit voxel, then its ancestors up to the root, each by its level and its index there; a region's
-  // base voxel's values are its parent region's.
-  const auto valueOf = [&](int level, LevelNode node, std::uint32_t& value) {
-    if (level == node.region->baseLevel && node.region->parent)
-      node = {node.region->parent, node.region->baseStart + node.index};
-    const IndexedLevel& l = node.region->levels[std::size_t(level - node.region->baseLevel)];
+LevelHitValues hitValues(const LevelCastHit& hit, bool colors, bool normals) {
+  LevelHitValues out;
+  if (!hit.hit) return out;
+  // The hit voxel, then its ancestors up to the root, each by its level and its index there, until each
+  // attribute asked for has a value.
+  const auto visit = [&](int level, LevelNode node) {
+    const IndexedLevel& l = valuesOf(level, node);
+    if (colors && !l.colors.words.empty() && l.colors.find(node.index, out.color)) colors = false;
     std::uint16_t code;
-    if (color) return !l.colors.words.empty() && l.colors.find(node.index, value);
-    if (l.normals.words.empty() || !l.normals.find(node.index, code)) return false;
-    value = latticeNormalBits(code);
-    return true;
+    if (normals && !l.normals.words.empty() && l.normals.find(node.index, code))
+      out.normal = latticeNormalBits(code), normals = false;
+    return !colors && !normals;
   };
   const int parentLevel = kScaleMax - 1 - hit.scale;
-  std::uint32_t value = 0;
-  if (valueOf(parentLevel + 1, hitVoxel(hit), value) || valueOf(parentLevel, hit.parent, value)) return value;
+  if (visit(parentLevel + 1, hitVoxel(hit)) || visit(parentLevel, hit.parent)) return out;
   for (int scale = hit.scale + 1; scale < kScaleMax; ++scale)
-    if (valueOf(kScaleMax - 1 - scale, hit.pathParent[scale], value)) return value;
-  return value;  // the root keeps its own value: the walk ends there
+    if (visit(kScaleMax - 1 - scale, hit.pathParent[scale])) break;
+  return out;  // the root keeps its own values: the walk ends there
+}
+
+std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type) {
+  const bool color = type == AttachmentType::Color;
+  if (!color && type != AttachmentType::Normal) return 0;
+  const LevelHitValues values = hitValues(hit, color, !color);
+  return color ? values.color : values.normal;
 }
 
 }  // namespace svo

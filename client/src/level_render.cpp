@@ -65,12 +65,13 @@ Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTran
           if (!hit.hit) continue;
           if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
           const int b = batch.add(i, ray.direction, hit.t, hit.voxelSize());
+          const LevelHitValues values = hitValues(hit, shading.hasColor, shading.hasNormal);
           if (shading.hasColor)
-            batch.setColor(b, hitAttribute(hit, AttachmentType::Color));
+            batch.setColor(b, values.color);
           else
             batch.setColor(b, glm::vec3(kNeutralGreyAlbedo));
           if (shading.hasNormal)
-            batch.setNormal(b, hitAttribute(hit, AttachmentType::Normal));
+            batch.setNormal(b, values.normal);
           else
             batch.setNormal(b, estimateNormal(hit.position, hit.cubeMin, hit.voxelSize(),
                                               shading.contours ? hitContour(hit) : std::nullopt));

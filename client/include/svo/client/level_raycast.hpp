@@ -123,7 +123,7 @@ struct LevelCastHit {
   int childSlot = 0;
   int iterations = 0;
   LevelNode parent{nullptr, 0};  // the hit voxel's parent
-  glm::vec3 position{0.0f};  // clamped into the hit voxel's cube, as CastHit's
+  glm::vec3 position{0.0f};      // clamped into the hit voxel's cube, as CastHit's
   glm::vec3 cubeMin{0.0f};
   // The ancestors' indices by scale, where CastOptions::recordPath: the one at scale s (in (scale, 22]) is
   // the parent of the one at scale s - 1, and pathParent[scale + 1] is `parent`'s.
@@ -143,6 +143,12 @@ inline LevelCastHit castRay(const LevelOctree& octree, const OctreeRay& ray,
 // ancestor's (the root's at the last), as hitAttribute gives it on a raw block of the same store. Needs the
 // hit's path (CastOptions::recordPath); 0 for a miss or a type the octree does not have.
 std::uint32_t hitAttribute(const LevelCastHit& hit, AttachmentType type);
+// Both values hitAttribute finds, the color where `colors` and the normal where `normals` (0 where not asked
+// for, or for a miss), with the hit voxel found and its path walked once.
+struct LevelHitValues {
+  std::uint32_t color = 0, normal = 0;
+};
+LevelHitValues hitValues(const LevelCastHit& hit, bool colors, bool normals);
 // The voxel a hit stopped at, in its parent's region (whose deepest level holds a linked region's base
 // voxels' values).
 LevelNode hitVoxel(const LevelCastHit& hit);
