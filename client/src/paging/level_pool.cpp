@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <cassert>
+#include <optional>
 #include <stdexcept>
 #include <utility>
 
@@ -328,6 +329,8 @@ void LevelPool::checkInvariants() const {
     throw std::logic_error("pager invariant: region " + std::to_string(r) + " " + what);
   };
   std::size_t held = 0;
+  // The normals each parent region's deepest voxels show, found once for all its children.
+  std::vector<std::optional<std::vector<std::uint16_t>>> shownByParent(regions_.size());
   for (std::uint32_t r = 0; r < regions_.size(); ++r) {
     const LevelRegion* region = regions_[r].get();
     const Region& info = table_[r];
@@ -352,8 +355,9 @@ void LevelPool::checkInvariants() const {
                                        link->end != region->baseStart + region->levels[0].voxels()))
       fail(r, "is not linked from its parent at its base");
     // The normals its base shows, kept when it was loaded, are those its parent's hierarchy shows there.
-    const std::vector<std::uint16_t> shown =
-        shownNormals(*parent, baseShownNormals_[std::size_t(info.parent)]);
+    std::optional<std::vector<std::uint16_t>>& shownBelow = shownByParent[std::size_t(info.parent)];
+    if (!shownBelow) shownBelow = shownNormals(*parent, baseShownNormals_[std::size_t(info.parent)]);
+    const std::vector<std::uint16_t>& shown = *shownBelow;
     const std::vector<std::uint16_t>& kept = baseShownNormals_[r];
     if (kept.size() != region->levels[0].voxels() || region->baseStart + kept.size() > shown.size() ||
         !std::equal(kept.begin(), kept.end(), shown.begin() + region->baseStart))
