@@ -1,6 +1,7 @@
 // Level arrays (level_arrays.hpp) against decodeSlice's voxel records: every fixture store and a store of
 // many small slices decode to the same hierarchy, contours and shown values; bad slices throw. Their caster
-// (level_raycast.hpp) against the block caster on the same stores: the same hits, bit for bit.
+// (level_raycast.hpp) and their beam pass against the block's on the same stores: the same hits and the same
+// start t, bit for bit.
 #include <gtest/gtest.h>
 
 #include <algorithm>
