@@ -39,12 +39,12 @@ struct LevelDescent {
   // A child without children of its own is the hit.
   static bool child(Node parent, const Parent& p, int slot, int, Node& child) {
     child = {parent.region, childOf(p, slot)};
-    if (p.children->childMasks[child.index] != 0) return true;
+    if (p.children->childMask(child.index) != 0) return true;
     if (!p.linkedBelow) return false;
     const LevelRegion::Link* link = parent.region->linkAt(child.index);
     if (!link) return false;
     child = {link->region, child.index - link->first};
-    return link->region->levels[0].childMasks[child.index] != 0;
+    return link->region->levels[0].childMask(child.index) != 0;
   }
   static void recordPath(LevelCastHit& hit, int scale, Node parent, int) { hit.pathParent[scale] = parent; }
 };

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cassert>
 #include <cstring>
 #include <stdexcept>
 #include <string>
@@ -38,6 +39,7 @@ std::uint64_t countChildren(const std::vector<std::uint8_t>& masks, std::size_t 
 }  // namespace
 
 std::uint32_t IndexedLevel::firstChild(std::uint32_t i) const {
+  assert(i < voxels_ && !childMasks.empty());
   const std::uint32_t group = i / kChildCountGroup * kChildCountGroup;
   std::uint64_t masks;
   std::memcpy(&masks, childMasks.data() + group, sizeof masks);
@@ -81,15 +83,27 @@ IndexedLevel::IndexedLevel(OctreeLevel&& level) {
 
 std::uint32_t IndexedLevel::children() const {
   const std::uint32_t n = voxels();
-  return n ? firstChild(n - 1) + std::uint32_t(std::popcount(unsigned(childMasks[n - 1]))) : 0;
+  return n && !childMasks.empty()
+             ? firstChild(n - 1) + std::uint32_t(std::popcount(unsigned(childMasks[n - 1])))
+             : 0;
 }
 
 std::uint64_t IndexedLevel::setChildMasks(std::vector<std::uint8_t>&& masks) {
   const std::size_t voxels = masks.size();
+  voxels_ = std::uint32_t(voxels);
+  if (std::all_of(masks.begin(), masks.end(), [](std::uint8_t m) { return m == 0; })) {
+    childMasks = {}, childCounts = {};  // no voxel has children: nothing to keep
+    return 0;
+  }
   childMasks = std::move(masks);
   childMasks.reserve(voxels + kChildCountGroup);  // exactly: a pool counts what its arrays hold
   childMasks.resize(voxels + kChildCountGroup, 0);
   return countChildren(childMasks, voxels, childCounts);
+}
+
+std::size_t IndexedLevel::childMaskBytes(const std::vector<std::uint8_t>& masks) {
+  return std::max(masks.capacity(), masks.size() + kChildCountGroup) +
+         (masks.size() / kChildCountGroup + 1) * sizeof(std::uint32_t);
 }
 
 std::size_t IndexedLevel::bytes() const {

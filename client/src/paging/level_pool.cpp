@@ -47,7 +47,7 @@ inline std::uint64_t presenceAt(const std::vector<std::uint64_t>& words, std::ui
 
 // One past the index of the last child of voxel i.
 std::uint32_t childEnd(const IndexedLevel& level, std::uint32_t i) {
-  return level.firstChild(i) + std::uint32_t(std::popcount(unsigned(level.childMasks[i])));
+  return level.firstChild(i) + std::uint32_t(std::popcount(unsigned(level.childMask(i))));
 }
 
 // A range of voxels of one level, in one region.
@@ -73,12 +73,12 @@ std::vector<VoxelRange> voxelsDownTo(const LevelRegion& root, int cubeLevel, glm
     if (level == cubeLevel) break;
     const int slot = childSlot(cube >> (cubeLevel - level - 1));
     const IndexedLevel& l = levelAt(*node.region, level);
-    if (!(l.childMasks[node.index] >> slot & 1))
+    if (!(l.childMask(node.index) >> slot & 1))
       throw std::logic_error("pager: a region's cube is not resident in its parent");
-    node.index = l.firstChild(node.index) + std::uint32_t(childRank(l.childMasks[node.index], slot));
+    node.index = l.firstChild(node.index) + std::uint32_t(childRank(l.childMask(node.index), slot));
   }
   const IndexedLevel& cubeVoxel = levelAt(*node.region, cubeLevel);
-  const std::uint8_t mask = cubeVoxel.childMasks[node.index];
+  const std::uint8_t mask = cubeVoxel.childMask(node.index);
   const std::uint32_t firstChild = cubeVoxel.firstChild(node.index);
   VoxelRange range{node.region, firstChild + std::uint32_t(childRank(mask, firstSlot)),
                    firstChild + std::uint32_t(childRank(mask, lastSlot + 1))};
@@ -93,7 +93,9 @@ std::vector<VoxelRange> voxelsDownTo(const LevelRegion& root, int cubeLevel, glm
     path.push_back(range);
     if (empty) continue;
     const IndexedLevel& l = levelAt(*range.region, level);
-    range = {range.region, l.firstChild(range.first), childEnd(l, range.end - 1)};
+    range = l.childMasks.empty()
+                ? VoxelRange{range.region, 0, 0}  // no voxel of the level has children
+                : VoxelRange{range.region, l.firstChild(range.first), childEnd(l, range.end - 1)};
   }
   path.push_back(range);
   return path;
@@ -109,7 +111,7 @@ std::vector<std::uint16_t> shownNormals(const LevelRegion& region, std::vector<s
     below.resize(region.levels[l + 1].voxels());
     std::uint32_t child = 0, present = 0;
     for (std::uint32_t i = 0; i < parents.voxels(); ++i)
-      for (int n = std::popcount(unsigned(parents.childMasks[i])); n > 0; --n, ++child)
+      for (int n = std::popcount(unsigned(parents.childMask(i))); n > 0; --n, ++child)
         below[child] = !own.words.empty() && (own.words[child / 64] >> (child % 64) & 1)
                            ? own.values[present++]
                            : shown[i];
@@ -137,13 +139,13 @@ std::vector<std::uint16_t> shownNormalsAlong(const LevelRegion& region,
     const IndexedLevel& level = region.levels[l];
     const PresentValues<std::uint16_t>& own = region.levels[l + 1].normals;
     below.assign(children.end - children.first, 0);
-    if (parents.first < parents.end) {
+    if (parents.first < parents.end && !level.childMasks.empty()) {
       // The children in range follow one another: their own values too.
       const bool hasOwn = !own.words.empty();
       std::uint32_t child = level.firstChild(parents.first),
                     present = hasOwn ? rankOf(own, children.first) : 0;
       for (std::uint32_t i = parents.first; i < parents.end; ++i)
-        for (int n = std::popcount(unsigned(level.childMasks[i])); n > 0; --n, ++child) {
+        for (int n = std::popcount(unsigned(level.childMask(i))); n > 0; --n, ++child) {
           if (child < children.first || child >= children.end) continue;
           below[child - children.first] = hasOwn && (own.words[child / 64] >> (child % 64) & 1)
                                               ? own.values[present++]
@@ -176,9 +178,10 @@ OctreeLevel parentsOf(const PresentValues<std::uint32_t>& contours, std::uint32_
 }  // namespace
 
 std::size_t LevelGrowth::bytes() const {
-  // A resident region's deepest masks take the place of its zeros; a new region adds a link to its parent.
-  std::size_t total = baseShownNormals.capacity() * sizeof(std::uint16_t) +
-                      (deepestMasks.empty() ? sizeof(LevelRegion::Link) : 0);
+  // A resident region's deepest level takes its masks (it held none); a new region adds a link to its parent.
+  std::size_t total =
+      baseShownNormals.capacity() * sizeof(std::uint16_t) +
+      (deepestMasks.empty() ? sizeof(LevelRegion::Link) : IndexedLevel::childMaskBytes(deepestMasks));
   for (const IndexedLevel& l : levels) total += l.bytes();
   return total;
 }

@@ -38,7 +38,9 @@ struct PresentValues {
 
 // One level's arrays with the counts a descent finds children and values by (level_arrays.hpp's groups).
 struct IndexedLevel {
-  std::vector<std::uint8_t> childMasks;           // per voxel, then a group of zeros (a whole group's load)
+  // Per voxel, then a group of zeros (a whole group's load). None where no voxel has children: a level at the
+  // store's finest, or a region's deepest until it grows, holds no masks and no counts.
+  std::vector<std::uint8_t> childMasks;
   std::vector<std::uint32_t> childCounts;         // children of the voxels before each kChildCountGroup
   PresentValues<std::uint32_t> contours, colors;  // colors ABGR
   PresentValues<std::uint16_t> normals;           // lattice codes (format.hpp)
@@ -47,13 +49,21 @@ struct IndexedLevel {
   // A decoded level's arrays, moved in; its parts without presence bits (a store without colors or normals)
   // stay empty. Throws std::invalid_argument when a part's values are not as many as its presence bits.
   explicit IndexedLevel(OctreeLevel&& level);
-  std::uint32_t voxels() const { return std::uint32_t(childMasks.size() - kChildCountGroup); }
+  std::uint32_t voxels() const { return voxels_; }
+  // Voxel i's child mask (0 on a level without masks).
+  std::uint8_t childMask(std::uint32_t i) const { return i < childMasks.size() ? childMasks[i] : 0; }
   // Sets the child masks (one per voxel, as many as there are) and counts them; returns the children.
   std::uint64_t setChildMasks(std::vector<std::uint8_t>&& masks);
-  // The level below's index of the first child of voxel i, and all the children its masks count.
+  // No less than what setChildMasks(masks) makes the level hold for its masks and counts.
+  static std::size_t childMaskBytes(const std::vector<std::uint8_t>& masks);
+  // The level below's index of the first child of voxel i (a level with masks), and all the children its
+  // masks count.
   std::uint32_t firstChild(std::uint32_t i) const;
   std::uint32_t children() const;
   std::size_t bytes() const;  // what its arrays hold
+
+ private:
+  std::uint32_t voxels_ = 0;
 };
 
 // A part of an octree as level arrays: the levels below a cube (or a run of its sub-cubes) from its *base*,
