@@ -79,7 +79,7 @@ std::vector<VoxelRange> voxelsDownTo(const LevelRegion& root, int cubeLevel, glm
   }
   const IndexedLevel& cubeVoxel = levelAt(*node.region, cubeLevel);
   const std::uint8_t mask = cubeVoxel.childMask(node.index);
-  const std::uint32_t firstChild = cubeVoxel.firstChild(node.index);
+  const std::uint32_t firstChild = mask ? cubeVoxel.firstChild(node.index) : 0;  // none: the range is empty
   VoxelRange range{node.region, firstChild + std::uint32_t(childRank(mask, firstSlot)),
                    firstChild + std::uint32_t(childRank(mask, lastSlot + 1))};
   for (int level = cubeLevel + 1; level < target; ++level) {
