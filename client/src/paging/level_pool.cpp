@@ -31,13 +31,6 @@ bool toMasks(LevelNode& node, int level) {
   return true;
 }
 
-// The values present before voxel i: find()'s index for a voxel that has one.
-template <class Value>
-std::uint32_t rankOf(const PresentValues<Value>& part, std::uint32_t i) {
-  const std::uint64_t below = (std::uint64_t(1) << (i % 64)) - 1;
-  return part.counts[i / 64] + std::uint32_t(std::popcount(part.words[i / 64] & below));
-}
-
 // The 64 presence bits from bit `at` on (PresentValues keeps a zero word past its last voxel's).
 inline std::uint64_t presenceAt(const std::vector<std::uint64_t>& words, std::uint32_t at) {
   const unsigned shift = at % 64;
@@ -142,8 +135,7 @@ std::vector<std::uint16_t> shownNormalsAlong(const LevelRegion& region,
     if (parents.first < parents.end && !level.childMasks.empty()) {
       // The children in range follow one another: their own values too.
       const bool hasOwn = !own.words.empty();
-      std::uint32_t child = level.firstChild(parents.first),
-                    present = hasOwn ? rankOf(own, children.first) : 0;
+      std::uint32_t child = level.firstChild(parents.first), present = hasOwn ? own.rank(children.first) : 0;
       for (std::uint32_t i = parents.first; i < parents.end; ++i)
         for (int n = std::popcount(unsigned(level.childMask(i))); n > 0; --n, ++child) {
           if (child < children.first || child >= children.end) continue;
@@ -168,7 +160,7 @@ OctreeLevel parentsOf(const PresentValues<std::uint32_t>& contours, std::uint32_
   if ((end - first) % 64) bits[(end - first) / 64] &= (std::uint64_t(1) << ((end - first) % 64)) - 1;
   level.contourBits.append(reinterpret_cast<const std::byte*>(bits.data()), level.voxels);
   level.shownContours.resize(level.voxels, 0);
-  std::uint32_t present = first < end ? rankOf(contours, first) : 0;
+  std::uint32_t present = first < end ? contours.rank(first) : 0;
   for (std::uint32_t i = first; i < end; ++i)
     if (contours.words[i / 64] >> (i % 64) & 1) level.shownContours[i - first] = contours.values[present++];
   level.shownNormalCodes = std::move(shown);

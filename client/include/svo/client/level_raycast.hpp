@@ -26,12 +26,15 @@ struct PresentValues {
   PresentValues() = default;
   // Throws std::invalid_argument when `values` are not as many as the bits that are set.
   PresentValues(const PresenceBits& bits, std::vector<Value>&& present);
+  // The values present before voxel i: its value's index, where it has one.
+  std::uint32_t rank(std::uint32_t i) const {
+    return counts[i / 64] +
+           std::uint32_t(std::popcount(words[i / 64] & ((std::uint64_t(1) << (i % 64)) - 1)));
+  }
   // Voxel i's value, where it has one.
   bool find(std::uint32_t i, Value& value) const {
-    const std::uint64_t word = words[i / 64];
-    const unsigned bit = i % 64;
-    if (!((word >> bit) & 1u)) return false;
-    value = values[counts[i / 64] + std::uint32_t(std::popcount(word & ((std::uint64_t(1) << bit) - 1)))];
+    if (!((words[i / 64] >> (i % 64)) & 1u)) return false;
+    value = values[rank(i)];
     return true;
   }
 };
