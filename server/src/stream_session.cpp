@@ -21,6 +21,7 @@ constexpr std::chrono::seconds kHandshakeTimeout{30};
 // A client that sends nothing, not even the answer to a ping (sent after half of it), for this long is
 // gone: its stream closes and its window's bytes are let go.
 constexpr std::chrono::seconds kIdleTimeout{30};
+constexpr const char* kStoppingReason = "the server is stopping";
 // A WebSocket close reason holds at most 123 bytes (RFC 6455 sec. 5.5: control frames carry 125).
 constexpr std::size_t kMaxCloseReasonBytes = 123;
 
@@ -64,15 +65,20 @@ void StreamSession::start(Request request) {
       [](websocket::response_type& res) { res.set(http::field::server, "svostream"); }));
   ws_.read_message_max(stream::maxClientMessageBytes(scene_->index->slices().size()));
   ws_.auto_fragment(false);  // one frame per slice: one gather write of its header and bytes
+  handshaking_ = true;
+  if (context_.stopping)  // stopAll may have missed it, added after it looked: it closes after the handshake
+    closeNow(websocket::close_code::going_away, kStoppingReason);
   ws_.async_accept(request, [self = shared_from_this()](beast::error_code ec) {
+    self->handshaking_ = false;
     if (ec) return self->end(ec);
+    if (self->closeIfPending()) return;  // the server stopped during the handshake
     self->read();
   });
 }
 
 void StreamSession::stop() {
   net::post(ws_.get_executor(), [self = shared_from_this()] {
-    self->closeNow(websocket::close_code::going_away, "the server is stopping");
+    self->closeNow(websocket::close_code::going_away, kStoppingReason);
   });
 }
 
@@ -200,12 +206,15 @@ void StreamSession::writeNextSlice() {
 void StreamSession::onWrite(beast::error_code ec) {
   writing_ = false;
   if (ec) return end(ec);
-  if (closing_) {
-    closing_ = false;
-    return closeNow(websocket::close_code(pendingClose_.code),
-                    std::string(pendingClose_.reason.data(), pendingClose_.reason.size()));
-  }
-  pump();
+  if (!closeIfPending()) pump();
+}
+
+bool StreamSession::closeIfPending() {
+  if (!closing_) return false;
+  closing_ = false;
+  closeNow(websocket::close_code(pendingClose_.code),
+           std::string(pendingClose_.reason.data(), pendingClose_.reason.size()));
+  return true;
 }
 
 void StreamSession::refuse(websocket::close_code code, const std::string& why) {
@@ -216,7 +225,7 @@ void StreamSession::refuse(websocket::close_code code, const std::string& why) {
 void StreamSession::closeNow(websocket::close_code code, std::string reason) {
   if (closed_) return;
   if (reason.size() > kMaxCloseReasonBytes) reason.resize(kMaxCloseReasonBytes);
-  if (writing_) {  // at the end of the message being written: a frame is never cut
+  if (writing_ || handshaking_) {  // after it: a frame is never cut, nor the handshake
     closing_ = true;
     pendingClose_ = websocket::close_reason(code, reason);
     return;

@@ -1,9 +1,9 @@
-// One client's view stream (svo/store/view_stream.hpp for the messages): a WebSocket over the connection an upgrade
-// request came on. Each view the client sends replaces the plan (planSlices: the shared scheduler, within the
-// client's budget, less what this connection already sent or the client holds); the session writes the plan's slices
-// one message at a time, most valuable first, while the bytes the client has not acknowledged stay within the stream
-// window. Slices a client's fetch waits for go before the rest of the plan. Everything runs on the connection's one
-// I/O thread.
+// One client's view stream (svo/store/view_stream.hpp for the messages): a WebSocket over the connection an
+// upgrade request came on. Each view the client sends replaces the plan (planSlices: the shared scheduler,
+// within the client's budget, less what this connection already sent or the client holds); the session writes
+// the plan's slices one message at a time, most valuable first, while the bytes the client has not
+// acknowledged stay within the stream window. Slices a client's fetch waits for go before the rest of the
+// plan. Everything runs on the connection's one I/O thread.
 #pragma once
 
 #include <array>
@@ -53,7 +53,10 @@ class StreamSession final : public Connection, public std::enable_shared_from_th
   void writeNextSlice();
   void onWrite(boost::beast::error_code ec);
   void refuse(boost::beast::websocket::close_code code, const std::string& why);
+  // Closes with `code` and `reason`, or once the handshake or the message being written is out.
   void closeNow(boost::beast::websocket::close_code code, std::string reason);
+  // Starts the close that closeNow put off, if it did; true if so.
+  bool closeIfPending();
   void end(boost::beast::error_code ec);
 
   boost::beast::websocket::stream<boost::beast::tcp_stream> ws_;
@@ -67,8 +70,8 @@ class StreamSession final : public Connection, public std::enable_shared_from_th
   std::uint64_t view_ = 0;  // the plan's view id
   bool haveView_ = false;
   std::vector<std::uint32_t> plan_;
-  std::size_t next_ = 0;    // plan_'s next slice to write
-  std::vector<bool> sent_;  // by slice: written on this connection, or held by the client
+  std::size_t next_ = 0;               // plan_'s next slice to write
+  std::vector<bool> sent_;             // by slice: written on this connection, or held by the client
   std::vector<std::uint32_t> wanted_;  // asked for first but in no plan yet: first in the next one
   std::deque<std::string> texts_;
   std::uint64_t sentBytes_ = 0, ackedBytes_ = 0;  // slice frames' bytes, as the client acknowledges them
@@ -78,7 +81,9 @@ class StreamSession final : public Connection, public std::enable_shared_from_th
   std::array<std::byte, stream::kSliceFrameHeaderBytes> frameHeader_{};
   std::shared_ptr<const SliceBytes> slice_;
   bool writing_ = false;
-  bool closing_ = false;  // close once the message being written is out, with pendingClose_
+  // The upgrade's answer is being written; Beast allows no other operation on the stream meanwhile.
+  bool handshaking_ = false;
+  bool closing_ = false;  // close once the handshake or the message being written is out, with pendingClose_
   bool closed_ = false;   // the close handshake started or the connection failed: nothing more is written
   boost::beast::websocket::close_reason pendingClose_;
 

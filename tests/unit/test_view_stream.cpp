@@ -10,6 +10,9 @@
 #include <filesystem>
 #include <fstream>
 #include <optional>
+#include <thread>
+
+#include <unistd.h>
 
 #include <boost/asio/connect.hpp>
 #include <boost/asio/io_context.hpp>
@@ -498,4 +501,28 @@ TEST_F(ViewStream, CorruptSliceIsNamedAndTheRestIsSent) {
   EXPECT_EQ(errors, 1u);
   EXPECT_EQ(slices, plan.plan.size() - 1);
   EXPECT_EQ(metric("svo_corrupt_slices_total"), 1.0);
+}
+
+// The server stops while upgrades are in flight: a stream whose handshake is still being answered closes
+// after it (Beast allows no other operation on the stream during it), and the server stops.
+TEST_F(ViewStream, ServerStopsWhileUpgradesAreInFlight) {
+  const std::string upgrade =
+      "GET /scene/stream HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n";
+  // Rounds, each stopping a little later after the upgrades were sent.
+  constexpr int kRounds = 100;
+  for (int round = 0; round < kRounds; ++round) {
+    start();
+    std::vector<int> sockets;
+    for (int c = 0; c < 8; ++c) {
+      sockets.push_back(svotest::connectRaw(port()));
+      ASSERT_TRUE(svotest::sendRaw(sockets.back(), upgrade));
+    }
+    std::this_thread::sleep_for(std::chrono::microseconds(25 * (round % 20)));
+    std::thread stopping([&] { stopServer(); });
+    // The clients go without answering the close, so that the server need not wait out its grace.
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    for (const int fd : sockets) ::close(fd);
+    stopping.join();
+  }
 }
