@@ -38,16 +38,6 @@ std::uint64_t countChildren(const std::vector<std::uint8_t>& masks, std::size_t 
 
 }  // namespace
 
-std::uint32_t IndexedLevel::firstChild(std::uint32_t i) const {
-  assert(i < voxels_ && !childMasks.empty());
-  const std::uint32_t group = i / kChildCountGroup * kChildCountGroup;
-  std::uint64_t masks;
-  std::memcpy(&masks, childMasks.data() + group, sizeof masks);
-  const unsigned before = 8 * (i - group);  // bits of the masks before voxel i in its group
-  masks = before ? masks & ((std::uint64_t(1) << before) - 1) : 0;
-  return childCounts[i / kChildCountGroup] + std::uint32_t(std::popcount(masks));
-}
-
 template <class Value>
 PresentValues<Value>::PresentValues(const PresenceBits& bits, std::vector<Value>&& present)
     : values(std::move(present)) {
@@ -66,7 +56,6 @@ PresentValues<Value>::PresentValues(const PresenceBits& bits, std::vector<Value>
 template struct PresentValues<std::uint32_t>;
 template struct PresentValues<std::uint16_t>;
 
-static_assert(kChildCountGroup == 8, "firstChild loads a group's masks as one 64-bit word");
 static_assert(kPresenceCountGroup == 64, "PresentValues::find counts within one 64-bit presence word");
 
 IndexedLevel::IndexedLevel(OctreeLevel&& level) {

@@ -1,4 +1,4 @@
-// Frames from level arrays (level_raycast.hpp): castRay per pixel over the renderer's tiles, each tile's rays
+// Frames from level arrays (level_raycast.hpp): castPacket over the renderer's tiles, each tile's rays
 // started where its beam pass (beam.hpp) says, and shaded as a block's frame is (frame_shading.hpp), so that
 // the same hits give the same pixels.
 #include <atomic>
@@ -41,49 +41,32 @@ Frame render(const LevelRegion& root, const StoreHeader& header, const SceneTran
   inArena(options.threads, [&] {
     clearFrame(frame, glm::vec4(options.background, 0.0f));
     forEachTile(camera.width, camera.height, renderTileSize(options), 0, [&](const PixelTile& tile) {
-      float tStart = 0.0f;
-      if (options.beamTile > 0) {
-        tStart = castBeam(root, rays, tile).tStart;
-        if (!(tStart < std::numeric_limits<float>::infinity())) return;  // no ray of the tile hits
-      }
       ShadingBatch batch(frame, shading, scene.size, pixelAngle, shading.hasColor, shading.hasNormal);
-      std::uint64_t tileIterations = 0;
-      // Rays a packet's lanes at a time, as castTile makes them (PixelRays::packet computes every lane).
-      double across[kPacketLanes], down[kPacketLanes];
-      int xs[kPacketLanes], ys[kPacketLanes];
-      OctreeRay packet[kPacketLanes];
-      int count = 0;
-      const auto castPacket = [&] {
-        rays.packet(across, down, count, tStart, packet);
-        for (int k = 0; k < count; ++k) {
-          const OctreeRay& ray = packet[k];
-          const LevelCastHit hit = castRay(root, ray, options.cast);
-          tileIterations += std::uint64_t(hit.iterations);
-          const std::size_t i = std::size_t(ys[k]) * std::size_t(camera.width) + std::size_t(xs[k]);
-          if (!frame.iterations.empty())
-            frame.iterations[i] = std::uint16_t(std::min(hit.iterations, 0xFFFF));
-          if (!hit.hit) continue;
-          if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
-          const int b = batch.add(i, ray.direction, hit.t, hit.voxelSize());
-          const LevelHitValues values = hitValues(hit, shading.hasColor, shading.hasNormal);
-          if (shading.hasColor)
-            batch.setColor(b, values.color);
-          else
-            batch.setColor(b, glm::vec3(kNeutralGreyAlbedo));
-          if (shading.hasNormal)
-            batch.setNormal(b, values.normal);
-          else
-            batch.setNormal(b, estimateNormal(hit.position, hit.cubeMin, hit.voxelSize(),
-                                              shading.contours ? hitContour(hit) : std::nullopt));
-        }
-        count = 0;
+      const auto index = [&](int x, int y) {
+        return std::size_t(y) * std::size_t(camera.width) + std::size_t(x);
       };
-      for (int y = tile.y0; y < tile.y1; ++y)
-        for (int x = tile.x0; x < tile.x1; ++x) {
-          across[count] = rays.across(x), down[count] = rays.down(y), xs[count] = x, ys[count] = y;
-          if (++count == kPacketLanes) castPacket();
-        }
-      if (count > 0) castPacket();
+      const auto keepIterations = [&](int x, int y, const LevelCastHit& hit) {
+        if (!frame.iterations.empty())
+          frame.iterations[index(x, y)] = std::uint16_t(std::min(hit.iterations, 0xFFFF));
+      };
+      const auto onHit = [&](int x, int y, const OctreeRay& ray, const LevelCastHit& hit) {
+        const std::size_t i = index(x, y);
+        keepIterations(x, y, hit);
+        if (!frame.lodStopped.empty()) frame.lodStopped[i] = std::uint8_t(!hit.leaf);
+        const int b = batch.add(i, ray.direction, hit.t, hit.voxelSize());
+        const LevelHitValues values = hitValues(hit, shading.hasColor, shading.hasNormal);
+        if (shading.hasColor)
+          batch.setColor(b, values.color);
+        else
+          batch.setColor(b, glm::vec3(kNeutralGreyAlbedo));
+        if (shading.hasNormal)
+          batch.setNormal(b, values.normal);
+        else
+          batch.setNormal(b, estimateNormal(hit.position, hit.cubeMin, hit.voxelSize(),
+                                            shading.contours ? hitContour(hit) : std::nullopt));
+      };
+      const std::uint64_t tileIterations =
+          castTile(root, rays, tile, options.beamTile > 0, options.cast, onHit, keepIterations);
       batch.flush();
       iterations.fetch_add(tileIterations, std::memory_order_relaxed);
     });

@@ -3,7 +3,9 @@
 // iteration (the loop's control, a shared descent's descriptor and contour) is shared by every lane, so 16
 // lanes cast more rays per instruction than 8, and 32 (two 16-lane halves, packet_halves.inl) more than 16,
 // where neighbouring pixels stay together. Lane-wise choices go through select(), which both vector kinds
-// define. No includes here other than that one.
+// define. The loop reads the octree through a lane descent (BlockLanes: a block's descriptors; LevelLanes:
+// level arrays), as castRay's loop does through BlockDescent or LevelDescent. No includes here other than
+// packet_halves.inl.
 constexpr int N = kLanes;
 #ifdef SVO_PACKET_HALVES
 #include "packet_halves.inl"
@@ -48,8 +50,10 @@ inline bool any(Ints mask) {
   return lanesOf(mask) != 0;
 }
 
-// castRay's state, one lane per ray (names as in castRay). No member initializers: start() sets every one
-// (GCC 12 fails to compile the implicit constructor of 256-bit members at -O0).
+// castRay's state, one lane per ray (names as in castRay), over the octree lane descent D reads. No member
+// initializers: start() sets every one (GCC 12 fails to compile the implicit constructor of 256-bit members
+// at -O0).
+template <class D>
 struct Lanes {
   // The mirrored rays' constants.
   Floats tx_coef, ty_coef, tz_coef, tx_bias, ty_bias, tz_bias, dx, dy, dz, slope, origin;
@@ -57,23 +61,40 @@ struct Lanes {
   // The loop's state.
   Floats t_min, t_max, scale_exp2, px, py, pz;
   Ints idx, scale, iterations, active, found;
-  const ChildDescriptor* parent[N];
-  Ints topology, contourWord;  // each lane's parent descriptor's words, reloaded where it changes
-  RayStackEntry stack[N][kScaleMax + 1];
+  typename D::Node parent[N];
+  // Each lane's parent's words (D::Words), reloaded where it changes: its valid mask in topology's [15:8];
+  // in contourWord's [7:0] its children with a contour, by slot, and in [31:8] where their contours start
+  // past the lane's contour base.
+  Ints topology, contourWord;
+  typename D::Extra extra;  // what else D keeps per lane
+  RayStackEntryOf<typename D::Node> stack[N][kScaleMax + 1];
 };
 
-// castRay's set-up for each ray; lanes past `count` and rays that cannot hit start inactive.
-[[gnu::always_inline]] inline void start(Lanes& s, const BlockView& block, const OctreeRay* rays, int count,
-                                         CastHit* hits) {
+// Lane l's parent becomes `node`, with its words `w`.
+template <class D>
+[[gnu::always_inline]] inline void setParent(Lanes<D>& s, int l, typename D::Node node,
+                                             const typename D::Words& w) {
+  s.parent[l] = node;
+  s.topology[l] = w.topology, s.contourWord[l] = w.contour;
+  D::setExtra(s.extra, l, w);
+}
+
+// castRay's set-up for each ray from `root` (whose children are at scale kScaleMax - 1); lanes past `count`
+// and rays that cannot hit start inactive.
+template <class D>
+[[gnu::always_inline]] inline void start(Lanes<D>& s, typename D::Node root, const OctreeRay* rays, int count,
+                                         typename D::Hit* hits) {
   const Floats zero{};
   s.tx_coef = s.ty_coef = s.tz_coef = s.tx_bias = s.ty_bias = s.tz_bias = zero;
   s.dx = s.dy = s.dz = s.slope = s.origin = s.t_min = s.t_max = s.scale_exp2 = s.px = s.py = s.pz = zero;
   s.octantMask = s.idx = s.scale = s.iterations = s.active = s.found = Ints{};
-  s.topology = Ints{} + std::int32_t(block.root()->topology);
-  s.contourWord = Ints{} + std::int32_t(block.root()->contour);
+  const typename D::Words rootWords = D::wordsOf(root, kScaleMax - 1);
+  s.topology = Ints{} + rootWords.topology;
+  s.contourWord = Ints{} + rootWords.contour;
   for (int l = 0; l < N; ++l) {
-    s.parent[l] = block.root();
-    if (l < count) new (&hits[l]) CastHit;  // as castRay's: the path arrays are written by each PUSH
+    s.parent[l] = root;
+    D::setExtra(s.extra, l, rootWords);
+    if (l < count) new (&hits[l]) typename D::Hit;  // as castRay's: the path arrays are written by each PUSH
     MirroredRay m;
     if (l >= count || !mirrorRay(rays[l], m)) continue;
     s.active[l] = -1;
@@ -99,7 +120,8 @@ struct Lanes {
 }
 
 // clipToContour for the `clip` lanes, given each lane's decoded contour: raises t_min, lowers tv_max.
-[[gnu::always_inline]] inline void clipLanes(const Lanes& s, Ints clip, Floats nx, Floats ny, Floats nz,
+template <class D>
+[[gnu::always_inline]] inline void clipLanes(const Lanes<D>& s, Ints clip, Floats nx, Floats ny, Floats nz,
                                              Floats position, Floats thickness, Floats tx_center,
                                              Floats ty_center, Floats tz_center, Floats& t_min,
                                              Floats& tv_max) {
@@ -118,21 +140,21 @@ struct Lanes {
 }
 
 #ifdef SVO_PACKET_AVX512
-// Word offset[l] after parents[l] for the 16 `mask` lanes of one register, 0 elsewhere: hardware gathers of 8
+// Word offset[l] after bases[l] for the 16 `mask` lanes of one register, 0 elsewhere: hardware gathers of 8
 // lanes each over the 64-bit addresses (a lane-by-lane loop would store each word and reload the vector).
 using Ints16 = std::int32_t __attribute__((vector_size(64)));
 using Ints8 = std::int32_t __attribute__((vector_size(32)));
 using Addresses8 = std::int64_t __attribute__((vector_size(64)));
 // Vector extensions and zero-masked intrinsics: those that leave lanes undefined make GCC 12 warn.
-[[gnu::always_inline]] inline Ints16 wordsAt16(const ChildDescriptor* const* parents, Ints16 offset,
-                                               Ints16 mask) {
+template <class P>
+[[gnu::always_inline]] inline Ints16 wordsAt16(const P* const* bases, Ints16 offset, Ints16 mask) {
   const __mmask16 lanes = _mm512_movepi32_mask(__m512i(mask));
   const Ints8 offsets[2] = {__builtin_shufflevector(offset, offset, 0, 1, 2, 3, 4, 5, 6, 7),
                             __builtin_shufflevector(offset, offset, 8, 9, 10, 11, 12, 13, 14, 15)};
   Ints8 words[2];
   for (int h = 0; h < 2; ++h) {
     Addresses8 address;
-    std::memcpy(&address, parents + 8 * h, sizeof address);
+    std::memcpy(&address, bases + 8 * h, sizeof address);
     address += Addresses8(_mm512_maskz_cvtepi32_epi64(0xFF, __m256i(offsets[h]))) << 2;
     words[h] = Ints8(_mm512_mask_i64gather_epi32(__m256i(Ints8{}), __mmask8(lanes >> (8 * h)),
                                                  __m512i(address), nullptr, 1));
@@ -172,30 +194,32 @@ using Floats16 = float __attribute__((vector_size(64)));
 #endif
 }
 
-// Word offset[l] after the lane's parent descriptor for the `mask` lanes, 0 elsewhere.
-[[gnu::always_inline]] inline Ints wordsAt(const ChildDescriptor* const* parents, Ints offset, Ints mask) {
+// The 32-bit word offset[l] after the lane's base bases[l] for the `mask` lanes, 0 elsewhere.
+template <class P>
+[[gnu::always_inline]] inline Ints wordsAt(const P* const* bases, Ints offset, Ints mask) {
 #if defined(SVO_PACKET_HALVES)
-  return {wordsAt16(parents, offset.lo, mask.lo), wordsAt16(parents + 16, offset.hi, mask.hi)};
+  return {wordsAt16(bases, offset.lo, mask.lo), wordsAt16(bases + 16, offset.hi, mask.hi)};
 #elif defined(SVO_PACKET_AVX512)
-  return wordsAt16(parents, offset, mask);
+  return wordsAt16(bases, offset, mask);
 #else
   Ints words{};
   for (unsigned lanes = lanesOf(mask); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
-    words[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(parents[l])[offset[l]]);
+    words[l] = std::int32_t(reinterpret_cast<const std::uint32_t*>(bases[l])[offset[l]]);
   }
   return words;
 #endif
 }
 
 // clipToContour for the `clip` lanes: their contour words loaded and decoded as decodeContour decodes one.
-[[gnu::always_inline]] inline void clipToContours(Lanes& s, Ints clip, Ints contourWord, Ints slot,
+template <class D>
+[[gnu::always_inline]] inline void clipToContours(Lanes<D>& s, Ints clip, Ints contourWord, Ints slot,
                                                   Floats tx_center, Floats ty_center, Floats tz_center,
                                                   Floats& tv_max) {
-  // Words from the parent: the contour pointer ([31:8]), then the rank among the children with a contour (the
-  // mask, [7:0]).
+  // Past the lane's contour base: where its children's contours start ([31:8]), then the rank among the
+  // children with a contour (the mask, [7:0]).
   const Ints offset = ((contourWord >> 8) & 0xFFFFFF) + childRanks(contourWord & 0xFF, slot);
-  const Ints bits = wordsAt(s.parent, offset, clip);
+  const Ints bits = wordsAt(D::contourBases(s), offset, clip);
   const Floats nx = contourNormalComponents(bits >> 26);
   const Floats ny = contourNormalComponents((bits << 6) >> 26);
   const Floats nz = contourNormalComponents((bits << 12) >> 26);
@@ -204,43 +228,25 @@ using Floats16 = float __attribute__((vector_size(64)));
   clipLanes(s, clip, nx, ny, nz, position, thickness, tx_center, ty_center, tz_center, s.t_min, tv_max);
 }
 
-// The child each `meets` lane enters: a leaf (or a stub) is the lane's hit, else PUSH. Returns the lanes
-// that pushed.
-[[gnu::always_inline]] inline Ints push(Lanes& s, Ints meets, Ints topology, Ints slot, bool recordPath,
-                                        CastHit* hits) {
-  // BlockView::child's arithmetic for every lane at once (ChildDescriptor's fields: [31:17] child pointer,
-  // [16] far, [15:8] valid mask, [7:0] leaf mask): the run's near pointer and the child's rank among the
-  // non-leaf children.
-  const Ints nonLeafMask = (topology >> 8) & ~topology & 0xFF;
-  const Ints nonLeaf = -((nonLeafMask >> slot) & 1);
-  const Ints rank = childRanks(nonLeafMask, slot);
-  const Ints runOffset = ((topology >> 17) & 0x7FFF) + rank;
+// The child each `meets` lane enters: where the lane descent finds none to enter (a leaf, a stub, a voxel
+// without resident children) it is the lane's hit, else PUSH. Returns the lanes that pushed.
+template <class D>
+[[gnu::always_inline]] inline Ints push(Lanes<D>& s, Ints meets, Ints slot, bool recordPath,
+                                        typename D::Hit* hits) {
   Ints pushed{};
   for (unsigned lanes = lanesOf(meets); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
-    const ChildDescriptor* child = nullptr;
-    if (nonLeaf[l]) {
-      child = s.parent[l] + runOffset[l];
-      if (topology[l] & std::int32_t(ChildDescriptor::kFarBit))  // the run is where the far slot says
-        child += *reinterpret_cast<const std::int32_t*>(child - rank[l]);
-      child = followLink(child);
-    }
-    if (!child || child->isStub()) {
+    typename D::Node child;
+    if (!D::child(s, l, slot[l], child)) {
       s.found[l] = -1;
       s.active[l] = 0;
       hits[l].leaf = true;
       continue;
     }
-    prefetchBelow(child);
-    s.topology[l] = std::int32_t(child->topology);
-    s.contourWord[l] = std::int32_t(child->contour);
     const int scale = s.scale[l];
     s.stack[l][scale] = {s.parent[l], s.t_max[l]};
-    if (recordPath) {
-      hits[l].pathParent[scale] = s.parent[l];
-      hits[l].pathSlot[scale] = std::uint8_t(slot[l]);
-    }
-    s.parent[l] = child;
+    if (recordPath) D::Scalar::recordPath(hits[l], scale, s.parent[l], slot[l]);
+    setParent(s, l, child, D::wordsOf(child, scale - 1));
     pushed[l] = -1;
   }
   return pushed;
@@ -248,7 +254,8 @@ using Floats16 = float __attribute__((vector_size(64)));
 
 // The rest of PUSH for the `pushed` lanes: one scale down, into the child cube holding the ray at t_min (the
 // ray is past a child's centre plane on each axis where that plane's t-value is not above t_min).
-[[gnu::always_inline]] inline void enterChildren(Lanes& s, Ints pushed, Floats half, Floats tx_center,
+template <class D>
+[[gnu::always_inline]] inline void enterChildren(Lanes<D>& s, Ints pushed, Floats half, Floats tx_center,
                                                  Floats ty_center, Floats tz_center, Floats tv_max) {
   s.scale -= pushed & 1;
   s.scale_exp2 = select(pushed, half, s.scale_exp2);
@@ -264,7 +271,8 @@ using Floats16 = float __attribute__((vector_size(64)));
 // POP for the `pop` lanes, which left their parent: the new scale from the highest differing bit. Only the
 // stack is read lane by lane. Positions are positive, so no sign bit differs and the signed conversion is
 // castRay's unsigned one.
-[[gnu::always_inline]] inline void pop(Lanes& s, Ints pop, Ints step_mask) {
+template <class D>
+[[gnu::always_inline]] inline void pop(Lanes<D>& s, Ints pop, Ints step_mask) {
   const Ints none{};
   const Ints differing_bits = select((step_mask & 1) != 0, bitsOf(s.px) ^ bitsOf(s.px + s.scale_exp2), none) |
                               select((step_mask & 2) != 0, bitsOf(s.py) ^ bitsOf(s.py + s.scale_exp2), none) |
@@ -283,10 +291,9 @@ using Floats16 = float __attribute__((vector_size(64)));
   s.idx = select(pop, (shx & 1) | ((shy & 1) << 1) | ((shz & 1) << 2), s.idx);
   for (unsigned lanes = lanesOf(pop); lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
-    s.parent[l] = s.stack[l][scale[l]].parent;
+    const typename D::Node parent = s.stack[l][scale[l]].parent;
     s.t_max[l] = s.stack[l][scale[l]].t_max;
-    s.topology[l] = std::int32_t(s.parent[l]->topology);
-    s.contourWord[l] = std::int32_t(s.parent[l]->contour);
+    setParent(s, l, parent, D::wordsOf(parent, scale[l]));
   }
 }
 
@@ -296,17 +303,18 @@ using Floats16 = float __attribute__((vector_size(64)));
 // child are looked up once for all of them, and no lane's decision branches. A lane in another slot, or whose
 // iteration would do anything else (advance, stop by level of detail, the iteration cap, a contour that
 // misses), leaves the group with its state untouched, and the loop goes on from there.
-[[gnu::always_inline]] inline void descendTogether(Lanes& s, const CastOptions& options, bool recordPath,
-                                                   CastHit* hits) {
+template <class D>
+[[gnu::always_inline]] inline void descendTogether(Lanes<D>& s, const CastOptions& options, bool recordPath,
+                                                   typename D::Hit* hits) {
   Ints together = s.active;
   while (any(together)) {
     const int leader = __builtin_ctz(lanesOf(together));
     const Ints slots = s.idx ^ s.octantMask ^ 7;
     const int slot = slots[leader];
-    const ChildDescriptor* parent = s.parent[leader];   // every lane of the group has it
-    if (!(parent->nonLeafMask() >> slot & 1u)) return;  // empty or a leaf: the loop's iteration decides
-    const ChildDescriptor* child = BlockView::child(parent, slot);
-    if (child->isStub()) return;
+    const typename D::Node parent = s.parent[leader];  // every lane of the group has it
+    typename D::Node child;
+    // Empty, or nothing to enter: the loop's iteration decides.
+    if (!(s.topology[leader] >> 8 >> slot & 1) || !D::child(s, leader, slot, child)) return;
     together &= (slots == slot) & (s.iterations < options.maxIterations) & (s.t_min <= s.t_max);
     const Floats tx_corner = s.px * s.tx_coef - s.tx_bias;
     const Floats ty_corner = s.py * s.ty_coef - s.ty_bias;
@@ -318,8 +326,7 @@ using Floats16 = float __attribute__((vector_size(64)));
     const Floats tx_center = half * s.tx_coef + tx_corner;
     const Floats ty_center = half * s.ty_coef + ty_corner;
     const Floats tz_center = half * s.tz_coef + tz_corner;
-    if (options.contours && (parent->contourMask() >> slot & 1u)) {
-      const Contour c = contourOf(parent, *parent, slot);
+    if (Contour c; options.contours && D::contour(s, leader, slot, c)) {
       const Floats none{};
       clipLanes(s, together, none + c.normal.x, none + c.normal.y, none + c.normal.z, none + c.position,
                 none + c.thickness, tx_center, ty_center, tz_center, t_min, tv_max);
@@ -327,19 +334,17 @@ using Floats16 = float __attribute__((vector_size(64)));
     together &= t_min <= tv_max;
     if (!any(together)) return;
     // PUSH
-    prefetchBelow(child);
     const int scale = s.scale[leader];
+    const typename D::Words words = D::wordsOf(child, scale - 1);
     for (unsigned lanes = lanesOf(together); lanes != 0; lanes &= lanes - 1) {
       const int l = __builtin_ctz(lanes);
       s.stack[l][scale] = {parent, s.t_max[l]};
-      if (recordPath) {
-        hits[l].pathParent[scale] = parent;
-        hits[l].pathSlot[scale] = std::uint8_t(slot);
-      }
+      if (recordPath) D::Scalar::recordPath(hits[l], scale, parent, slot);
       s.parent[l] = child;
+      D::setExtra(s.extra, l, words);
     }
-    s.topology = select(together, Ints{} + std::int32_t(child->topology), s.topology);
-    s.contourWord = select(together, Ints{} + std::int32_t(child->contour), s.contourWord);
+    s.topology = select(together, Ints{} + words.topology, s.topology);
+    s.contourWord = select(together, Ints{} + words.contour, s.contourWord);
     s.iterations -= together;
     s.t_min = select(together, t_min, s.t_min);
     enterChildren(s, together, half, tx_center, ty_center, tz_center, tv_max);
@@ -347,7 +352,9 @@ using Floats16 = float __attribute__((vector_size(64)));
 }
 
 // castRay's loop for each `lanes` lane from where the lane is, one lane after another.
-[[gnu::noinline]] void finishAlone(Lanes& s, unsigned lanes, const CastOptions& options, CastHit* hits) {
+template <class D>
+[[gnu::noinline]] void finishAlone(Lanes<D>& s, unsigned lanes, const CastOptions& options,
+                                   typename D::Hit* hits) {
   for (; lanes != 0; lanes &= lanes - 1) {
     const int l = __builtin_ctz(lanes);
     MirroredRay m;
@@ -355,15 +362,16 @@ using Floats16 = float __attribute__((vector_size(64)));
     m.tx_coef = s.tx_coef[l], m.ty_coef = s.ty_coef[l], m.tz_coef = s.tz_coef[l];
     m.tx_bias = s.tx_bias[l], m.ty_bias = s.ty_bias[l], m.tz_bias = s.tz_bias[l];
     m.octant_mask = s.octantMask[l];
-    RayState r{.parent = s.parent[l],
-               .pos = glm::vec3(s.px[l], s.py[l], s.pz[l]),
-               .scale_exp2 = s.scale_exp2[l],
-               .t_min = s.t_min[l],
-               .t_max = s.t_max[l],
-               .idx = s.idx[l],
-               .scale = s.scale[l],
-               .iterations = s.iterations[l]};
-    s.found[l] = continueRay(m, s.slope[l], s.origin[l], options, r, s.stack[l], hits[l]) ? -1 : 0;
+    RayStateOf<typename D::Node> r{.parent = s.parent[l],
+                                   .pos = glm::vec3(s.px[l], s.py[l], s.pz[l]),
+                                   .scale_exp2 = s.scale_exp2[l],
+                                   .t_min = s.t_min[l],
+                                   .t_max = s.t_max[l],
+                                   .idx = s.idx[l],
+                                   .scale = s.scale[l],
+                                   .iterations = s.iterations[l]};
+    s.found[l] =
+        continueRay<typename D::Scalar>(m, s.slope[l], s.origin[l], options, r, s.stack[l], hits[l]) ? -1 : 0;
     s.active[l] = 0;
     s.parent[l] = r.parent;
     s.px[l] = r.pos.x, s.py[l] = r.pos.y, s.pz[l] = r.pos.z;
@@ -372,11 +380,12 @@ using Floats16 = float __attribute__((vector_size(64)));
   }
 }
 
-void castLanes(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
-               CastHit* hits) {
+template <class D>
+void castLanes(typename D::Node root, const OctreeRay* rays, int count, const CastOptions& options,
+               typename D::Hit* hits) {
   const bool recordPath = options.recordPath;  // read once: the stores into `hits` might alias `options`
-  Lanes s;
-  start(s, block, rays, count, hits);
+  Lanes<D> s;
+  start(s, root, rays, count, hits);
   descendTogether(s, options, recordPath, hits);
   while (any(s.active)) {
     if (const unsigned lanes = lanesOf(s.active); std::popcount(lanes) <= kAloneLanes) {
@@ -412,7 +421,7 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
     const Ints clip = intersect & contoured;
     if (any(clip)) clipToContours(s, clip, contourWord, slot, tx_center, ty_center, tz_center, tv_max);
 
-    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), topology, slot, recordPath, hits);
+    const Ints pushed = push(s, intersect & (s.t_min <= tv_max), slot, recordPath, hits);
     if (any(pushed)) enterChildren(s, pushed, half, tx_center, ty_center, tz_center, tv_max);
 
     // ADVANCE the others: step to the next cube of the same scale along the ray.
@@ -436,4 +445,81 @@ void castLanes(const BlockView& block, const OctreeRay* rays, int count, const C
       completeHit(rays[l], s.octantMask[l], glm::vec3(s.px[l], s.py[l], s.pz[l]), s.scale_exp2[l], s.scale[l],
                   s.t_min[l], s.parent[l], s.idx[l], hits[l]);
   }
+}
+
+// A block's descriptors lane by lane: a lane's words are its parent descriptor's, whose contour pointer
+// counts from the descriptor itself (BlockDescent reads them the same way one ray at a time).
+struct BlockLanes {
+  using Node = const ChildDescriptor*;
+  using Hit = CastHit;
+  using Scalar = BlockDescent;
+  struct Words {
+    std::int32_t topology, contour;
+  };
+  struct Extra {};
+  static Words wordsOf(Node node, int /*scale*/) {
+    return {std::int32_t(node->topology), std::int32_t(node->contour)};
+  }
+  static void setExtra(Extra&, int, const Words&) {}
+  static const ChildDescriptor* const* contourBases(const Lanes<BlockLanes>& s) { return s.parent; }
+  // The child lane l enters at `slot`; false where it is the lane's hit.
+  static bool child(const Lanes<BlockLanes>& s, int l, int slot, Node& child) {
+    return BlockDescent::child(s.parent[l], BlockDescent::read(s.parent[l], 0), slot, 0, child);
+  }
+  static bool contour(const Lanes<BlockLanes>& s, int l, int slot, Contour& c) {
+    return BlockDescent::contour(s.parent[l], BlockDescent::read(s.parent[l], 0), slot, 0, c);
+  }
+};
+
+// Level arrays lane by lane (LevelDescent's reading): a lane keeps its parent's LevelDescent::Parent, and
+// its words are made from it: the valid mask, and the children's contour presence bits spread to their
+// slots, with the first child's contour as the contour base.
+struct LevelLanes {
+  using Node = LevelNode;
+  using Hit = LevelCastHit;
+  using Scalar = LevelDescent;
+  struct Words {
+    std::int32_t topology, contour;
+    LevelDescent::Parent parent;
+    const std::uint32_t* contourBase;
+  };
+  static constexpr std::uint32_t kMostChildren = 8;  // a child mask's bits
+  struct Extra {
+    LevelDescent::Parent parent[N];
+    const std::uint32_t* contourBase[N];
+  };
+  static Words wordsOf(Node node, int scale) {
+    const LevelDescent::Parent p = LevelDescent::read(node, scale);
+    const PresentValues<std::uint32_t>& contours = p.children->contours;
+    // The presence bits of the children (at most 8) from the first on; PresentValues keeps a word past the
+    // last voxel's, so the next word may be read.
+    const std::uint32_t first = p.firstChild, shift = first % 64;
+    std::uint64_t present = contours.words[first / 64] >> shift;
+    if (shift > 64 - kMostChildren) present |= contours.words[first / 64 + 1] << (64 - shift);
+    const unsigned bySlot = _pdep_u32(unsigned(present), p.validMask);  // the i-th child's bit to its slot
+    return {std::int32_t(p.validMask) << 8, std::int32_t(bySlot), p,
+            contours.values.data() + contours.rank(first)};
+  }
+  static void setExtra(Extra& e, int l, const Words& w) {
+    e.parent[l] = w.parent;
+    e.contourBase[l] = w.contourBase;
+  }
+  static const std::uint32_t* const* contourBases(const Lanes<LevelLanes>& s) { return s.extra.contourBase; }
+  static bool child(const Lanes<LevelLanes>& s, int l, int slot, Node& child) {
+    return LevelDescent::child(s.parent[l], s.extra.parent[l], slot, 0, child);
+  }
+  static bool contour(const Lanes<LevelLanes>& s, int l, int slot, Contour& c) {
+    return LevelDescent::contour(s.parent[l], s.extra.parent[l], slot, 0, c);
+  }
+};
+
+void castBlockLanes(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
+                    CastHit* hits) {
+  castLanes<BlockLanes>(block.root(), rays, count, options, hits);
+}
+
+// The root's region must have children (castRay's check).
+void castLevelLanes(const LevelRegion& root, const OctreeRay* rays, int count, const CastOptions& options,
+                    LevelCastHit* hits) {
+  castLanes<LevelLanes>(LevelNode{&root, 0}, rays, count, options, hits);
 }

@@ -13,6 +13,8 @@
 #include <string>
 #include <vector>
 
+#include <fmt/format.h>
+
 #include "paging/level_pool.hpp"
 #include "paging/regions.hpp"
 #include "reference.hpp"
@@ -190,6 +192,70 @@ TEST(LevelArrays, CastRaysAsTheBlockDoes) {
     }
     EXPECT_GT(hits, 1000u);
     EXPECT_GT(lodStops, 50u);
+  }
+}
+
+// castPacket over level arrays against castRay over them, ray by ray: the same hit, t, voxel, position,
+// path and iteration count, bit for bit, with each SIMD loop this CPU has. Random rays (incoherent packets,
+// axis-parallel and grazing ones among them) and a camera's pixels in castTile's 4x4 blocks (coherent
+// packets, which descend together), in full packets and in partial ones of 13.
+TEST(LevelArrays, PacketsCastAsCastRay) {
+  const svotest::TempFile store("svo_level_packet", ".svo");
+  svotest::writeSphereAndBoxStore(store.path, 4096);
+  const auto same = [](const svo::LevelCastHit& a, const svo::LevelCastHit& b) {
+    if (a.hit != b.hit || a.iterations != b.iterations) return false;
+    if (!a.hit) return true;
+    if (std::bit_cast<std::uint32_t>(a.t) != std::bit_cast<std::uint32_t>(b.t) || a.scale != b.scale ||
+        !(a.parent == b.parent) || a.childSlot != b.childSlot || a.leaf != b.leaf)
+      return false;
+    for (int i = 0; i < 3; ++i)
+      if (std::bit_cast<std::uint32_t>(a.position[i]) != std::bit_cast<std::uint32_t>(b.position[i]) ||
+          std::bit_cast<std::uint32_t>(a.cubeMin[i]) != std::bit_cast<std::uint32_t>(b.cubeMin[i]))
+        return false;
+    for (int s = a.scale + 1; s < svo::kMaxLevels; ++s)
+      if (!(a.pathParent[s] == b.pathParent[s])) return false;
+    return true;
+  };
+  for (const fs::path& path : {fs::path(SVO_TEST_DATA) / "fixtures" / "sphere-v5.svo",
+                               fs::path(SVO_TEST_DATA) / "fixtures" / "shaded-v5.svo", store.path}) {
+    SCOPED_TRACE(path.string());
+    const svo::StoreReader reader(path);
+    const svo::LevelOctree levels(decodeBoth(reader).levels, reader.header());
+    std::vector<svo::OctreeRay> rays = testRays();
+    const svo::SceneTransform& transform = reader.header().transform;
+    svo::Camera camera = svo::Camera::framing(transform, {-0.35, -0.25, -1.0}, 64, 48);
+    for (const float lod : {0.0f, 1.0f})
+      for (const double closer : {1.0, 0.3}) {
+        svo::Camera c = camera;
+        c.eye = c.target + closer * (c.eye - c.target);
+        const svo::PixelRays pixels(transform, c, lod);
+        for (int y = 0; y < c.height; y += 4)
+          for (int x = 0; x < c.width; x += 4)
+            for (int i = 0; i < 16; ++i) rays.push_back(pixels(x + i % 4, y + i / 4));
+      }
+    std::vector<svo::PacketSimd> loops{svo::PacketSimd::None};
+    for (const svo::PacketSimd simd : {svo::PacketSimd::Avx512, svo::PacketSimd::Avx2})
+      if (svo::cpuHas(simd)) loops.push_back(simd);
+    std::size_t hits = 0;
+    for (const svo::PacketSimd simd : loops)
+      for (const bool contours : {true, false})
+        for (const int lanes : {svo::kPacketLanes, 13}) {
+          SCOPED_TRACE(
+              fmt::format("loop {}, contours {}, packets of {}", svo::nameOf(simd), contours, lanes));
+          svo::CastOptions options;
+          options.contours = contours, options.recordPath = true, options.simd = simd;
+          for (std::size_t first = 0; first < rays.size(); first += std::size_t(lanes)) {
+            const int count = int(std::min<std::size_t>(std::size_t(lanes), rays.size() - first));
+            svo::LevelCastHit packet[svo::kPacketLanes];
+            svo::castPacket(levels.region(), &rays[first], count, options, packet);
+            for (int l = 0; l < count; ++l) {
+              const svo::LevelCastHit single = svo::castRay(levels, rays[first + std::size_t(l)], options);
+              ASSERT_TRUE(same(single, packet[l])) << "ray " << first + std::size_t(l);
+              hits += single.hit;
+            }
+          }
+        }
+    EXPECT_GT(hits, 10000u);
   }
 }
 

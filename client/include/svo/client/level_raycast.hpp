@@ -2,11 +2,13 @@
 // block: the same loop (continueRay), finding a voxel's children by counting the child masks before it and
 // its contour, color and normal by counting presence bits. Its hits, and the values hitAttribute finds for
 // them, are the block's bit for bit on the same octree. The octree may be one region or regions linked at
-// their deepest levels, as a pager holds them. One ray at a time: no packets yet.
+// their deepest levels, as a pager holds them. Rays are cast one at a time or in packets (castPacket).
 #pragma once
 
 #include <bit>
+#include <cassert>
 #include <cstdint>
+#include <cstring>
 #include <vector>
 
 #include "svo/client/raycast.hpp"
@@ -68,6 +70,18 @@ struct IndexedLevel {
  private:
   std::uint32_t voxels_ = 0;
 };
+
+// Inline: the caster asks it on every PUSH and POP.
+static_assert(kChildCountGroup == 8, "firstChild loads a group's masks as one 64-bit word");
+inline std::uint32_t IndexedLevel::firstChild(std::uint32_t i) const {
+  assert(i < voxels_ && !childMasks.empty());
+  const std::uint32_t group = i / kChildCountGroup * kChildCountGroup;
+  std::uint64_t masks;
+  std::memcpy(&masks, childMasks.data() + group, sizeof masks);
+  const unsigned before = 8 * (i - group);  // bits of the masks before voxel i in its group
+  masks = before ? masks & ((std::uint64_t(1) << before) - 1) : 0;
+  return childCounts[i / kChildCountGroup] + std::uint32_t(std::popcount(masks));
+}
 
 // A part of an octree as level arrays: the levels below a cube (or a run of its sub-cubes) from its *base*,
 // the level its first slice's parents are on, down to the deepest level it holds. The base's voxels are a
@@ -151,6 +165,10 @@ inline LevelCastHit castRay(const LevelOctree& octree, const OctreeRay& ray,
                             const CastOptions& options = {}) {
   return castRay(octree.region(), ray, options);
 }
+// castRay for up to kPacketLanes rays at once, in castPacket's SIMD loops (raycast.hpp): each hit is
+// castRay's, bit for bit.
+void castPacket(const LevelRegion& root, const OctreeRay* rays, int count, const CastOptions& options,
+                LevelCastHit* hits);
 
 // The color (ABGR) or normal (cube-encoded bits, format.hpp) a hit voxel shows: its own, else its nearest
 // ancestor's (the root's at the last), as hitAttribute gives it on a raw block of the same store. Needs the

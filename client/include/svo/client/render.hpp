@@ -230,29 +230,33 @@ void forEachTile(int width, int height, int tileSize, int threads,
                  const std::function<void(const PixelTile&)>& trace);
 
 struct IgnoreMiss {
-  void operator()(int, int, const CastHit&) const {}
+  template <class Hit>
+  void operator()(int, int, const Hit&) const {}
 };
 struct IgnorePacket {
-  void operator()(const CastHit*, int) const {}
+  template <class Hit>
+  void operator()(const Hit*, int) const {}
 };
 // Casts the rays of one tile, starting each at the tile's beam bound when `beam` (tiles whose beam meets
 // nothing cast no ray), and calls onHit(x, y, ray, hit) for each hit and onMiss(x, y, hit) for each ray cast
 // that missed. onPacket(hits, count) sees each packet's hits and misses at once, kLag packets before they
 // are handed out (for prefetching; after the last packet, one onPacket(nullptr, 0) before each of the last
-// kLag is). Returns the ray-loop iterations.
-template <int kLag = 0, class OnHit, class OnMiss = IgnoreMiss, class OnPacket = IgnorePacket>
-std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const PixelTile& tile, bool beam,
+// kLag is). Returns the ray-loop iterations. `octree` is a block (BlockView) or level arrays (a LevelRegion,
+// level_raycast.hpp), whose castBeam, castRay and castPacket it calls.
+template <int kLag = 0, class Octree, class OnHit, class OnMiss = IgnoreMiss, class OnPacket = IgnorePacket>
+std::uint64_t castTile(const Octree& octree, const PixelRays& rays, const PixelTile& tile, bool beam,
                        const CastOptions& options, OnHit&& onHit, OnMiss&& onMiss = OnMiss{},
                        OnPacket&& onPacket = OnPacket{}) {
   static_assert(kLag >= 0);
+  using Hit = decltype(castRay(octree, OctreeRay{}, options));
   float tStart = 0.0f;
   if (beam) {
-    tStart = castBeam(block, rays, tile).tStart;
+    tStart = castBeam(octree, rays, tile).tStart;
     if (!(tStart < std::numeric_limits<float>::infinity())) return 0;
   }
   struct Packet {
     OctreeRay rays[kPacketLanes];
-    CastHit hits[kPacketLanes];
+    Hit hits[kPacketLanes];
     int x[kPacketLanes], y[kPacketLanes];
     int count = 0;
   };
@@ -286,13 +290,13 @@ std::uint64_t castTile(const BlockView& block, const PixelRays& rays, const Pixe
             rayAcross[p.count] = across[x0 + dx - x], rayDown[p.count++] = down[dy];
           }
       rays.packet(rayAcross, rayDown, p.count, tStart, p.rays);
-      castPacket(block, p.rays, p.count, options, p.hits);
+      castPacket(octree, p.rays, p.count, options, p.hits);
       onPacket(p.hits, p.count);
       if (++cast > std::uint64_t(kLag)) handOut(packets[(cast - 1 - kLag) % (kLag + 1)]);
     }
   }
   for (std::uint64_t k = cast > std::uint64_t(kLag) ? cast - kLag : 0; k < cast; ++k) {
-    onPacket(nullptr, 0);
+    onPacket(static_cast<const Hit*>(nullptr), 0);
     handOut(packets[k % (kLag + 1)]);
   }
   return iterations;
