@@ -169,8 +169,7 @@ BeamResult castBeam(const BlockView& block, const PixelRays& rays, const PixelTi
 }
 
 BeamResult castBeam(const LevelRegion& root, const PixelRays& rays, const PixelTile& tile) {
-  if (root.levels.empty() || root.levels[0].childMasks.empty())  // the root has no children
-    return {.tStart = std::numeric_limits<float>::infinity()};
+  if (!root.hasChildren()) return {.tStart = std::numeric_limits<float>::infinity()};
   return walkBeam<LevelDescent>(LevelNode{&root, 0}, rays, tile);
 }
 

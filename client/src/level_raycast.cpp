@@ -146,8 +146,7 @@ LevelOctree::LevelOctree(const std::vector<OctreeLevel>& levels, const StoreHead
 
 LevelCastHit castRay(const LevelRegion& root, const OctreeRay& ray, const CastOptions& options) {
   LevelCastHit hit;
-  if (!root.levels.empty() && !root.levels[0].childMasks.empty())  // the root has children
-    castFromRoot(LevelNode{&root, 0}, ray, options, hit, LevelDescent{});
+  if (root.hasChildren()) castFromRoot(LevelNode{&root, 0}, ray, options, hit, LevelDescent{});
   return hit;
 }
 

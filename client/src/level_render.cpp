@@ -3,7 +3,6 @@
 // the same hits give the same pixels.
 #include <atomic>
 #include <chrono>
-#include <limits>
 
 #include "frame_shading.hpp"
 #include "svo/client/beam.hpp"

@@ -518,7 +518,7 @@ void castBlockLanes(const BlockView& block, const OctreeRay* rays, int count, co
   castLanes<BlockLanes>(block.root(), rays, count, options, hits);
 }
 
-// The root's region must have children (castRay's check).
+// The root's region must have children (LevelRegion::hasChildren).
 void castLevelLanes(const LevelRegion& root, const OctreeRay* rays, int count, const CastOptions& options,
                     LevelCastHit* hits) {
   castLanes<LevelLanes>(LevelNode{&root, 0}, rays, count, options, hits);

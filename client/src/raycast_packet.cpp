@@ -117,10 +117,10 @@ PacketSimd packetSimdUsed(PacketSimd requested) {
 namespace {
 
 // castPacket on either octree: the widest loop this CPU has that `options` allows (`castAll`: two AVX-512
-// registers' lanes, `cast16`: one's, `cast8`: AVX2's), else castRay ray by ray (`castOne`).
-template <class Root, class Hit, class CastLanes, class CastOne>
+// registers' lanes, `cast16`: one's, `cast8`: AVX2's), else castRay ray by ray.
+template <class Root, class Hit, class CastLanes>
 void castPacketWith(const Root& root, const OctreeRay* rays, int count, const CastOptions& options, Hit* hits,
-                    CastLanes castAll, CastLanes cast16, CastLanes cast8, CastOne castOne) {
+                    CastLanes castAll, CastLanes cast16, CastLanes cast8) {
   switch (packetSimdUsed(options.simd)) {
     case PacketSimd::Avx512:
       if (count > avx512::kLanes)
@@ -133,7 +133,7 @@ void castPacketWith(const Root& root, const OctreeRay* rays, int count, const Ca
         cast8(root, rays + first, std::min(count - first, avx2::kLanes), options, hits + first);
       return;
     default:
-      for (int l = 0; l < count; ++l) hits[l] = castOne(root, rays[l], options);
+      for (int l = 0; l < count; ++l) hits[l] = castRay(root, rays[l], options);
   }
 }
 
@@ -142,21 +142,17 @@ void castPacketWith(const Root& root, const OctreeRay* rays, int count, const Ca
 void castPacket(const BlockView& block, const OctreeRay* rays, int count, const CastOptions& options,
                 CastHit* hits) {
   castPacketWith(block, rays, count, options, hits, avx512x2::castBlockLanes, avx512::castBlockLanes,
-                 avx2::castBlockLanes, [](const BlockView& b, const OctreeRay& ray, const CastOptions& o) {
-                   return castRay(b, ray, o);
-                 });
+                 avx2::castBlockLanes);
 }
 
 void castPacket(const LevelRegion& root, const OctreeRay* rays, int count, const CastOptions& options,
                 LevelCastHit* hits) {
-  if (root.levels.empty() || root.levels[0].childMasks.empty()) {  // the root has no children: no hit
+  if (!root.hasChildren()) {  // no hit
     std::fill_n(hits, count, LevelCastHit{});
     return;
   }
   castPacketWith(root, rays, count, options, hits, avx512x2::castLevelLanes, avx512::castLevelLanes,
-                 avx2::castLevelLanes, [](const LevelRegion& r, const OctreeRay& ray, const CastOptions& o) {
-                   return castRay(r, ray, o);
-                 });
+                 avx2::castLevelLanes);
 }
 
 }  // namespace svo

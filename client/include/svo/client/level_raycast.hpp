@@ -100,6 +100,8 @@ struct LevelRegion {
   std::vector<Link> links;  // sorted, disjoint
 
   int deepestLevel() const { return baseLevel + int(levels.size()) - 1; }
+  // Whether its base has children to descend into (a descent from the root region asks first).
+  bool hasChildren() const { return !levels.empty() && !levels[0].childMasks.empty(); }
   // The region entered at deepest-level voxel i, if one is linked there.
   const Link* linkAt(std::uint32_t i) const;
   std::size_t bytes() const;
